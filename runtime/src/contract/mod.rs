@@ -1,0 +1,1 @@
+//! Contract-Net protocol logic (transport-free).
