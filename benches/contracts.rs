@@ -1,1 +1,88 @@
-fn main() {}
+//! `decide_N`: deciding one query among N candidate proposals
+//! (`hng_runtime::contract::select_best`). Budget: < 5 ms for N = 1000.
+
+use std::hint::black_box;
+
+use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
+use std::time::Duration;
+
+use criterion::BatchSize;
+use hng_runtime::contract::{
+    AgentConfig, ContractAgent, Envelope, Message, ModuleId, Proposal, Propose, select_best,
+};
+
+/// Deterministic pseudo-random values in [-1, 2) (no RNG dependency).
+fn proposals(n: usize) -> Vec<Proposal> {
+    let mut x: u64 = 0x9E37_79B9_7F4A_7C15;
+    (0..n)
+        .map(|i| {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            let value = (x >> 11) as f64 / (1u64 << 53) as f64 * 3.0 - 1.0;
+            Proposal {
+                provider: ModuleId(i as u32),
+                value,
+                channel: format!("{i}/Localization"),
+            }
+        })
+        .collect()
+}
+
+fn decide(c: &mut Criterion) {
+    let mut group = c.benchmark_group("decide_N");
+    for n in [10usize, 100, 1000] {
+        let props = proposals(n);
+        group.bench_with_input(BenchmarkId::from_parameter(n), &props, |b, p| {
+            b.iter(|| select_best(black_box(p)).map(|best| best.provider))
+        });
+    }
+    group.finish();
+}
+
+/// The whole decision inside a Manager's agent: N `Propose` messages handled,
+/// then the deadline tick that accepts the best and rejects the N-1 others.
+fn decide_agent(c: &mut Criterion) {
+    let mut group = c.benchmark_group("decide_N_agent");
+    for n in [10usize, 100, 1000] {
+        let props = proposals(n);
+        let setup = || {
+            let cfg = AgentConfig::manager(ModuleId(u32::MAX), &["Localization"]);
+            let mut m = ContractAgent::new(cfg).expect("valid manager config");
+            let call = m.tick(Duration::ZERO);
+            assert_eq!(call.len(), 1, "one call for proposals");
+            let envs: Vec<Envelope> = props
+                .iter()
+                .map(|p| Envelope {
+                    from: p.provider,
+                    body: Message::Propose(Propose {
+                        query_id: 1,
+                        need: 1,
+                        value: p.value,
+                        channel: p.channel.clone(),
+                    }),
+                })
+                .collect();
+            (m, envs)
+        };
+        group.bench_function(BenchmarkId::from_parameter(n), |b| {
+            b.iter_batched(
+                setup,
+                |(mut m, envs)| {
+                    let t = Duration::from_millis(1);
+                    for e in &envs {
+                        black_box(m.handle(e, t));
+                    }
+                    let out = m.tick(Duration::from_millis(60));
+                    assert_eq!(out.len(), envs.len(), "1 accept + N-1 rejects");
+                    m.provider(1)
+                },
+                BatchSize::LargeInput,
+            )
+        });
+    }
+    group.finish();
+}
+
+criterion_group!(benches, decide, decide_agent);
+criterion_main!(benches);

@@ -1,4 +1,27 @@
-//! hng runtime: the module SDK, zero-copy data plane, clock, contracts and checkpoints.
+//! hng runtime: the module SDK, the zero-copy data plane, the common clock, contracts and
+//! checkpoints. A module author needs only this crate.
+//!
+//! - [`msg`]: fixed-size robotics messages (REP-103 units and frames) and slice headers.
+//! - [`channel`]: typed publish/subscribe over iceoryx2 shared memory.
+//! - [`wait`]: waiting on many inputs without polling (adaptive spin, then sleep).
+//! - [`module`]: the [`Module`] trait and [`run_module`].
+//! - [`clock`]: the common clock (wall or simulated).
+//! - [`contract`]: the Contract-Net protocol logic.
+//! - [`checkpoint`]: atomic, checksummed checkpoint files.
 
+pub mod channel;
 pub mod checkpoint;
+pub mod clock;
 pub mod contract;
+mod error;
+pub mod module;
+pub mod msg;
+pub mod qos;
+pub mod shm;
+pub mod stats;
+pub mod wait;
+mod wake;
+
+pub use channel::{Node, NodeOptions, Publisher, SlicePublisher, SliceSubscriber, Subscriber};
+pub use error::Error;
+pub use module::{Context, Module, ModuleResult, RunOptions, TimerId, run_module, run_module_with};

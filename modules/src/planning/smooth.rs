@@ -1,0 +1,123 @@
+//! Path simplification: greedy line-of-sight shortcutting of a grid path.
+
+use super::astar::{GridPath, PlannerConfig};
+use super::grid::OccupancyGrid;
+
+/// Whether the straight segment between the centres of cells `a` and `b`
+/// crosses only passable cells. Conservative: every cell the segment touches
+/// is checked, and where the segment passes exactly through a cell corner both
+/// cells beside the corner must be passable (the same no-corner-cutting rule as
+/// the planner).
+pub fn line_of_sight(grid: &OccupancyGrid, cfg: &PlannerConfig, a: (i64, i64), b: (i64, i64)) -> bool {
+    let pass = |x: i64, y: i64| grid.get(x, y).is_some_and(|v| cfg.passable(v));
+    let (mut x, mut y) = a;
+    if !pass(x, y) {
+        return false;
+    }
+    let dx = b.0 - a.0;
+    let dy = b.1 - a.1;
+    let (nx, ny) = (dx.abs(), dy.abs());
+    let sx = dx.signum();
+    let sy = dy.signum();
+    // Integer supercover traversal from centre to centre: compare the
+    // crossing parameters (2*ix+1)/(2*nx) and (2*iy+1)/(2*ny) exactly.
+    let (mut ix, mut iy) = (0i64, 0i64);
+    while ix < nx || iy < ny {
+        let cmp = (2 * ix + 1) * ny - (2 * iy + 1) * nx;
+        if cmp == 0 {
+            // Passes exactly through a corner: both side cells must be free.
+            if !pass(x + sx, y) || !pass(x, y + sy) {
+                return false;
+            }
+            x += sx;
+            y += sy;
+            ix += 1;
+            iy += 1;
+        } else if cmp < 0 {
+            x += sx;
+            ix += 1;
+        } else {
+            y += sy;
+            iy += 1;
+        }
+        if !pass(x, y) {
+            return false;
+        }
+    }
+    true
+}
+
+/// Reduces a grid path to waypoints (map-frame cell centres) such that each
+/// consecutive pair has [`line_of_sight`]. The first and last points are the
+/// path's start and goal. The raw path in `path` is left untouched.
+pub fn simplify(grid: &OccupancyGrid, cfg: &PlannerConfig, path: &GridPath) -> Vec<[f64; 2]> {
+    let cells = &path.cells;
+    let mut out = Vec::new();
+    let Some(&first) = cells.first() else {
+        return out;
+    };
+    let c = |p: (u32, u32)| (p.0 as i64, p.1 as i64);
+    out.push(grid.cell_to_world(first.0 as i64, first.1 as i64));
+    let mut anchor = 0usize;
+    while anchor + 1 < cells.len() {
+        // Walk forward while the anchor still sees the path cell; a path
+        // neighbour always qualifies. Linear in the path length times the
+        // segment length (scanning back from the goal would be quadratic).
+        let mut next = anchor + 1;
+        for j in anchor + 2..cells.len() {
+            if !line_of_sight(grid, cfg, c(cells[anchor]), c(cells[j])) {
+                break;
+            }
+            next = j;
+        }
+        let p = cells[next];
+        out.push(grid.cell_to_world(p.0 as i64, p.1 as i64));
+        anchor = next;
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::planning::astar::GridPlanner;
+    use crate::planning::grid::{FREE, OCCUPIED};
+
+    #[test]
+    fn open_field_collapses_to_two_points() {
+        let g = OccupancyGrid::new(20, 20, 1.0, [0.0, 0.0], FREE).expect("grid");
+        let cfg = PlannerConfig::default();
+        let mut p = GridPlanner::new(cfg);
+        let path = p.plan_cells(&g, (0, 0), (19, 7)).expect("path");
+        let wp = simplify(&g, &cfg, &path);
+        assert_eq!(wp, vec![[0.5, 0.5], [19.5, 7.5]]);
+    }
+
+    #[test]
+    fn waypoints_keep_clear_of_walls() {
+        let mut g = OccupancyGrid::new(20, 20, 1.0, [0.0, 0.0], FREE).expect("grid");
+        for y in 0..15 {
+            g.set(10, y, OCCUPIED);
+        }
+        let cfg = PlannerConfig::default();
+        let mut p = GridPlanner::new(cfg);
+        let path = p.plan_cells(&g, (2, 2), (18, 2)).expect("path");
+        let wp = simplify(&g, &cfg, &path);
+        assert!(wp.len() >= 3, "{wp:?}");
+        for w in wp.windows(2) {
+            let a = g.world_to_cell(w[0][0], w[0][1]);
+            let b = g.world_to_cell(w[1][0], w[1][1]);
+            assert!(line_of_sight(&g, &cfg, a, b));
+        }
+    }
+
+    #[test]
+    fn corner_touching_segment_is_rejected() {
+        let mut g = OccupancyGrid::new(3, 3, 1.0, [0.0, 0.0], FREE).expect("grid");
+        g.set(1, 0, OCCUPIED);
+        let cfg = PlannerConfig::default();
+        assert!(!line_of_sight(&g, &cfg, (0, 0), (1, 1)));
+        assert!(line_of_sight(&g, &cfg, (0, 1), (2, 2)));
+        assert!(!line_of_sight(&g, &cfg, (0, 0), (2, 0)));
+    }
+}

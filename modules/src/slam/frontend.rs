@@ -1,0 +1,187 @@
+//! The SLAM front end: odometry prior + scan-to-local-map matching, with a
+//! global log-odds map on the side.
+
+use std::collections::VecDeque;
+
+use nalgebra::{Isometry2, Matrix3, Point2, Vector2};
+
+use super::carmen::LaserConfig;
+use super::mapping::{LogOddsMap, MapperConfig};
+use super::matcher::{MatcherConfig, ReferenceMap, match_scan, scan_normals};
+
+/// Front-end parameters.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SlamConfig {
+    /// Beam geometry.
+    pub laser: LaserConfig,
+    /// Scan matcher.
+    pub matcher: MatcherConfig,
+    /// Global log-odds map.
+    pub mapper: MapperConfig,
+    /// Scans kept in the local map matched against. Default 15.
+    pub local_map_scans: usize,
+    /// Local-map points farther than this from the prior are not used (m). Default 20.
+    pub local_map_radius: f64,
+    /// Beams longer than this are not matched (m). Default 25.
+    pub match_max_range: f64,
+    /// Below this match score the odometry prior is kept instead. Default 0.15.
+    pub min_score: f64,
+    /// Odometry noise: translational std per metre travelled. Default 0.1.
+    pub odom_trans_noise: f64,
+    /// Odometry noise: rotational std per radian turned. Default 0.1.
+    pub odom_rot_noise: f64,
+}
+
+impl Default for SlamConfig {
+    fn default() -> Self {
+        Self {
+            laser: LaserConfig::default(),
+            matcher: MatcherConfig::default(),
+            mapper: MapperConfig::default(),
+            local_map_scans: 15,
+            local_map_radius: 20.0,
+            match_max_range: 25.0,
+            min_score: 0.15,
+            odom_trans_noise: 0.1,
+            odom_rot_noise: 0.1,
+        }
+    }
+}
+
+/// How a pose estimate was obtained.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum EstimateSource {
+    /// First scan, or no usable points: the prior is returned.
+    Prior,
+    /// Scan matched against the local map.
+    Matched,
+    /// Match too weak: the odometry prior is kept.
+    OdometryFallback,
+}
+
+/// One pose estimate of the front end.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PoseEstimate {
+    /// Sensor pose in the map frame.
+    pub pose: Isometry2<f64>,
+    /// Covariance of (x, y, θ).
+    pub covariance: Matrix3<f64>,
+    /// Self-evaluated quality in [−1, 1] (the HNG module working quality):
+    /// `2·score − 1` when matched, where `score` is the mean likelihood of the
+    /// scan points on the local map (1 = every point on mapped structure,
+    /// 0.5 = half of them); 0 when it cannot be evaluated (first scan), and
+    /// `min(2·score − 1, −0.5)` when the match was rejected.
+    pub quality: f64,
+    /// Match score in [0, 1] (0 if not matched).
+    pub score: f64,
+    /// Where the pose came from.
+    pub source: EstimateSource,
+}
+
+/// Odometry-prior plus scan-to-map SLAM front end.
+#[derive(Debug, Clone)]
+pub struct SlamFrontEnd {
+    cfg: SlamConfig,
+    pose: Isometry2<f64>,
+    /// Recent scans: map-frame points and normals.
+    local: VecDeque<Vec<(Vector2<f64>, Option<Vector2<f64>>)>>,
+    map: LogOddsMap,
+    scans: usize,
+}
+
+impl SlamFrontEnd {
+    /// A front end starting at `initial_pose` with an empty map.
+    pub fn new(cfg: SlamConfig, initial_pose: Isometry2<f64>) -> Self {
+        Self {
+            cfg,
+            pose: initial_pose,
+            local: VecDeque::new(),
+            map: LogOddsMap::new(cfg.mapper),
+            scans: 0,
+        }
+    }
+
+    /// Current pose estimate.
+    pub fn pose(&self) -> &Isometry2<f64> {
+        &self.pose
+    }
+
+    /// The global log-odds map built so far.
+    pub fn map(&self) -> &LogOddsMap {
+        &self.map
+    }
+
+    /// Scans processed.
+    pub fn scans(&self) -> usize {
+        self.scans
+    }
+
+    fn odom_covariance(&self, delta: &Isometry2<f64>) -> Matrix3<f64> {
+        let t = delta.translation.vector.norm();
+        let r = delta.rotation.angle().abs();
+        let st = (self.cfg.odom_trans_noise * t).max(0.01);
+        let sr = (self.cfg.odom_rot_noise * r).max(0.2f64.to_radians());
+        Matrix3::from_diagonal(&nalgebra::Vector3::new(st * st, st * st, sr * sr))
+    }
+
+    /// Processes one scan: `odom_delta` is the odometry motion since the
+    /// previous scan (sensor frame), `ranges` the readings.
+    pub fn process(&mut self, odom_delta: &Isometry2<f64>, ranges: &[f32]) -> PoseEstimate {
+        let prior = self.pose * odom_delta;
+        let all = self.cfg.laser.points(ranges);
+        let pts: Vec<Vector2<f64>> = all
+            .iter()
+            .filter(|p| p.norm() <= self.cfg.match_max_range)
+            .copied()
+            .collect();
+        let center = prior.translation.vector;
+        let r2 = self.cfg.local_map_radius * self.cfg.local_map_radius;
+        let (local_pts, local_normals): (Vec<_>, Vec<_>) = self
+            .local
+            .iter()
+            .flatten()
+            .filter(|(p, _)| (p - center).norm_squared() <= r2)
+            .copied()
+            .unzip();
+        let m = &self.cfg.matcher;
+        let matched = ReferenceMap::build(local_pts, local_normals, m)
+            .and_then(|reference| match_scan(&reference, &pts, &prior, m));
+        let est = match matched {
+            None => PoseEstimate {
+                pose: prior,
+                covariance: self.odom_covariance(odom_delta),
+                quality: 0.0,
+                score: 0.0,
+                source: EstimateSource::Prior,
+            },
+            Some(r) if r.score >= self.cfg.min_score => PoseEstimate {
+                pose: r.pose,
+                covariance: r.covariance,
+                quality: (2.0 * r.score - 1.0).clamp(-1.0, 1.0),
+                score: r.score,
+                source: EstimateSource::Matched,
+            },
+            Some(r) => PoseEstimate {
+                pose: prior,
+                covariance: self.odom_covariance(odom_delta),
+                quality: (2.0 * r.score - 1.0).clamp(-1.0, -0.5),
+                score: r.score,
+                source: EstimateSource::OdometryFallback,
+            },
+        };
+        self.pose = est.pose;
+        let rot = est.pose.rotation;
+        self.local.push_back(
+            pts.iter()
+                .zip(scan_normals(&pts))
+                .map(|(p, n)| ((est.pose * Point2::from(*p)).coords, n.map(|n| rot * n)))
+                .collect(),
+        );
+        while self.local.len() > self.cfg.local_map_scans.max(1) {
+            self.local.pop_front();
+        }
+        self.map.integrate(&est.pose, &all);
+        self.scans += 1;
+        est
+    }
+}

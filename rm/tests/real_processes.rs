@@ -1,0 +1,450 @@
+//! Tests with real processes and real cgroups. Each test creates its own cgroup run
+//! (`hng/test-<name>-<pid>-<ns>`), and kills, reaps and removes everything it created,
+//! also when an assertion fails (drop guards). Tests that need a writable cgroup
+//! controller print `SKIP: <reason>` and return when there is none.
+
+use std::io::{BufRead, BufReader};
+use std::os::unix::process::{CommandExt, ExitStatusExt};
+use std::process::{Child, ChildStdout, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use hng_rm::cgroup::{CgroupRun, CgroupSupport, Controller, ModuleCgroup, unique_run_id};
+use hng_rm::limits::{Cap, LimitedResource, ResourceLimits, SoftwareEnforcer};
+use hng_rm::sampler::{CpuSource, Liveness, ModuleTarget, Sampler, SamplerConfig};
+
+/// Kills and reaps the child on drop.
+struct Proc(Child);
+
+impl Proc {
+    fn pid(&self) -> i32 {
+        i32::try_from(self.0.id()).expect("pid fits i32")
+    }
+
+    /// Blocks until the child printed a line (it says it is ready).
+    fn wait_ready(&mut self) -> String {
+        let out: &mut ChildStdout = self.0.stdout.as_mut().expect("stdout piped");
+        let mut line = String::new();
+        BufReader::new(out)
+            .read_line(&mut line)
+            .expect("read ready line");
+        line
+    }
+}
+
+impl Drop for Proc {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+/// Spawns `cmd` placed in `cg` from the pre-exec hook.
+fn spawn_in(cg: Option<&ModuleCgroup>, cmd: &mut Command) -> Proc {
+    if let Some(cg) = cg {
+        let placement = cg.placement().expect("open cgroup.procs");
+        // SAFETY: place_self only calls getpid and write (async-signal-safe).
+        unsafe {
+            cmd.pre_exec(move || placement.place_self());
+        }
+    }
+    Proc(cmd.stdout(Stdio::piped()).spawn().expect("spawn"))
+}
+
+fn support_with(controllers: &[Controller]) -> Option<CgroupSupport> {
+    let s = CgroupSupport::detect();
+    let missing: Vec<&str> = controllers
+        .iter()
+        .filter(|c| !s.has(**c))
+        .map(|c| c.name())
+        .collect();
+    if missing.is_empty() {
+        Some(s)
+    } else {
+        println!(
+            "SKIP: no writable cgroup controller {missing:?} ({})",
+            s.describe()
+        );
+        None
+    }
+}
+
+fn python3() -> Option<&'static str> {
+    let ok = Command::new("python3")
+        .arg("-c")
+        .arg("pass")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success());
+    if ok {
+        Some("python3")
+    } else {
+        println!("SKIP: python3 not available");
+        None
+    }
+}
+
+/// Measures the CPU % of one target over `wall` of wall time.
+fn measure(sampler: &mut Sampler, name: &str, wall: Duration) -> (f64, CpuSource) {
+    sampler.sample(Instant::now());
+    std::thread::sleep(wall);
+    sampler.sample(Instant::now());
+    let s = sampler.get(name).expect("sampled");
+    assert_eq!(s.liveness, Liveness::Alive, "{s:?}");
+    (
+        s.cpu_percent.expect("two samples give a CPU %"),
+        s.cpu_source,
+    )
+}
+
+/// (a) A CPU hog with a 20% quota measures between 15 and 25% over a few seconds.
+#[test]
+fn cpu_hog_with_20_percent_quota_measures_15_to_25() {
+    let Some(support) = support_with(&[Controller::Cpu]) else {
+        return;
+    };
+    let run = CgroupRun::create(&support, "test-cpuquota", &unique_run_id()).expect("run");
+    let cg = run.module("hog").expect("module cgroup");
+    let applied = cg.apply_limits(&ResourceLimits {
+        cpu_percent: Some(20.0),
+        ..Default::default()
+    });
+    assert_eq!(applied.cpu, Cap::Kernel, "{applied:?}");
+    let mut hog = spawn_in(
+        Some(&cg),
+        Command::new("sh").args(["-c", "echo ready; while :; do :; done"]),
+    );
+    hog.wait_ready();
+    assert!(cg.pids().expect("pids").contains(&hog.pid()));
+
+    let mut sampler = Sampler::new(SamplerConfig::default()).expect("sampler");
+    sampler
+        .add(ModuleTarget::new("hog", hog.pid()).with_cgroup_cpu(cg.cpu_counter()))
+        .expect("add");
+    let (cpu, source) = measure(&mut sampler, "hog", Duration::from_secs(3));
+    println!("20% quota: measured {cpu:.1}% ({source:?})");
+    assert!((15.0..=25.0).contains(&cpu), "measured {cpu:.1}%");
+    if support.has(Controller::Cpuacct) {
+        assert_eq!(source, CpuSource::Cgroup);
+    }
+
+    cg.kill_all().expect("kill group");
+    let status = hog.0.wait().expect("wait hog");
+    assert_eq!(status.signal(), Some(libc::SIGKILL));
+    // stat is read every `cgroup_stat_every` passes for a cgroup module: the exit shows
+    // within that many passes.
+    let every = sampler.config().cgroup_stat_every;
+    let exited_after = (1..=every).find(|_| {
+        sampler.sample(Instant::now());
+        sampler
+            .get("hog")
+            .is_some_and(|s| s.liveness == Liveness::Exited)
+    });
+    assert!(
+        exited_after.is_some(),
+        "exit not seen within {every} passes"
+    );
+    cg.remove().expect("remove module cgroup");
+    run.remove().expect("remove run");
+}
+
+/// Burns `FRACTION` of one core: whenever its CPU time (CLOCK_PROCESS_CPUTIME_ID) is
+/// behind `FRACTION` × wall time since start it burns in ~1 ms slices, else it sleeps
+/// 5 ms. Catching up keeps the average right even when the machine is busy, as long as
+/// the process gets `FRACTION` of a core (the machine this runs on has 2 cores shared
+/// by several compilers, hence 30% rather than 50%).
+const DUTY_CYCLE: &str = r#"
+import sys, time
+frac = float(sys.argv[1])
+print("ready", flush=True)
+w0 = time.monotonic()
+c0 = time.process_time()
+while True:
+    if time.process_time() - c0 >= frac * (time.monotonic() - w0):
+        time.sleep(0.005)
+    else:
+        c = time.process_time()
+        while time.process_time() - c < 0.001:
+            pass
+"#;
+const FRACTION: f64 = 0.30;
+
+/// (b) The CPU % of a process burning a known fraction of a core is right within 5
+/// points, from /proc/PID/stat and, when available, from its cgroup.
+#[test]
+fn duty_cycle_is_measured_within_5_points() {
+    let Some(py) = python3() else {
+        return;
+    };
+    let support = CgroupSupport::detect();
+    let run = CgroupRun::create(&support, "test-duty", &unique_run_id()).expect("run");
+    let cg = run.module("duty").expect("module cgroup");
+    let mut p = spawn_in(
+        cg.is_real().then_some(&cg),
+        Command::new(py).args(["-c", DUTY_CYCLE, &FRACTION.to_string()]),
+    );
+    p.wait_ready();
+    let mut sampler = Sampler::new(SamplerConfig::default()).expect("sampler");
+    sampler
+        .add(ModuleTarget::new("proc", p.pid()))
+        .expect("add proc");
+    let counter = cg.cpu_counter();
+    let has_cg = counter.is_some();
+    if has_cg {
+        sampler
+            .add(ModuleTarget::new("cg", p.pid()).with_cgroup_cpu(counter))
+            .expect("add cgroup");
+    } else {
+        println!(
+            "note: no cgroup CPU counter ({}), /proc only",
+            support.describe()
+        );
+    }
+    sampler.sample(Instant::now());
+    std::thread::sleep(Duration::from_secs(4));
+    sampler.sample(Instant::now());
+    let proc_cpu = sampler
+        .get("proc")
+        .and_then(|s| s.cpu_percent)
+        .expect("cpu from /proc");
+    let want = FRACTION * 100.0;
+    println!("{want}% duty cycle: /proc/PID/stat {proc_cpu:.1}%");
+    assert!(
+        (proc_cpu - want).abs() <= 5.0,
+        "measured {proc_cpu:.1}%, want {want}%"
+    );
+    if has_cg {
+        let s = sampler.get("cg").expect("cg sample");
+        assert_eq!(s.cpu_source, CpuSource::Cgroup);
+        let cg_cpu = s.cpu_percent.expect("cpu from cgroup");
+        println!("{want}% duty cycle: cgroup {cg_cpu:.1}%");
+        assert!(
+            (cg_cpu - want).abs() <= 5.0,
+            "measured {cg_cpu:.1}%, want {want}%"
+        );
+    }
+    drop(p);
+    cg.remove().expect("remove module cgroup");
+    run.remove().expect("remove run");
+}
+
+/// (c) A memory hog over its cgroup memory limit is OOM-killed and the kill is read back.
+#[test]
+fn memory_hog_over_limit_is_oom_killed_and_read_back() {
+    let Some(support) = support_with(&[Controller::Memory]) else {
+        return;
+    };
+    let Some(py) = python3() else {
+        return;
+    };
+    let run = CgroupRun::create(&support, "test-oom", &unique_run_id()).expect("run");
+    let cg = run.module("hog").expect("module cgroup");
+    let applied = cg.apply_limits(&ResourceLimits {
+        memory_bytes: Some(64 << 20),
+        pids: Some(16),
+        ..Default::default()
+    });
+    assert_eq!(applied.memory, Cap::Kernel, "{applied:?}");
+    assert_eq!(applied.pids, Cap::Kernel, "{applied:?}");
+    assert_eq!(cg.oom_kills().expect("read oom counter"), Some(0));
+    // Writes every byte of 256 MiB; exits 0 if it is not killed.
+    let mut hog = spawn_in(
+        Some(&cg),
+        Command::new(py).args(["-c", "b = b'x' * (256 << 20); print(len(b))"]),
+    );
+    let status = hog.0.wait().expect("wait for the hog");
+    assert_eq!(
+        status.signal(),
+        Some(libc::SIGKILL),
+        "hog was not OOM-killed: {status:?}"
+    );
+    let kills = cg.oom_kills().expect("read oom counter");
+    println!("OOM kills read back: {kills:?}");
+    assert!(kills.is_some_and(|k| k >= 1), "{kills:?}");
+    cg.remove().expect("remove module cgroup");
+    run.remove().expect("remove run");
+}
+
+/// Placement from the pre-exec hook puts the child (and what it forks) in the group;
+/// `kill_all` kills them all; the cgroups are removed afterwards.
+#[test]
+fn placement_kill_all_and_teardown() {
+    let Some(support) = support_with(&[Controller::Pids]) else {
+        return;
+    };
+    let run = CgroupRun::create(&support, "test-kill", &unique_run_id()).expect("run");
+    let cg = run.module("family").expect("module cgroup");
+    let mut sh = spawn_in(
+        Some(&cg),
+        Command::new("sh").args(["-c", "sleep 100 & sleep 100 & echo ready; wait"]),
+    );
+    sh.wait_ready();
+    let pids = cg.pids().expect("pids");
+    assert!(pids.contains(&sh.pid()), "{pids:?}");
+    assert_eq!(pids.len(), 3, "sh and two sleeps: {pids:?}");
+    // The module cgroup is the one in /proc/PID/cgroup for every placed controller.
+    let own = std::fs::read_to_string(format!("/proc/{}/cgroup", sh.pid())).expect("cgroup");
+    assert!(own.contains(&format!("{}/family", run.name())), "{own}");
+
+    // Busy: cannot be removed while it holds processes.
+    let busy = run.module("family").expect("same cgroup again");
+    let err = busy.remove().expect_err("must refuse a populated cgroup");
+    assert!(err.to_string().contains("still holds processes"), "{err}");
+
+    cg.kill_all().expect("kill all");
+    let status = sh.0.wait().expect("wait sh");
+    assert_eq!(status.signal(), Some(libc::SIGKILL));
+    // The sleeps were SIGKILLed too; they are not our children, so wait for the group
+    // to empty (bounded) before removing it.
+    let deadline = Instant::now() + Duration::from_secs(5);
+    while !cg.pids().expect("pids").is_empty() {
+        assert!(
+            Instant::now() < deadline,
+            "group not empty: {:?}",
+            cg.pids()
+        );
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    let dirs: Vec<_> = cg.dirs().map(std::path::Path::to_path_buf).collect();
+    cg.remove().expect("remove module cgroup");
+    run.remove().expect("remove run");
+    for d in dirs {
+        assert!(!d.exists(), "{} left behind", d.display());
+    }
+}
+
+/// A cap the kernel cannot take is a software cap with a reason, never a panic.
+#[test]
+fn refused_cap_falls_back_to_software() {
+    let Some(support) = support_with(&[Controller::Cpu]) else {
+        return;
+    };
+    let run = CgroupRun::create(&support, "test-refuse", &unique_run_id()).expect("run");
+    let cg = run.module("tiny").expect("module cgroup");
+    let req = ResourceLimits {
+        cpu_percent: Some(0.05),
+        ..Default::default()
+    };
+    let applied = cg.apply_limits(&req);
+    match &applied.cpu {
+        Cap::Software { reason } => assert!(reason.contains("minimum"), "{reason}"),
+        other => panic!("expected a software cap, got {other:?}"),
+    }
+    assert_eq!(applied.software_limits(&req).cpu_percent, Some(0.05));
+    // 0.5% is under 1 ms per 100 ms but fits with a longer period.
+    let applied = cg.apply_limits(&ResourceLimits {
+        cpu_percent: Some(0.5),
+        ..Default::default()
+    });
+    assert_eq!(applied.cpu, Cap::Kernel);
+    cg.remove().expect("remove");
+    run.remove().expect("remove run");
+}
+
+/// Without cgroups: measuring only, and the software check flags a module over its
+/// memory limit so the caller can stop it ("over limit").
+#[test]
+fn software_enforcement_without_cgroups() {
+    let Some(py) = python3() else {
+        return;
+    };
+    let support = CgroupSupport::none("forced by the test");
+    let run = CgroupRun::create(&support, "test-soft", &unique_run_id()).expect("run");
+    let cg = run.module("hog").expect("module");
+    let req = ResourceLimits {
+        memory_bytes: Some(32 << 20),
+        ..Default::default()
+    };
+    let applied = cg.apply_limits(&req);
+    assert!(matches!(applied.memory, Cap::Software { .. }));
+    let mut enforcer = SoftwareEnforcer::default();
+    enforcer.set_limits("hog", applied.software_limits(&req));
+    let mut hog = spawn_in(
+        None,
+        Command::new(py).args([
+            "-c",
+            "import time\nb = b'x' * (96 << 20)\nprint('ready', flush=True)\ntime.sleep(60)",
+        ]),
+    );
+    hog.wait_ready();
+    let mut sampler = Sampler::new(SamplerConfig {
+        pss_every: 1,
+        ..SamplerConfig::default()
+    })
+    .expect("sampler");
+    sampler
+        .add(ModuleTarget::new("hog", hog.pid()))
+        .expect("add");
+    let samples = sampler.sample(Instant::now());
+    let s = &samples[0];
+    assert!(s.memory_bytes() > 96 << 20, "{s:?}");
+    let v = enforcer.check(s).expect("over its memory limit");
+    assert_eq!(v.resource, LimitedResource::Memory);
+    println!("{v}");
+    drop(hog);
+    cg.remove().expect("nothing to remove");
+    run.remove().expect("nothing to remove");
+}
+
+/// The cgroup v2 code paths (placement, `cpu.stat` counter, `cgroup.kill`, teardown) on
+/// this process's v2 directory, even without controllers (hybrid machines have an empty
+/// v2 hierarchy beside the v1 controllers).
+#[test]
+fn cgroup_v2_placement_counter_kill_and_teardown() {
+    let Some(base) = CgroupSupport::own_v2_dir() else {
+        println!("SKIP: no cgroup2 file system mounted");
+        return;
+    };
+    let support = match CgroupSupport::with_v2_base(&base) {
+        Ok(s) => s,
+        Err(e) => {
+            println!("SKIP: cgroup v2 at {} not usable: {e}", base.display());
+            return;
+        }
+    };
+    let run = CgroupRun::create(&support, "test-v2", &unique_run_id()).expect("run");
+    let cg = run.module("busy").expect("module cgroup");
+    // Without a cpu controller the cap falls to software, with a reason.
+    let applied = cg.apply_limits(&ResourceLimits {
+        cpu_percent: Some(20.0),
+        ..Default::default()
+    });
+    if !support.has(Controller::Cpu) {
+        assert!(matches!(applied.cpu, Cap::Software { .. }), "{applied:?}");
+    }
+    let mut p = spawn_in(
+        Some(&cg),
+        Command::new("sh").args(["-c", "echo ready; while :; do :; done"]),
+    );
+    p.wait_ready();
+    assert_eq!(cg.pids().expect("pids"), vec![p.pid()]);
+    let mut sampler = Sampler::new(SamplerConfig::default()).expect("sampler");
+    sampler
+        .add(ModuleTarget::new("proc", p.pid()))
+        .expect("add");
+    sampler
+        .add(ModuleTarget::new("cg", p.pid()).with_cgroup_cpu(cg.cpu_counter()))
+        .expect("add cg");
+    sampler.sample(Instant::now());
+    std::thread::sleep(Duration::from_secs(2));
+    sampler.sample(Instant::now());
+    let by_proc = sampler
+        .get("proc")
+        .and_then(|s| s.cpu_percent)
+        .expect("cpu");
+    let s = sampler.get("cg").expect("cg sample");
+    assert_eq!(s.cpu_source, CpuSource::Cgroup);
+    let by_cg = s.cpu_percent.expect("cpu");
+    println!("v2: /proc {by_proc:.1}%, cpu.stat {by_cg:.1}%");
+    assert!(by_cg > 10.0, "a busy loop measured {by_cg:.1}%");
+    assert!(
+        (by_proc - by_cg).abs() <= 5.0,
+        "/proc {by_proc:.1}% vs cgroup {by_cg:.1}%"
+    );
+
+    cg.kill_all().expect("cgroup.kill");
+    let status = p.0.wait().expect("wait");
+    assert_eq!(status.signal(), Some(libc::SIGKILL));
+    cg.remove().expect("remove module cgroup");
+    run.remove().expect("remove run");
+}

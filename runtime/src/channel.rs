@@ -1,0 +1,1035 @@
+//! Typed publish/subscribe channels over iceoryx2 shared memory.
+//!
+//! A [`Node`] is one participant (one per module process). It opens channels by name at run
+//! time: [`Node::publisher`] / [`Node::subscriber`] for fixed-size [`Message`]s,
+//! [`Node::slice_publisher`] / [`Node::slice_subscriber`] for variable-size payloads
+//! (occupancy grids, images, bytes) described by a [`SliceMessage`] header. The QoS comes from
+//! the message type ([`crate::qos`]).
+//!
+//! Sending is loan, write in place, publish: [`Publisher::loan`] hands out the shared-memory
+//! sample itself, so nothing is copied however large the message is. [`Publisher::publish`]
+//! is the convenience form that copies a value in. Every publish stamps the header (sequence
+//! number, time from the common clock, source module).
+//!
+//! Beside each data service runs an event service of the same name: a subscriber that has
+//! nothing to do can block on it (see [`crate::wait`]) instead of polling. Publishers notify
+//! only when a subscriber is actually blocked ([`crate::wake`]).
+
+use std::cell::{Cell, RefCell};
+use std::fmt;
+use std::mem::MaybeUninit;
+use std::ops::{Deref, DerefMut};
+use std::rc::{Rc, Weak};
+
+use iceoryx2::node::{Node as IoxNode, NodeBuilder};
+use iceoryx2::port::listener::Listener;
+use iceoryx2::port::notifier::Notifier;
+use iceoryx2::port::publisher::Publisher as IoxPublisher;
+use iceoryx2::port::subscriber::Subscriber as IoxSubscriber;
+use iceoryx2::port::update_connections::UpdateConnections;
+use iceoryx2::prelude::*;
+use iceoryx2::sample::Sample as IoxSample;
+use iceoryx2::sample_mut::SampleMut;
+use iceoryx2::sample_mut_uninit::SampleMutUninit;
+use iceoryx2::service::builder::publish_subscribe::{
+    PublishSubscribeOpenError, PublishSubscribeOpenOrCreateError,
+};
+use serde::Serialize;
+
+use crate::clock::Clock;
+use crate::error::Error;
+use crate::msg::{Header, Message, SliceMessage, module_id};
+use crate::qos::Qos;
+use crate::wake::WakeFlag;
+
+/// The iceoryx2 service flavour hng uses (inter-process, single-threaded ports).
+pub type Service = ipc::Service;
+
+/// Default prefix of every hng file in `/dev/shm` and iceoryx2's folders.
+pub const DEFAULT_PREFIX: &str = "hng_";
+
+/// Message counters of a node, summed over its ports (they feed the module report).
+#[derive(Debug, Default)]
+pub struct Counters {
+    /// Messages received.
+    pub msgs_in: Cell<u64>,
+    /// Messages published.
+    pub msgs_out: Cell<u64>,
+    /// Messages lost (sequence gaps).
+    pub msgs_dropped: Cell<u64>,
+}
+
+impl Counters {
+    fn add(cell: &Cell<u64>, n: u64) {
+        cell.set(cell.get().wrapping_add(n));
+    }
+}
+
+/// Options of a [`Node`].
+#[derive(Debug, Clone)]
+pub struct NodeOptions {
+    /// The node's (module's) name.
+    pub name: String,
+    /// The prefix that isolates one system (or one test) from another.
+    pub prefix: String,
+    /// The clock that stamps messages.
+    pub clock: Clock,
+}
+
+impl NodeOptions {
+    /// Options with the default prefix and the wall clock.
+    pub fn new(name: &str) -> NodeOptions {
+        NodeOptions {
+            name: name.to_string(),
+            prefix: DEFAULT_PREFIX.to_string(),
+            clock: Clock::wall(),
+        }
+    }
+
+    /// Sets the prefix.
+    #[must_use]
+    pub fn prefix(mut self, prefix: &str) -> NodeOptions {
+        self.prefix = prefix.to_string();
+        self
+    }
+
+    /// Sets the clock.
+    #[must_use]
+    pub fn clock(mut self, clock: Clock) -> NodeOptions {
+        self.clock = clock;
+        self
+    }
+}
+
+/// The iceoryx2 configuration of a prefix: hng's files only, signal handling and log noise off.
+pub fn iceoryx_config(prefix: &str) -> Result<iceoryx2::config::Config, Error> {
+    let mut config = iceoryx2::config::Config::default();
+    config.global.prefix = FileName::new(prefix.as_bytes()).map_err(|e| {
+        Error::Config(format!(
+            "prefix {prefix:?} is not a valid file-name prefix: {e:?}"
+        ))
+    })?;
+    Ok(config)
+}
+
+/// Silences iceoryx2's own logging (warnings about missing config files and the like),
+/// unless `HNG_IOX_LOG` asks for a level (`trace`, `debug`, `info`, `warn`, `error`).
+pub fn silence_iceoryx_log() {
+    let level = match std::env::var("HNG_IOX_LOG").as_deref() {
+        Ok("trace") => LogLevel::Trace,
+        Ok("debug") => LogLevel::Debug,
+        Ok("info") => LogLevel::Info,
+        Ok("warn") => LogLevel::Warn,
+        _ => LogLevel::Fatal,
+    };
+    set_log_level(level);
+}
+
+/// One participant in the data plane: a module process, a tool, a test.
+pub struct Node {
+    inner: IoxNode<Service>,
+    name: String,
+    id: u32,
+    prefix: String,
+    clock: Clock,
+    config: iceoryx2::config::Config,
+    counters: Rc<Counters>,
+    state_publishers: RefCell<Vec<Weak<dyn UpdateConnections>>>,
+}
+
+impl fmt::Debug for Node {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("Node")
+            .field("name", &self.name)
+            .field("prefix", &self.prefix)
+            .finish_non_exhaustive()
+    }
+}
+
+impl Node {
+    /// Creates a node. Stale resources of dead nodes under the same prefix are cleaned on the
+    /// way (iceoryx2's dead-node cleanup).
+    pub fn new(opts: NodeOptions) -> Result<Node, Error> {
+        silence_iceoryx_log();
+        let config = iceoryx_config(&opts.prefix)?;
+        let node_name = NodeName::new(&opts.name).map_err(|e| Error::Node {
+            name: opts.name.clone(),
+            detail: format!("invalid node name: {e:?}"),
+        })?;
+        let inner = NodeBuilder::new()
+            .name(&node_name)
+            .config(&config)
+            .signal_handling_mode(SignalHandlingMode::Disabled)
+            .create::<Service>()
+            .map_err(|e| Error::Node {
+                name: opts.name.clone(),
+                detail: format!("{e:?}"),
+            })?;
+        Ok(Node {
+            inner,
+            id: module_id(&opts.name),
+            name: opts.name,
+            prefix: opts.prefix,
+            clock: opts.clock,
+            config,
+            counters: Rc::new(Counters::default()),
+            state_publishers: RefCell::new(Vec::new()),
+        })
+    }
+
+    /// Lets this node's state-channel publishers hand their latest sample to subscribers that
+    /// joined since the last call. iceoryx2 delivers history only when the publisher updates
+    /// its connections; the module executor calls this at every wake-up (it costs one counter
+    /// comparison per publisher when nothing changed). Tools without an executor call it
+    /// themselves.
+    pub fn update_connections(&self) {
+        self.state_publishers
+            .borrow_mut()
+            .retain(|w| match w.upgrade() {
+                Some(p) => {
+                    let _ = p.update_connections();
+                    true
+                }
+                None => false,
+            });
+    }
+
+    fn track_state<P: UpdateConnections + 'static>(
+        &self,
+        kind: crate::qos::ChannelKind,
+        port: &Rc<P>,
+    ) {
+        use crate::qos::ChannelKind;
+        if matches!(kind, ChannelKind::State | ChannelKind::StateBulk) {
+            let weak: Weak<dyn UpdateConnections> =
+                Rc::downgrade(port) as Weak<dyn UpdateConnections>;
+            self.state_publishers.borrow_mut().push(weak);
+        }
+    }
+
+    /// The node's name.
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// The node's module id (stamped into every header it publishes).
+    pub fn id(&self) -> u32 {
+        self.id
+    }
+
+    /// The prefix.
+    pub fn prefix(&self) -> &str {
+        &self.prefix
+    }
+
+    /// The clock.
+    pub fn clock(&self) -> &Clock {
+        &self.clock
+    }
+
+    /// Message counters summed over this node's ports.
+    pub fn counters(&self) -> &Counters {
+        &self.counters
+    }
+
+    /// The underlying iceoryx2 node (for tools that need raw access).
+    pub fn iceoryx(&self) -> &IoxNode<Service> {
+        &self.inner
+    }
+
+    /// The iceoryx2 configuration.
+    pub fn iceoryx_config(&self) -> &iceoryx2::config::Config {
+        &self.config
+    }
+
+    fn service_name(channel: &str) -> Result<ServiceName, Error> {
+        ServiceName::new(channel).map_err(|e| Error::InvalidChannelName {
+            channel: channel.to_string(),
+            reason: format!("{e:?}"),
+        })
+    }
+
+    fn open_error(
+        &self,
+        channel: &str,
+        name: &ServiceName,
+        expected: String,
+        e: PublishSubscribeOpenOrCreateError,
+    ) -> Error {
+        if let PublishSubscribeOpenOrCreateError::PublishSubscribeOpenError(
+            PublishSubscribeOpenError::IncompatibleTypes,
+        ) = e
+        {
+            let found = match <Service as iceoryx2::service::Service>::details(
+                name,
+                &self.config,
+                MessagingPattern::PublishSubscribe,
+            ) {
+                Ok(Some(d)) => {
+                    let t = d.static_details.publish_subscribe().message_type_details();
+                    describe_type(
+                        t.payload.type_name().to_string(),
+                        t.user_header.type_name().to_string(),
+                    )
+                }
+                _ => "an unknown type".to_string(),
+            };
+            return Error::TypeMismatch {
+                channel: channel.to_string(),
+                expected,
+                found,
+            };
+        }
+        Error::channel(channel, "open", e)
+    }
+
+    fn events(
+        &self,
+        channel: &str,
+        name: &ServiceName,
+        qos: Qos,
+    ) -> Result<iceoryx2::service::port_factory::event::PortFactory<Service>, Error> {
+        self.inner
+            .service_builder(name)
+            .event()
+            .max_notifiers(qos.max_publishers)
+            .max_listeners(qos.max_subscribers)
+            .max_nodes(qos.max_publishers + qos.max_subscribers)
+            .open_or_create()
+            .map_err(|e| Error::channel(channel, "open event service", e))
+    }
+
+    /// Opens (or creates) a channel and returns a publisher on it.
+    pub fn publisher<T: Message>(&self, channel: &str) -> Result<Publisher<T>, Error> {
+        let name = Self::service_name(channel)?;
+        let qos = T::KIND.qos();
+        let service = self
+            .inner
+            .service_builder(&name)
+            .publish_subscribe::<T>()
+            .enable_safe_overflow(true)
+            .history_size(qos.history)
+            .subscriber_max_buffer_size(qos.buffer)
+            .subscriber_max_borrowed_samples(qos.borrowed)
+            .max_publishers(qos.max_publishers)
+            .max_subscribers(qos.max_subscribers)
+            .max_nodes(qos.max_publishers + qos.max_subscribers)
+            .open_or_create()
+            .map_err(|e| self.open_error(channel, &name, type_name::<T>(), e))?;
+        let port = service
+            .publisher_builder()
+            .create()
+            .map_err(|e| Error::channel(channel, "create publisher", e))?;
+        let notifier = self
+            .events(channel, &name, qos)?
+            .notifier_builder()
+            .create()
+            .map_err(|e| Error::channel(channel, "create notifier", e))?;
+        let _ = port.update_connections();
+        let port = Rc::new(port);
+        self.track_state(T::KIND, &port);
+        Ok(Publisher {
+            port,
+            out: self.outlet(channel, notifier)?,
+        })
+    }
+
+    /// Opens (or creates) a channel and returns a subscriber on it. On state channels the
+    /// latest sample published before this call is delivered too.
+    pub fn subscriber<T: Message>(&self, channel: &str) -> Result<Subscriber<T>, Error> {
+        let name = Self::service_name(channel)?;
+        let qos = T::KIND.qos();
+        let service = self
+            .inner
+            .service_builder(&name)
+            .publish_subscribe::<T>()
+            .enable_safe_overflow(true)
+            .history_size(qos.history)
+            .subscriber_max_buffer_size(qos.buffer)
+            .subscriber_max_borrowed_samples(qos.borrowed)
+            .max_publishers(qos.max_publishers)
+            .max_subscribers(qos.max_subscribers)
+            .max_nodes(qos.max_publishers + qos.max_subscribers)
+            .open_or_create()
+            .map_err(|e| self.open_error(channel, &name, type_name::<T>(), e))?;
+        let port = service
+            .subscriber_builder()
+            .create()
+            .map_err(|e| Error::channel(channel, "create subscriber", e))?;
+        let listener = self
+            .events(channel, &name, qos)?
+            .listener_builder()
+            .create()
+            .map_err(|e| Error::channel(channel, "create listener", e))?;
+        let _ = port.update_connections();
+        Ok(Subscriber {
+            port: Rc::new(Port::Fixed(port)),
+            inlet: self.inlet(channel, listener)?,
+        })
+    }
+
+    /// Opens (or creates) a variable-size channel and returns a publisher whose samples may
+    /// hold up to `max_len` elements at first; longer loans grow the shared memory
+    /// (power-of-two steps), so every size can be sent.
+    pub fn slice_publisher<H: SliceMessage>(
+        &self,
+        channel: &str,
+        max_len: usize,
+    ) -> Result<SlicePublisher<H>, Error> {
+        let name = Self::service_name(channel)?;
+        let qos = H::KIND.qos();
+        let service = self
+            .inner
+            .service_builder(&name)
+            .publish_subscribe::<[H::Elem]>()
+            .user_header::<H>()
+            .enable_safe_overflow(true)
+            .history_size(qos.history)
+            .subscriber_max_buffer_size(qos.buffer)
+            .subscriber_max_borrowed_samples(qos.borrowed)
+            .max_publishers(qos.max_publishers)
+            .max_subscribers(qos.max_subscribers)
+            .max_nodes(qos.max_publishers + qos.max_subscribers)
+            .open_or_create()
+            .map_err(|e| self.open_error(channel, &name, slice_type_name::<H>(), e))?;
+        let port = service
+            .publisher_builder()
+            .initial_max_slice_len(max_len.max(1))
+            .allocation_strategy(AllocationStrategy::PowerOfTwo)
+            .create()
+            .map_err(|e| Error::channel(channel, "create publisher", e))?;
+        let notifier = self
+            .events(channel, &name, qos)?
+            .notifier_builder()
+            .create()
+            .map_err(|e| Error::channel(channel, "create notifier", e))?;
+        let _ = port.update_connections();
+        let port = Rc::new(port);
+        self.track_state(H::KIND, &port);
+        Ok(SlicePublisher {
+            port,
+            out: self.outlet(channel, notifier)?,
+        })
+    }
+
+    /// Opens (or creates) a variable-size channel and returns a subscriber on it.
+    pub fn slice_subscriber<H: SliceMessage>(
+        &self,
+        channel: &str,
+    ) -> Result<SliceSubscriber<H>, Error> {
+        let name = Self::service_name(channel)?;
+        let qos = H::KIND.qos();
+        let service = self
+            .inner
+            .service_builder(&name)
+            .publish_subscribe::<[H::Elem]>()
+            .user_header::<H>()
+            .enable_safe_overflow(true)
+            .history_size(qos.history)
+            .subscriber_max_buffer_size(qos.buffer)
+            .subscriber_max_borrowed_samples(qos.borrowed)
+            .max_publishers(qos.max_publishers)
+            .max_subscribers(qos.max_subscribers)
+            .max_nodes(qos.max_publishers + qos.max_subscribers)
+            .open_or_create()
+            .map_err(|e| self.open_error(channel, &name, slice_type_name::<H>(), e))?;
+        let port = service
+            .subscriber_builder()
+            .create()
+            .map_err(|e| Error::channel(channel, "create subscriber", e))?;
+        let listener = self
+            .events(channel, &name, qos)?
+            .listener_builder()
+            .create()
+            .map_err(|e| Error::channel(channel, "create listener", e))?;
+        let _ = port.update_connections();
+        Ok(SliceSubscriber {
+            port: Rc::new(Port::Slice(port)),
+            inlet: self.inlet(channel, listener)?,
+        })
+    }
+
+    fn outlet(&self, channel: &str, notifier: Notifier<Service>) -> Result<Outlet, Error> {
+        Ok(Outlet {
+            notifier,
+            wake: WakeFlag::open(&self.prefix, channel)?,
+            seq: Cell::new(0),
+            source: self.id,
+            clock: self.clock.clone(),
+            channel: channel.into(),
+            counters: self.counters.clone(),
+            notified: Cell::new(0),
+        })
+    }
+
+    fn inlet(&self, channel: &str, listener: Listener<Service>) -> Result<Rc<Inlet>, Error> {
+        Ok(Rc::new(Inlet {
+            listener,
+            wake: WakeFlag::open(&self.prefix, channel)?,
+            channel: channel.into(),
+            last_seq: RefCell::new(Vec::new()),
+            stats: Cell::new(ChannelStats::default()),
+            counters: self.counters.clone(),
+            last_rx_ns: Cell::new(None),
+        }))
+    }
+}
+
+fn type_name<T: ZeroCopySend>() -> String {
+    // SAFETY: `type_name` is only unsafe because implementors may lie; ours are derived.
+    unsafe { <T as ZeroCopySend>::type_name() }.to_string()
+}
+
+fn slice_type_name<H: SliceMessage>() -> String {
+    describe_type(type_name::<H::Elem>(), type_name::<H>())
+}
+
+fn describe_type(payload: String, user_header: String) -> String {
+    if user_header == "()" || user_header.is_empty() {
+        payload
+    } else {
+        format!("[{payload}] with header {user_header}")
+    }
+}
+
+/// What the sending side of a channel shares between fixed and slice publishers.
+struct Outlet {
+    notifier: Notifier<Service>,
+    wake: WakeFlag,
+    seq: Cell<u64>,
+    source: u32,
+    clock: Clock,
+    channel: Rc<str>,
+    counters: Rc<Counters>,
+    notified: Cell<u64>,
+}
+
+impl Outlet {
+    fn stamp(&self, h: &mut Header) {
+        let seq = self.seq.get() + 1;
+        self.seq.set(seq);
+        h.seq = seq;
+        h.stamp_ns = self.clock.now_ns();
+        h.source = self.source;
+    }
+
+    fn sent(&self) -> Result<(), Error> {
+        Counters::add(&self.counters.msgs_out, 1);
+        if self.wake.has_waiters() {
+            self.notified.set(self.notified.get() + 1);
+            self.notifier
+                .notify()
+                .map_err(|e| Error::channel(&self.channel, "notify", e))?;
+        }
+        Ok(())
+    }
+}
+
+/// Statistics of one subscriber.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
+pub struct ChannelStats {
+    /// Messages received.
+    pub received: u64,
+    /// Messages lost before they were read (sequence gaps: overflow, or a slow reader).
+    pub dropped: u64,
+    /// Publishers that restarted their sequence (a restarted module).
+    pub restarts: u64,
+}
+
+/// What the receiving side of a channel shares between fixed and slice subscribers; the
+/// executor keeps a handle to it to wait and to watch deadlines.
+pub(crate) struct Inlet {
+    pub(crate) listener: Listener<Service>,
+    pub(crate) wake: WakeFlag,
+    pub(crate) channel: Rc<str>,
+    last_seq: RefCell<Vec<(u32, u64)>>,
+    stats: Cell<ChannelStats>,
+    counters: Rc<Counters>,
+    pub(crate) last_rx_ns: Cell<Option<u64>>,
+}
+
+impl Inlet {
+    fn account(&self, h: &Header, now_ns: u64) {
+        let mut stats = self.stats.get();
+        stats.received += 1;
+        Counters::add(&self.counters.msgs_in, 1);
+        let mut seqs = self.last_seq.borrow_mut();
+        match seqs.iter_mut().find(|(src, _)| *src == h.source) {
+            Some((_, last)) => {
+                if h.seq > *last + 1 {
+                    let lost = h.seq - *last - 1;
+                    stats.dropped += lost;
+                    Counters::add(&self.counters.msgs_dropped, lost);
+                } else if h.seq <= *last {
+                    stats.restarts += 1;
+                }
+                *last = h.seq;
+            }
+            None => seqs.push((h.source, h.seq)),
+        }
+        self.stats.set(stats);
+        self.last_rx_ns.set(Some(now_ns));
+    }
+
+    /// Consumes pending event notifications without blocking.
+    pub(crate) fn drain_events(&self) {
+        let _ = self.listener.try_wait(|_| {});
+    }
+}
+
+/// The data port of a subscriber, type-erased for the executor.
+pub(crate) enum Port<T: Message, H: SliceMessage> {
+    Fixed(IoxSubscriber<Service, T, ()>),
+    Slice(IoxSubscriber<Service, [H::Elem], H>),
+}
+
+/// Anything the executor can wait on.
+pub(crate) trait Input {
+    fn inlet(&self) -> &Rc<Inlet>;
+    fn has_samples(&self) -> bool;
+}
+
+impl<T: Message, H: SliceMessage> Port<T, H> {
+    fn has_samples(&self) -> bool {
+        match self {
+            Port::Fixed(p) => p.has_samples().unwrap_or(false),
+            Port::Slice(p) => p.has_samples().unwrap_or(false),
+        }
+    }
+}
+
+/// Publishes fixed-size messages of type `T`.
+pub struct Publisher<T: Message> {
+    port: Rc<IoxPublisher<Service, T, ()>>,
+    out: Outlet,
+}
+
+impl<T: Message> fmt::Debug for Publisher<T> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("Publisher")
+            .field("channel", &self.out.channel)
+            .finish_non_exhaustive()
+    }
+}
+
+impl<T: Message> Publisher<T> {
+    /// The channel's name.
+    pub fn channel(&self) -> &str {
+        &self.out.channel
+    }
+
+    /// Stamps `msg`'s header and publishes a copy of it.
+    pub fn publish(&self, mut msg: T) -> Result<(), Error> {
+        self.out.stamp(msg.header_mut());
+        self.port
+            .send_copy(msg)
+            .map_err(|e| Error::channel(&self.out.channel, "send", e))?;
+        self.out.sent()
+    }
+
+    /// Loans a sample in shared memory, initialised to `T::default()`, to fill in place.
+    pub fn loan(&self) -> Result<Loan<'_, T>, Error> {
+        let sample = self
+            .port
+            .loan()
+            .map_err(|e| Error::channel(&self.out.channel, "loan", e))?;
+        Ok(Loan {
+            sample,
+            out: &self.out,
+        })
+    }
+
+    /// Publishes that had to wake a sleeping subscriber (the rest cost no system call).
+    pub fn notifications(&self) -> u64 {
+        self.out.notified.get()
+    }
+
+    /// Number of messages published so far.
+    pub fn published(&self) -> u64 {
+        self.out.seq.get()
+    }
+
+    /// Connects subscribers that appeared since the last call (done automatically on send,
+    /// but a publisher that sends rarely can call it to deliver history to late joiners).
+    pub fn update_connections(&self) {
+        let _ = self.port.update_connections();
+    }
+}
+
+/// A sample loaned from a [`Publisher`]: write it in place, then [`Loan::publish`] it.
+pub struct Loan<'a, T: Message> {
+    sample: SampleMut<Service, T, ()>,
+    out: &'a Outlet,
+}
+
+impl<T: Message> Loan<'_, T> {
+    /// Stamps the header and publishes the sample.
+    pub fn publish(mut self) -> Result<(), Error> {
+        self.out.stamp(self.sample.payload_mut().header_mut());
+        self.sample
+            .send()
+            .map_err(|e| Error::channel(&self.out.channel, "send", e))?;
+        self.out.sent()
+    }
+}
+
+impl<T: Message> Deref for Loan<'_, T> {
+    type Target = T;
+    fn deref(&self) -> &T {
+        self.sample.payload()
+    }
+}
+
+impl<T: Message> DerefMut for Loan<'_, T> {
+    fn deref_mut(&mut self) -> &mut T {
+        self.sample.payload_mut()
+    }
+}
+
+/// A placeholder slice header for fixed-size subscribers' erased port.
+type NoSlice = crate::msg::BytesInfo;
+
+/// Receives fixed-size messages of type `T`.
+pub struct Subscriber<T: Message> {
+    port: Rc<Port<T, NoSlice>>,
+    inlet: Rc<Inlet>,
+}
+
+impl<T: Message> fmt::Debug for Subscriber<T> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("Subscriber")
+            .field("channel", &self.inlet.channel)
+            .finish_non_exhaustive()
+    }
+}
+
+/// A received message, still in shared memory; dereferences to the message.
+pub struct Sample<T: Message> {
+    inner: IoxSample<Service, T, ()>,
+}
+
+impl<T: Message> Deref for Sample<T> {
+    type Target = T;
+    fn deref(&self) -> &T {
+        self.inner.payload()
+    }
+}
+
+impl<T: Message> fmt::Debug for Sample<T> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        self.inner.payload().fmt(f)
+    }
+}
+
+impl<T: Message> Subscriber<T> {
+    /// The channel's name.
+    pub fn channel(&self) -> &str {
+        &self.inlet.channel
+    }
+
+    /// The next message, or `None` when there is none.
+    pub fn receive(&self) -> Result<Option<Sample<T>>, Error> {
+        let Port::Fixed(port) = &*self.port else {
+            return Ok(None);
+        };
+        match port.receive() {
+            Ok(Some(inner)) => {
+                self.inlet
+                    .account(inner.payload().header(), monotonic_or_clock());
+                Ok(Some(Sample { inner }))
+            }
+            Ok(None) => Ok(None),
+            Err(e) => Err(Error::channel(&self.inlet.channel, "receive", e)),
+        }
+    }
+
+    /// Drains the channel and returns only the newest message.
+    pub fn latest(&self) -> Result<Option<Sample<T>>, Error> {
+        let mut last = None;
+        while let Some(s) = self.receive()? {
+            last = Some(s);
+        }
+        Ok(last)
+    }
+
+    /// True if a message is waiting.
+    pub fn has_samples(&self) -> bool {
+        self.port.has_samples()
+    }
+
+    /// This subscriber's statistics.
+    pub fn stats(&self) -> ChannelStats {
+        self.inlet.stats.get()
+    }
+
+    /// The id the executor reports when this input has data or misses its deadline.
+    pub fn id(&self) -> InputId {
+        InputId(Rc::as_ptr(&self.inlet) as usize)
+    }
+
+    pub(crate) fn as_input(&self) -> Rc<dyn Input> {
+        Rc::new(ErasedInput {
+            port: self.port.clone(),
+            inlet: self.inlet.clone(),
+        })
+    }
+}
+
+fn monotonic_or_clock() -> u64 {
+    crate::clock::monotonic_ns()
+}
+
+struct ErasedInput<T: Message, H: SliceMessage> {
+    port: Rc<Port<T, H>>,
+    inlet: Rc<Inlet>,
+}
+
+impl<T: Message, H: SliceMessage> Input for ErasedInput<T, H> {
+    fn inlet(&self) -> &Rc<Inlet> {
+        &self.inlet
+    }
+    fn has_samples(&self) -> bool {
+        self.port.has_samples()
+    }
+}
+
+/// Identifies an input (a subscriber) in executor callbacks.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct InputId(usize);
+
+/// Publishes variable-size payloads: a header `H` plus a slice of `H::Elem`.
+pub struct SlicePublisher<H: SliceMessage> {
+    port: Rc<IoxPublisher<Service, [H::Elem], H>>,
+    out: Outlet,
+}
+
+impl<H: SliceMessage> fmt::Debug for SlicePublisher<H> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("SlicePublisher")
+            .field("channel", &self.out.channel)
+            .finish_non_exhaustive()
+    }
+}
+
+impl<H: SliceMessage> SlicePublisher<H> {
+    /// The channel's name.
+    pub fn channel(&self) -> &str {
+        &self.out.channel
+    }
+
+    /// Publishes that had to wake a sleeping subscriber (the rest cost no system call).
+    pub fn notifications(&self) -> u64 {
+        self.out.notified.get()
+    }
+
+    /// Loans `len` uninitialised elements in shared memory.
+    pub fn loan_uninit(&self, len: usize) -> Result<SliceLoanUninit<'_, H>, Error> {
+        let sample = self
+            .port
+            .loan_slice_uninit(len)
+            .map_err(|e| Error::channel(&self.out.channel, "loan", e))?;
+        Ok(SliceLoanUninit {
+            sample,
+            out: &self.out,
+        })
+    }
+
+    /// Publishes a copy of `data` with header `header`.
+    pub fn publish_copy(&self, header: H, data: &[H::Elem]) -> Result<(), Error> {
+        let mut loan = self.loan_uninit(data.len())?;
+        *loan.header_mut() = header;
+        loan.write_from_slice(data).publish()
+    }
+}
+
+/// An uninitialised slice loan; fill it with [`SliceLoanUninit::write_from_slice`] or
+/// [`SliceLoanUninit::write_from_fn`].
+pub struct SliceLoanUninit<'a, H: SliceMessage> {
+    sample: SampleMutUninit<Service, [MaybeUninit<H::Elem>], H>,
+    out: &'a Outlet,
+}
+
+impl<'a, H: SliceMessage> SliceLoanUninit<'a, H> {
+    /// The header (default-initialised).
+    pub fn header_mut(&mut self) -> &mut H {
+        self.sample.user_header_mut()
+    }
+
+    /// The payload memory, to write element by element.
+    pub fn payload_mut(&mut self) -> &mut [MaybeUninit<H::Elem>] {
+        self.sample.payload_mut()
+    }
+
+    /// Copies `data` in (its length must equal the loan's).
+    pub fn write_from_slice(self, data: &[H::Elem]) -> SliceLoan<'a, H> {
+        SliceLoan {
+            sample: self.sample.write_from_slice(data),
+            out: self.out,
+        }
+    }
+
+    /// Fills element `i` with `f(i)`.
+    pub fn write_from_fn(self, f: impl FnMut(usize) -> H::Elem) -> SliceLoan<'a, H> {
+        SliceLoan {
+            sample: self.sample.write_from_fn(f),
+            out: self.out,
+        }
+    }
+
+    /// Declares the payload initialised.
+    ///
+    /// # Safety
+    /// Every element must have been written through [`SliceLoanUninit::payload_mut`] (or the
+    /// reader must not care about stale contents, as in a latency benchmark of plain bytes).
+    pub unsafe fn assume_init(self) -> SliceLoan<'a, H> {
+        SliceLoan {
+            // SAFETY: forwarded to the caller.
+            sample: unsafe { self.sample.assume_init() },
+            out: self.out,
+        }
+    }
+}
+
+/// An initialised slice loan, ready to publish.
+pub struct SliceLoan<'a, H: SliceMessage> {
+    sample: SampleMut<Service, [H::Elem], H>,
+    out: &'a Outlet,
+}
+
+impl<H: SliceMessage> SliceLoan<'_, H> {
+    /// The header.
+    pub fn header_mut(&mut self) -> &mut H {
+        self.sample.user_header_mut()
+    }
+
+    /// The payload.
+    pub fn payload_mut(&mut self) -> &mut [H::Elem] {
+        self.sample.payload_mut()
+    }
+
+    /// Stamps the header and publishes.
+    pub fn publish(mut self) -> Result<(), Error> {
+        self.out.stamp(self.sample.user_header_mut().header_mut());
+        self.sample
+            .send()
+            .map_err(|e| Error::channel(&self.out.channel, "send", e))?;
+        self.out.sent()
+    }
+}
+
+/// Receives variable-size payloads.
+pub struct SliceSubscriber<H: SliceMessage> {
+    port: Rc<Port<NoFixed, H>>,
+    inlet: Rc<Inlet>,
+}
+
+/// A placeholder fixed type for slice subscribers' erased port.
+type NoFixed = crate::msg::Clock;
+
+impl<H: SliceMessage> fmt::Debug for SliceSubscriber<H> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("SliceSubscriber")
+            .field("channel", &self.inlet.channel)
+            .finish_non_exhaustive()
+    }
+}
+
+/// A received variable-size sample, still in shared memory.
+pub struct SliceSample<H: SliceMessage> {
+    inner: IoxSample<Service, [H::Elem], H>,
+}
+
+impl<H: SliceMessage> SliceSample<H> {
+    /// The header.
+    pub fn header(&self) -> &H {
+        self.inner.user_header()
+    }
+
+    /// The payload.
+    pub fn data(&self) -> &[H::Elem] {
+        self.inner.payload()
+    }
+}
+
+impl<H: SliceMessage> SliceSubscriber<H> {
+    /// The channel's name.
+    pub fn channel(&self) -> &str {
+        &self.inlet.channel
+    }
+
+    /// The next sample, or `None`.
+    pub fn receive(&self) -> Result<Option<SliceSample<H>>, Error> {
+        let Port::Slice(port) = &*self.port else {
+            return Ok(None);
+        };
+        match port.receive() {
+            Ok(Some(inner)) => {
+                self.inlet
+                    .account(inner.user_header().header(), monotonic_or_clock());
+                Ok(Some(SliceSample { inner }))
+            }
+            Ok(None) => Ok(None),
+            Err(e) => Err(Error::channel(&self.inlet.channel, "receive", e)),
+        }
+    }
+
+    /// Drains the channel and returns only the newest sample.
+    pub fn latest(&self) -> Result<Option<SliceSample<H>>, Error> {
+        let mut last = None;
+        while let Some(s) = self.receive()? {
+            last = Some(s);
+        }
+        Ok(last)
+    }
+
+    /// True if a sample is waiting.
+    pub fn has_samples(&self) -> bool {
+        self.port.has_samples()
+    }
+
+    /// Statistics.
+    pub fn stats(&self) -> ChannelStats {
+        self.inlet.stats.get()
+    }
+
+    /// The id the executor reports for this input.
+    pub fn id(&self) -> InputId {
+        InputId(Rc::as_ptr(&self.inlet) as usize)
+    }
+
+    pub(crate) fn as_input(&self) -> Rc<dyn Input> {
+        Rc::new(ErasedInput {
+            port: self.port.clone(),
+            inlet: self.inlet.clone(),
+        })
+    }
+}
+
+/// Anything that can be waited on by the executor: fixed or slice subscribers.
+pub trait Waitable {
+    /// The input id.
+    fn input_id(&self) -> InputId;
+    #[doc(hidden)]
+    #[allow(private_interfaces)]
+    fn erased(&self) -> Rc<dyn Input>;
+}
+
+impl<T: Message> Waitable for Subscriber<T> {
+    fn input_id(&self) -> InputId {
+        self.id()
+    }
+    #[allow(private_interfaces)]
+    fn erased(&self) -> Rc<dyn Input> {
+        self.as_input()
+    }
+}
+
+impl<H: SliceMessage> Waitable for SliceSubscriber<H> {
+    fn input_id(&self) -> InputId {
+        self.id()
+    }
+    #[allow(private_interfaces)]
+    fn erased(&self) -> Rc<dyn Input> {
+        self.as_input()
+    }
+}

@@ -1,0 +1,611 @@
+//! The module SDK: one trait, one entry point.
+//!
+//! A module is a struct implementing [`Module`]. [`Module::configure`] builds it from its typed
+//! configuration and opens its ports through the [`Context`]; the runtime then calls
+//! [`Module::on_input`] when a subscribed channel has data, [`Module::on_tick`] when a timer
+//! fires, [`Module::on_deadline_missed`] when an input stays silent longer than its deadline,
+//! and [`Module::checkpoint`] / [`Module::restore`] to save and recover state across crashes.
+//! Its `main` is one line:
+//!
+//! ```ignore
+//! fn main() -> std::process::ExitCode { hng_runtime::run_module::<MyModule>() }
+//! ```
+//!
+//! [`run_module`] owns the process: it reads the [`RunOptions`] from the environment the
+//! supervisor sets (`HNG_*` variables), silences iceoryx2's log, turns SIGINT/SIGTERM/SIGHUP
+//! into a clean stop (iceoryx2's own signal handlers stay disabled), restores the last
+//! checkpoint, publishes a [`ModuleReport`] on [`REPORT_CHANNEL`] every report period (the
+//! heartbeat the watchdog watches), writes checkpoints periodically and on stop, and releases
+//! its shared memory on exit.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Duration;
+
+use serde::de::DeserializeOwned;
+
+use crate::channel::{
+    InputId, Node, NodeOptions, Publisher, SlicePublisher, SliceSubscriber, Subscriber,
+};
+use crate::checkpoint::CheckpointStore;
+use crate::clock::{CLOCK_CHANNEL, Clock, ClockMode, monotonic_ns};
+use crate::error::Error;
+use crate::msg::{self, Message, ModuleReport, ModuleState, SliceMessage};
+use crate::wait::{WaitMode, Waiter, Wake};
+
+/// The well-known channel every module publishes its [`ModuleReport`] on.
+pub const REPORT_CHANNEL: &str = "hng/report";
+
+/// The error type module callbacks return: anything that is an error.
+pub type ModuleError = Box<dyn std::error::Error + Send + Sync + 'static>;
+
+/// The result type module callbacks return.
+pub type ModuleResult<T = ()> = Result<T, ModuleError>;
+
+/// A module: one algorithm, run as its own process by [`run_module`].
+pub trait Module: Sized {
+    /// Typed configuration, read from the `config` table of the module's launch-file entry.
+    type Config: DeserializeOwned + Default;
+
+    /// Version of the checkpoint format; a checkpoint of another version is ignored (clean
+    /// start with a warning).
+    const STATE_VERSION: u32 = 1;
+
+    /// Builds the module: open ports (publishers, subscribers, timers) through `ctx`.
+    fn configure(ctx: &mut Context, config: Self::Config) -> ModuleResult<Self>;
+
+    /// Called once after configure (and restore), before the first input.
+    fn start(&mut self, _ctx: &mut Context) -> ModuleResult {
+        Ok(())
+    }
+
+    /// A subscribed input has data: receive until it returns `None`.
+    fn on_input(&mut self, _ctx: &mut Context, _input: InputId) -> ModuleResult {
+        Ok(())
+    }
+
+    /// A timer fired.
+    fn on_tick(&mut self, _ctx: &mut Context, _timer: TimerId) -> ModuleResult {
+        Ok(())
+    }
+
+    /// An input with a deadline stayed silent longer than it. Called once per silence; the
+    /// miss is also counted in the module's report.
+    fn on_deadline_missed(&mut self, ctx: &mut Context, input: InputId) -> ModuleResult {
+        tracing::warn!(module = ctx.name(), ?input, "input deadline missed");
+        Ok(())
+    }
+
+    /// The state to save, or `None` for a stateless module.
+    fn checkpoint(&self) -> Option<Vec<u8>> {
+        None
+    }
+
+    /// Restores a state saved by [`Module::checkpoint`]. An error means a clean start.
+    fn restore(&mut self, _state: &[u8]) -> ModuleResult {
+        Ok(())
+    }
+
+    /// Called once on a clean stop, before the final checkpoint.
+    fn stop(&mut self, _ctx: &mut Context) {}
+}
+
+/// Identifies a timer created with [`Context::add_timer`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct TimerId(pub usize);
+
+struct Timer {
+    period_ns: u64,
+    next_ns: u64,
+}
+
+struct Deadline {
+    input: InputId,
+    deadline_ns: u64,
+    last_ns: u64,
+    missed: bool,
+}
+
+/// The module's handle on the runtime, passed to every callback.
+pub struct Context {
+    node: Node,
+    waiter: Waiter,
+    timers: Vec<Timer>,
+    deadlines: Vec<Deadline>,
+    aptitude: bool,
+    quality: f32,
+    waiting_for_resources: bool,
+    state: ModuleState,
+    stop_requested: bool,
+    deadline_misses: u64,
+    checkpoints: u64,
+}
+
+impl std::fmt::Debug for Context {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Context")
+            .field("node", &self.node)
+            .finish_non_exhaustive()
+    }
+}
+
+impl Context {
+    /// A context on a fresh node (used by [`run_module`], and by tests that drive a module
+    /// by hand).
+    pub fn new(node: Node, wait: WaitMode) -> Result<Context, Error> {
+        Ok(Context {
+            node,
+            waiter: Waiter::new(wait)?,
+            timers: Vec::new(),
+            deadlines: Vec::new(),
+            aptitude: true,
+            quality: 0.0,
+            waiting_for_resources: false,
+            state: ModuleState::Configured,
+            stop_requested: false,
+            deadline_misses: 0,
+            checkpoints: 0,
+        })
+    }
+
+    /// The module's name.
+    pub fn name(&self) -> &str {
+        self.node.name()
+    }
+
+    /// The node (for direct channel access).
+    pub fn node(&self) -> &Node {
+        &self.node
+    }
+
+    /// The common clock.
+    pub fn clock(&self) -> &Clock {
+        self.node.clock()
+    }
+
+    /// Now, on the common clock.
+    pub fn now(&self) -> Duration {
+        self.node.clock().now()
+    }
+
+    /// Opens a publisher (channels can be opened at any time, not only in configure).
+    pub fn publisher<T: Message>(&mut self, channel: &str) -> Result<Publisher<T>, Error> {
+        self.node.publisher(channel)
+    }
+
+    /// Opens a variable-size publisher.
+    pub fn slice_publisher<H: SliceMessage>(
+        &mut self,
+        channel: &str,
+        max_len: usize,
+    ) -> Result<SlicePublisher<H>, Error> {
+        self.node.slice_publisher(channel, max_len)
+    }
+
+    /// Subscribes to a channel; [`Module::on_input`] is called when it has data. With a
+    /// `deadline`, [`Module::on_deadline_missed`] is called when it stays silent longer.
+    pub fn subscribe<T: Message>(
+        &mut self,
+        channel: &str,
+        deadline: Option<Duration>,
+    ) -> Result<Subscriber<T>, Error> {
+        let sub = self.node.subscriber::<T>(channel)?;
+        self.waiter.attach(&sub)?;
+        self.watch_deadline(sub.id(), deadline);
+        Ok(sub)
+    }
+
+    /// Subscribes to a variable-size channel.
+    pub fn subscribe_slice<H: SliceMessage>(
+        &mut self,
+        channel: &str,
+        deadline: Option<Duration>,
+    ) -> Result<SliceSubscriber<H>, Error> {
+        let sub = self.node.slice_subscriber::<H>(channel)?;
+        self.waiter.attach(&sub)?;
+        self.watch_deadline(sub.id(), deadline);
+        Ok(sub)
+    }
+
+    /// Stops calling back for an input (drop the subscriber afterwards).
+    pub fn unsubscribe(&mut self, input: InputId) -> Result<(), Error> {
+        self.deadlines.retain(|d| d.input != input);
+        self.waiter.detach(input)
+    }
+
+    fn watch_deadline(&mut self, input: InputId, deadline: Option<Duration>) {
+        if let Some(d) = deadline {
+            self.deadlines.push(Deadline {
+                input,
+                deadline_ns: d.as_nanos() as u64,
+                last_ns: self.clock().now_ns(),
+                missed: false,
+            });
+        }
+    }
+
+    /// Adds a periodic timer on the common clock; the first tick is one period from now.
+    pub fn add_timer(&mut self, period: Duration) -> TimerId {
+        let period_ns = (period.as_nanos() as u64).max(1);
+        self.timers.push(Timer {
+            period_ns,
+            next_ns: self.clock().now_ns().saturating_add(period_ns),
+        });
+        TimerId(self.timers.len() - 1)
+    }
+
+    /// Sets the self-evaluation reported to the system: aptitude f and quality Q in [-1, 1]
+    /// (clamped; NaN counts as 0).
+    pub fn set_quality(&mut self, aptitude: bool, quality: f32) {
+        self.aptitude = aptitude;
+        self.quality = if quality.is_nan() {
+            0.0
+        } else {
+            quality.clamp(-1.0, 1.0)
+        };
+    }
+
+    /// The self-evaluation last set: (aptitude, quality).
+    pub fn quality(&self) -> (bool, f32) {
+        (self.aptitude, self.quality)
+    }
+
+    /// Tells the resource manager the module waits for resources (paper 5.3).
+    pub fn set_waiting_for_resources(&mut self, waiting: bool) {
+        self.waiting_for_resources = waiting;
+    }
+
+    /// Sets the state shown in reports (`Running` or `Idle`).
+    pub fn set_state(&mut self, state: ModuleState) {
+        self.state = state;
+    }
+
+    /// Asks the runtime to stop the module cleanly after this callback.
+    pub fn request_stop(&mut self) {
+        self.stop_requested = true;
+    }
+
+    /// Input deadlines missed so far.
+    pub fn deadline_misses(&self) -> u64 {
+        self.deadline_misses
+    }
+
+    fn report(&self, period_ns: u64) -> ModuleReport {
+        let c = self.node.counters();
+        let mut r = ModuleReport {
+            pid: std::process::id(),
+            state: self.state as u8,
+            aptitude: u8::from(self.aptitude),
+            waiting_for_resources: u8::from(self.waiting_for_resources),
+            quality: self.quality,
+            period_ns,
+            msgs_in: c.msgs_in.get(),
+            msgs_out: c.msgs_out.get(),
+            msgs_dropped: c.msgs_dropped.get(),
+            deadline_misses: self.deadline_misses,
+            checkpoints: self.checkpoints,
+            ..Default::default()
+        };
+        r.set_name(self.name());
+        r
+    }
+}
+
+/// How a module process runs; [`RunOptions::from_env`] reads what the supervisor sets.
+#[derive(Debug, Clone)]
+pub struct RunOptions {
+    /// Module name (`HNG_MODULE_NAME`).
+    pub name: String,
+    /// Prefix of the system (`HNG_PREFIX`).
+    pub prefix: String,
+    /// The module's configuration as TOML (`HNG_MODULE_CONFIG`); empty means defaults.
+    pub config_toml: String,
+    /// Where checkpoints go (`HNG_CHECKPOINT_DIR`); `None` disables them.
+    pub checkpoint_dir: Option<PathBuf>,
+    /// Checkpoint period (`HNG_CHECKPOINT_PERIOD_MS`, default 1000).
+    pub checkpoint_period: Duration,
+    /// Report (heartbeat) period (`HNG_REPORT_PERIOD_MS`, default 100).
+    pub report_period: Duration,
+    /// Clock (`HNG_CLOCK`: `wall` or `sim`).
+    pub clock: ClockMode,
+    /// Wait mode (`HNG_WAIT`: `blocking`, `blocking:<µs>` or `spin`).
+    pub wait: WaitMode,
+    /// Turn SIGINT/SIGTERM/SIGHUP into a clean stop.
+    pub catch_signals: bool,
+}
+
+impl RunOptions {
+    /// Defaults for a module called `name`.
+    pub fn new(name: &str) -> RunOptions {
+        RunOptions {
+            name: name.to_string(),
+            prefix: crate::channel::DEFAULT_PREFIX.to_string(),
+            config_toml: String::new(),
+            checkpoint_dir: None,
+            checkpoint_period: Duration::from_secs(1),
+            report_period: Duration::from_millis(100),
+            clock: ClockMode::Wall,
+            wait: WaitMode::default(),
+            catch_signals: true,
+        }
+    }
+
+    /// Reads the `HNG_*` environment; `default_name` is used when `HNG_MODULE_NAME` is unset.
+    pub fn from_env(default_name: &str) -> Result<RunOptions, Error> {
+        let var = |k: &str| std::env::var(k).ok().filter(|v| !v.is_empty());
+        let ms = |k: &str, default: u64| -> Result<Duration, Error> {
+            match var(k) {
+                None => Ok(Duration::from_millis(default)),
+                Some(v) => v.parse::<u64>().map(Duration::from_millis).map_err(|_| {
+                    Error::Config(format!("{k}={v:?} is not a number of milliseconds"))
+                }),
+            }
+        };
+        let mut o = RunOptions::new(&var("HNG_MODULE_NAME").unwrap_or_else(|| default_name.into()));
+        if let Some(p) = var("HNG_PREFIX") {
+            o.prefix = p;
+        }
+        o.config_toml = var("HNG_MODULE_CONFIG").unwrap_or_default();
+        o.checkpoint_dir = var("HNG_CHECKPOINT_DIR").map(PathBuf::from);
+        o.checkpoint_period = ms("HNG_CHECKPOINT_PERIOD_MS", 1000)?;
+        o.report_period = ms("HNG_REPORT_PERIOD_MS", 100)?;
+        o.clock = match var("HNG_CLOCK").as_deref() {
+            None | Some("wall") => ClockMode::Wall,
+            Some("sim") => ClockMode::Sim,
+            Some(v) => {
+                return Err(Error::Config(format!(
+                    "HNG_CLOCK={v:?}: expected `wall` or `sim`"
+                )));
+            }
+        };
+        if let Some(w) = var("HNG_WAIT") {
+            o.wait = WaitMode::parse(&w)?;
+        }
+        Ok(o)
+    }
+}
+
+/// Sets up `tracing` for a process: `HNG_LOG` is the filter (default `info`), output to
+/// stderr. Safe to call more than once.
+pub fn init_tracing() {
+    let filter = tracing_subscriber::EnvFilter::try_from_env("HNG_LOG")
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_target(false)
+        .try_init();
+}
+
+/// Runs module `M` as this process, configured from the environment; returns the exit code.
+pub fn run_module<M: Module>() -> ExitCode {
+    init_tracing();
+    let default_name = std::env::args()
+        .next()
+        .and_then(|a| {
+            std::path::Path::new(&a)
+                .file_stem()
+                .map(|s| s.to_string_lossy().into_owned())
+        })
+        .unwrap_or_else(|| "module".into());
+    let opts = match RunOptions::from_env(&default_name) {
+        Ok(o) => o,
+        Err(e) => {
+            tracing::error!("{e}");
+            return ExitCode::from(2);
+        }
+    };
+    match run_module_with::<M>(&opts) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            tracing::error!(module = %opts.name, "{e}");
+            ExitCode::from(1)
+        }
+    }
+}
+
+/// Why a module run ended with an error.
+#[derive(Debug, thiserror::Error)]
+pub enum RunError {
+    /// The runtime failed.
+    #[error(transparent)]
+    Runtime(#[from] Error),
+    /// The module's configuration did not parse.
+    #[error("module {module:?}: invalid configuration: {detail}")]
+    Config {
+        /// The module.
+        module: String,
+        /// The parser's message (names the field and line).
+        detail: String,
+    },
+    /// A module callback failed in a way the module cannot run on.
+    #[error("module {module:?}: {stage} failed: {source}")]
+    Module {
+        /// The module.
+        module: String,
+        /// Which callback.
+        stage: &'static str,
+        /// Its error.
+        source: ModuleError,
+    },
+}
+
+/// Runs module `M` with explicit options (tests, embedding); returns on a clean stop.
+pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
+    let config: M::Config = if opts.config_toml.trim().is_empty() {
+        M::Config::default()
+    } else {
+        toml::from_str(&opts.config_toml).map_err(|e| RunError::Config {
+            module: opts.name.clone(),
+            detail: e.to_string(),
+        })?
+    };
+    let clock = match opts.clock {
+        ClockMode::Wall => Clock::wall(),
+        ClockMode::Sim => Clock::sim(),
+    };
+    let node = Node::new(
+        NodeOptions::new(&opts.name)
+            .prefix(&opts.prefix)
+            .clock(clock.clone()),
+    )?;
+    let mut ctx = Context::new(node, opts.wait)?;
+    if opts.catch_signals {
+        ctx.waiter.catch_termination_signals()?;
+    }
+    let clock_sub = if clock.is_sim() {
+        let sub = ctx.node.subscriber::<msg::Clock>(CLOCK_CHANNEL)?;
+        ctx.waiter.attach(&sub)?;
+        if let Some(c) = sub.latest()? {
+            clock.set_sim_ns(c.sim_time_ns);
+        }
+        Some(sub)
+    } else {
+        None
+    };
+    let reports = ctx.node.publisher::<ModuleReport>(REPORT_CHANNEL)?;
+    let store = match &opts.checkpoint_dir {
+        Some(dir) => match CheckpointStore::new(dir, &opts.name) {
+            Ok(s) => Some(s),
+            Err(e) => {
+                tracing::warn!(module = %opts.name, "checkpoints disabled: {e}");
+                None
+            }
+        },
+        None => None,
+    };
+
+    let module_err = |stage, source| RunError::Module {
+        module: opts.name.clone(),
+        stage,
+        source,
+    };
+    let mut module = M::configure(&mut ctx, config).map_err(|e| module_err("configure", e))?;
+    if let Some(store) = &store {
+        match store.load(M::STATE_VERSION) {
+            Ok(Some(bytes)) => match module.restore(&bytes) {
+                Ok(()) => {
+                    tracing::info!(module = %opts.name, bytes = bytes.len(), "state restored from checkpoint")
+                }
+                Err(e) => {
+                    tracing::warn!(module = %opts.name, "checkpoint rejected by the module, starting clean: {e}")
+                }
+            },
+            Ok(None) => {}
+            Err(e) => {
+                tracing::warn!(module = %opts.name, "checkpoint unusable, starting clean: {e}")
+            }
+        }
+    }
+    ctx.state = ModuleState::Running;
+    module.start(&mut ctx).map_err(|e| module_err("start", e))?;
+
+    let report_ns = opts.report_period.as_nanos() as u64;
+    let checkpoint_ns = opts.checkpoint_period.as_nanos() as u64;
+    let _ = reports.publish(ctx.report(report_ns));
+    let mut next_report = monotonic_ns().saturating_add(report_ns);
+    let mut next_checkpoint = monotonic_ns().saturating_add(checkpoint_ns);
+    let clock_id = clock_sub.as_ref().map(|s| s.id());
+
+    while !ctx.stop_requested {
+        // Wall-clock wake-ups: report and checkpoint; clock-time ones: timers and deadlines
+        // (in simulation they are checked at every clock sample instead).
+        let wall_now = monotonic_ns();
+        let mut wake_at = next_report;
+        if store.is_some() {
+            wake_at = wake_at.min(next_checkpoint);
+        }
+        if !clock.is_sim() {
+            for t in &ctx.timers {
+                wake_at = wake_at.min(t.next_ns);
+            }
+            for d in ctx.deadlines.iter().filter(|d| !d.missed) {
+                wake_at = wake_at.min(d.last_ns.saturating_add(d.deadline_ns));
+            }
+        }
+        let timeout = Duration::from_nanos(wake_at.saturating_sub(wall_now));
+        match ctx.waiter.wait(Some(timeout))? {
+            Wake::Signal(sig) => {
+                tracing::info!(module = %opts.name, signal = sig, "stopping on signal");
+                break;
+            }
+            Wake::Data | Wake::Timeout => {}
+        }
+
+        ctx.node.update_connections();
+        if let Some(sub) = &clock_sub
+            && let Some(c) = sub.latest()?
+        {
+            clock.set_sim_ns(c.sim_time_ns);
+        }
+        let now = clock.now_ns();
+        let ready: Vec<InputId> = ctx
+            .waiter
+            .ready()
+            .filter(|id| Some(*id) != clock_id)
+            .collect();
+        for id in ready {
+            for d in ctx.deadlines.iter_mut().filter(|d| d.input == id) {
+                d.last_ns = now;
+                d.missed = false;
+            }
+            if let Err(e) = module.on_input(&mut ctx, id) {
+                tracing::warn!(module = %opts.name, "on_input: {e}");
+            }
+        }
+        for i in 0..ctx.timers.len() {
+            let t = &mut ctx.timers[i];
+            if now >= t.next_ns {
+                // Skip missed periods rather than firing a burst.
+                let behind = (now - t.next_ns) / t.period_ns;
+                t.next_ns = t.next_ns.saturating_add((behind + 1) * t.period_ns);
+                if let Err(e) = module.on_tick(&mut ctx, TimerId(i)) {
+                    tracing::warn!(module = %opts.name, "on_tick: {e}");
+                }
+            }
+        }
+        let mut missed = Vec::new();
+        for d in ctx.deadlines.iter_mut() {
+            if !d.missed && now.saturating_sub(d.last_ns) > d.deadline_ns {
+                d.missed = true;
+                missed.push(d.input);
+            }
+        }
+        for id in missed {
+            ctx.deadline_misses += 1;
+            if let Err(e) = module.on_deadline_missed(&mut ctx, id) {
+                tracing::warn!(module = %opts.name, "on_deadline_missed: {e}");
+            }
+        }
+        let wall_now = monotonic_ns();
+        if let Some(store) = &store
+            && wall_now >= next_checkpoint
+        {
+            next_checkpoint = wall_now.saturating_add(checkpoint_ns);
+            save_checkpoint(&module, store, &mut ctx, &opts.name);
+        }
+        if wall_now >= next_report {
+            next_report = wall_now.saturating_add(report_ns);
+            if let Err(e) = reports.publish(ctx.report(report_ns)) {
+                tracing::warn!(module = %opts.name, "report: {e}");
+            }
+        }
+    }
+
+    ctx.state = ModuleState::Stopping;
+    module.stop(&mut ctx);
+    if let Some(store) = &store {
+        save_checkpoint(&module, store, &mut ctx, &opts.name);
+    }
+    let _ = reports.publish(ctx.report(report_ns));
+    Ok(())
+}
+
+fn save_checkpoint<M: Module>(module: &M, store: &CheckpointStore, ctx: &mut Context, name: &str) {
+    if let Some(bytes) = module.checkpoint() {
+        match store.save(M::STATE_VERSION, &bytes) {
+            Ok(()) => ctx.checkpoints += 1,
+            Err(e) => tracing::warn!(module = %name, "checkpoint not written: {e}"),
+        }
+    }
+}

@@ -1,0 +1,71 @@
+//! Shared-memory housekeeping: what a prefix leaves on the machine, and removing it.
+//!
+//! iceoryx2 keeps data segments and management files in `/dev/shm` and service, node and
+//! event files under `/tmp/iceoryx2`, all named with the system's prefix; hng's wake segments
+//! ([`crate::wake`]) live in `/dev/shm` too. A clean stop of every process removes almost all
+//! of it; what a crash leaves behind is reclaimed by iceoryx2's dead-node cleanup when a node
+//! starts, and what is left at the very end (for example the prefix's global management file)
+//! by [`remove_prefix_files`], which the supervisor calls after its last module has stopped.
+
+use std::path::{Path, PathBuf};
+
+/// Folders where iceoryx2 and hng put files.
+pub const SHM_DIR: &str = "/dev/shm";
+/// iceoryx2's root folder for service, node and event files.
+pub const IOX_ROOT: &str = "/tmp/iceoryx2";
+
+fn walk(dir: &Path, prefix: &str, out: &mut Vec<PathBuf>) {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    for e in entries.flatten() {
+        let path = e.path();
+        let name = e.file_name();
+        let name = name.to_string_lossy();
+        if e.file_type().is_ok_and(|t| t.is_dir()) {
+            if name.starts_with(prefix) {
+                out.push(path);
+            } else {
+                walk(&path, prefix, out);
+            }
+        } else if name.starts_with(prefix) {
+            out.push(path);
+        }
+    }
+}
+
+/// Every file or folder in `/dev/shm` and `/tmp/iceoryx2` whose name starts with `prefix`.
+pub fn prefix_files(prefix: &str) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    if prefix.is_empty() {
+        return out;
+    }
+    walk(Path::new(SHM_DIR), prefix, &mut out);
+    walk(Path::new(IOX_ROOT), prefix, &mut out);
+    out.sort();
+    out
+}
+
+/// Removes every file or folder that [`prefix_files`] lists; returns how many were removed.
+/// Call only when no process of the prefix runs any more.
+pub fn remove_prefix_files(prefix: &str) -> usize {
+    let mut n = 0;
+    for p in prefix_files(prefix) {
+        let ok = if p.is_dir() {
+            std::fs::remove_dir_all(&p).is_ok()
+        } else {
+            std::fs::remove_file(&p).is_ok()
+        };
+        n += usize::from(ok);
+    }
+    n
+}
+
+/// A prefix unique to this process and call, for tests and tools that must not collide:
+/// `hng<tag>_<pid>_<n>_`.
+pub fn unique_prefix(tag: &str) -> String {
+    use std::sync::atomic::{AtomicU32, Ordering};
+    static N: AtomicU32 = AtomicU32::new(0);
+    let n = N.fetch_add(1, Ordering::Relaxed);
+    format!("hng{tag}_{}_{n}_", std::process::id())
+}

@@ -1,0 +1,663 @@
+//! `hng bench ipc`: one-way latency (round trip / 2) of a ping-pong between two processes.
+//!
+//! Transports: `hng` (hng channels: loan, write the sequence number in place, publish),
+//! `iceoryx2` (the raw iceoryx2 API doing the same: the floor), `uds` (a Unix stream socket
+//! with postcard framing: the classic socket IPC, which must copy every byte). Modes:
+//! `blocking` (hng: adaptive spin then sleep; iceoryx2: its event listener; uds: blocking
+//! reads) and `spin` (busy polling on both sides). The payload is not touched beyond its
+//! first eight bytes (the round number, checked on the way back), as in iceoryx2's own
+//! benchmark: zero-copy transports are then flat in size, sockets are not.
+
+use std::io::{Read, Write};
+use std::os::unix::net::{UnixListener, UnixStream};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context as _, Result, anyhow, bail};
+use clap::{Args, ValueEnum};
+use hng_runtime::channel::{
+    Node, NodeOptions, Service, SlicePublisher, SliceSubscriber, iceoryx_config,
+};
+use hng_runtime::msg::BytesInfo;
+use hng_runtime::shm;
+use hng_runtime::stats::{BenchRow, Percentiles};
+use hng_runtime::wait::{WaitMode, Waiter, Wake};
+use iceoryx2::prelude::*;
+
+/// Transports compared.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum Transport {
+    /// hng channels.
+    Hng,
+    /// Raw iceoryx2.
+    Iceoryx2,
+    /// Unix domain stream socket with postcard framing.
+    Uds,
+}
+
+/// Wait modes compared.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum Mode {
+    /// Sleep until notified (after hng's adaptive spin).
+    Blocking,
+    /// Busy-poll.
+    Spin,
+}
+
+impl Transport {
+    fn name(self) -> &'static str {
+        match self {
+            Transport::Hng => "hng",
+            Transport::Iceoryx2 => "iceoryx2",
+            Transport::Uds => "uds",
+        }
+    }
+}
+
+impl Mode {
+    fn name(self) -> &'static str {
+        match self {
+            Mode::Blocking => "blocking",
+            Mode::Spin => "spin",
+        }
+    }
+}
+
+/// Arguments of `hng bench ipc`.
+#[derive(Debug, Clone, Args)]
+pub struct IpcArgs {
+    /// Payload sizes in bytes (comma separated).
+    #[arg(long, value_delimiter = ',', default_values_t = [64usize, 1024, 65536, 1_048_576, 4_194_304])]
+    pub sizes: Vec<usize>,
+    /// Round trips measured per case (fewer if --max-seconds runs out first).
+    #[arg(long, default_value_t = 10_000)]
+    pub samples: usize,
+    /// Time limit per case, seconds.
+    #[arg(long, default_value_t = 3.0)]
+    pub max_seconds: f64,
+    /// Transports (comma separated).
+    #[arg(long, value_delimiter = ',', default_values_t = [Transport::Hng, Transport::Iceoryx2, Transport::Uds])]
+    pub transport: Vec<Transport>,
+    /// Modes (comma separated).
+    #[arg(long, value_delimiter = ',', default_values_t = [Mode::Blocking, Mode::Spin])]
+    pub mode: Vec<Mode>,
+    /// One JSON object per case.
+    #[arg(long)]
+    pub json: bool,
+}
+
+impl std::fmt::Display for Transport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::fmt::Display for Mode {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// Arguments of the hidden peer process.
+#[derive(Debug, Clone, Args)]
+pub struct PeerArgs {
+    #[arg(long)]
+    transport: Transport,
+    #[arg(long)]
+    mode: Mode,
+    #[arg(long)]
+    size: usize,
+    #[arg(long)]
+    prefix: String,
+    #[arg(long)]
+    socket: Option<String>,
+}
+
+const STOP: u64 = u64::MAX;
+const PING: &str = "bench/ping";
+const PONG: &str = "bench/pong";
+
+fn wait_mode(mode: Mode) -> WaitMode {
+    match mode {
+        Mode::Blocking => WaitMode::default(),
+        Mode::Spin => WaitMode::Spin,
+    }
+}
+
+fn stamp(buf: &mut [u8], round: u64) {
+    let n = buf.len().min(8);
+    buf[..n].copy_from_slice(&round.to_le_bytes()[..n]);
+}
+
+fn read_stamp(buf: &[u8]) -> u64 {
+    let mut b = [0u8; 8];
+    let n = buf.len().min(8);
+    b[..n].copy_from_slice(&buf[..n]);
+    u64::from_le_bytes(b)
+}
+
+/// One side of a ping-pong; `exchange` sends `round` and returns the round number echoed back.
+pub trait Endpoint {
+    /// Sends a payload stamped with `round`.
+    fn send(&mut self, round: u64) -> Result<()>;
+    /// Waits (up to `timeout`) for the next payload and returns its stamp.
+    fn recv(&mut self, timeout: Duration) -> Result<Option<u64>>;
+}
+
+struct HngEnd {
+    _node: Node,
+    tx: SlicePublisher<BytesInfo>,
+    rx: SliceSubscriber<BytesInfo>,
+    waiter: Waiter,
+    size: usize,
+}
+
+impl HngEnd {
+    fn new(
+        prefix: &str,
+        name: &str,
+        tx: &str,
+        rx: &str,
+        size: usize,
+        mode: Mode,
+    ) -> Result<HngEnd> {
+        let node = Node::new(NodeOptions::new(name).prefix(prefix))?;
+        let tx = node.slice_publisher::<BytesInfo>(tx, size)?;
+        let rx = node.slice_subscriber::<BytesInfo>(rx)?;
+        let mut waiter = Waiter::new(wait_mode(mode))?;
+        waiter.attach(&rx)?;
+        Ok(HngEnd {
+            _node: node,
+            tx,
+            rx,
+            waiter,
+            size,
+        })
+    }
+}
+
+impl Drop for HngEnd {
+    fn drop(&mut self) {
+        if std::env::var_os("HNG_BENCH_DEBUG").is_some() {
+            eprintln!(
+                "{}: {:?}, notifications sent {}",
+                self._node.name(),
+                self.waiter.stats(),
+                self.tx.notifications()
+            );
+        }
+    }
+}
+
+impl Endpoint for HngEnd {
+    fn send(&mut self, round: u64) -> Result<()> {
+        let loan = self.tx.loan_uninit(self.size)?;
+        // SAFETY: plain bytes; only the stamp is meaningful to the reader (see module docs).
+        let mut loan = unsafe { loan.assume_init() };
+        stamp(loan.payload_mut(), round);
+        loan.publish()?;
+        Ok(())
+    }
+
+    fn recv(&mut self, timeout: Duration) -> Result<Option<u64>> {
+        let end = Instant::now() + timeout;
+        loop {
+            if let Some(s) = self.rx.receive()? {
+                return Ok(Some(read_stamp(s.data())));
+            }
+            let left = end.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                return Ok(None);
+            }
+            if let Wake::Signal(_) = self.waiter.wait(Some(left))? {
+                bail!("interrupted");
+            }
+        }
+    }
+}
+
+type RawPub = iceoryx2::port::publisher::Publisher<Service, [u8], ()>;
+type RawSub = iceoryx2::port::subscriber::Subscriber<Service, [u8], ()>;
+
+struct RawEnd {
+    _node: iceoryx2::node::Node<Service>,
+    tx: RawPub,
+    rx: RawSub,
+    notifier: iceoryx2::port::notifier::Notifier<Service>,
+    listener: iceoryx2::port::listener::Listener<Service>,
+    size: usize,
+    mode: Mode,
+}
+
+impl RawEnd {
+    fn new(
+        prefix: &str,
+        name: &str,
+        tx: &str,
+        rx: &str,
+        size: usize,
+        mode: Mode,
+    ) -> Result<RawEnd> {
+        let config = iceoryx_config(prefix)?;
+        let node = NodeBuilder::new()
+            .name(&NodeName::new(name).map_err(|e| anyhow!("{e:?}"))?)
+            .config(&config)
+            .signal_handling_mode(SignalHandlingMode::Disabled)
+            .create::<Service>()
+            .map_err(|e| anyhow!("iceoryx2 node: {e:?}"))?;
+        let open = |n: &str| -> Result<_> {
+            let sn = ServiceName::new(n).map_err(|e| anyhow!("{e:?}"))?;
+            let ps = node
+                .service_builder(&sn)
+                .publish_subscribe::<[u8]>()
+                .enable_safe_overflow(true)
+                .subscriber_max_buffer_size(2)
+                .open_or_create()
+                .map_err(|e| anyhow!("iceoryx2 service {n}: {e:?}"))?;
+            let ev = node
+                .service_builder(&sn)
+                .event()
+                .open_or_create()
+                .map_err(|e| anyhow!("iceoryx2 event {n}: {e:?}"))?;
+            Ok((ps, ev))
+        };
+        let (tx_ps, tx_ev) = open(&format!("{tx}_raw"))?;
+        let (rx_ps, rx_ev) = open(&format!("{rx}_raw"))?;
+        let txp = tx_ps
+            .publisher_builder()
+            .initial_max_slice_len(size)
+            .create()
+            .map_err(|e| anyhow!("iceoryx2 publisher: {e:?}"))?;
+        let rxs = rx_ps
+            .subscriber_builder()
+            .create()
+            .map_err(|e| anyhow!("iceoryx2 subscriber: {e:?}"))?;
+        let notifier = tx_ev
+            .notifier_builder()
+            .create()
+            .map_err(|e| anyhow!("iceoryx2 notifier: {e:?}"))?;
+        let listener = rx_ev
+            .listener_builder()
+            .create()
+            .map_err(|e| anyhow!("iceoryx2 listener: {e:?}"))?;
+        Ok(RawEnd {
+            _node: node,
+            tx: txp,
+            rx: rxs,
+            notifier,
+            listener,
+            size,
+            mode,
+        })
+    }
+}
+
+impl Endpoint for RawEnd {
+    fn send(&mut self, round: u64) -> Result<()> {
+        let loan = self
+            .tx
+            .loan_slice_uninit(self.size)
+            .map_err(|e| anyhow!("loan: {e:?}"))?;
+        // SAFETY: plain bytes; only the stamp is meaningful to the reader.
+        let mut s = unsafe { loan.assume_init() };
+        stamp(s.payload_mut(), round);
+        s.send().map_err(|e| anyhow!("send: {e:?}"))?;
+        if self.mode == Mode::Blocking {
+            self.notifier
+                .notify()
+                .map_err(|e| anyhow!("notify: {e:?}"))?;
+        }
+        Ok(())
+    }
+
+    fn recv(&mut self, timeout: Duration) -> Result<Option<u64>> {
+        let end = Instant::now() + timeout;
+        loop {
+            if let Some(s) = self.rx.receive().map_err(|e| anyhow!("receive: {e:?}"))? {
+                return Ok(Some(read_stamp(s.payload())));
+            }
+            let left = end.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                return Ok(None);
+            }
+            if self.mode == Mode::Blocking {
+                self.listener
+                    .timed_wait(|_| {}, left.min(Duration::from_millis(100)))
+                    .map_err(|e| anyhow!("wait: {e:?}"))?;
+            } else {
+                std::hint::spin_loop();
+            }
+        }
+    }
+}
+
+struct UdsEnd {
+    stream: UnixStream,
+    payload: Vec<u8>,
+    frame: Vec<u8>,
+    mode: Mode,
+}
+
+impl UdsEnd {
+    fn new(stream: UnixStream, size: usize, mode: Mode) -> Result<UdsEnd> {
+        stream.set_nonblocking(mode == Mode::Spin)?;
+        Ok(UdsEnd {
+            stream,
+            payload: vec![0u8; size],
+            frame: Vec::with_capacity(size + 16),
+            mode,
+        })
+    }
+
+    fn read_exact_spin(&mut self, buf_len: usize, end: Instant) -> Result<bool> {
+        let mut got = 0;
+        while got < buf_len {
+            match self.stream.read(&mut self.frame[got..buf_len]) {
+                Ok(0) => bail!("peer closed the socket"),
+                Ok(n) => got += n,
+                Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
+                    if got == 0 && Instant::now() >= end {
+                        return Ok(false);
+                    }
+                    std::hint::spin_loop();
+                }
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                Err(e) => return Err(e.into()),
+            }
+        }
+        Ok(true)
+    }
+}
+
+impl Endpoint for UdsEnd {
+    fn send(&mut self, round: u64) -> Result<()> {
+        stamp(&mut self.payload, round);
+        self.frame.clear();
+        self.frame.extend_from_slice(&[0u8; 4]);
+        let frame = postcard::to_extend(self.payload.as_slice(), std::mem::take(&mut self.frame))?;
+        self.frame = frame;
+        let len = (self.frame.len() - 4) as u32;
+        self.frame[..4].copy_from_slice(&len.to_le_bytes());
+        if self.mode == Mode::Spin {
+            self.stream.set_nonblocking(false)?;
+            self.stream.write_all(&self.frame)?;
+            self.stream.set_nonblocking(true)?;
+        } else {
+            self.stream.write_all(&self.frame)?;
+        }
+        Ok(())
+    }
+
+    fn recv(&mut self, timeout: Duration) -> Result<Option<u64>> {
+        let end = Instant::now() + timeout;
+        self.frame.resize(4, 0);
+        if self.mode == Mode::Blocking {
+            self.stream
+                .set_read_timeout(Some(timeout.max(Duration::from_millis(1))))?;
+            match self.stream.read_exact(&mut self.frame[..4]) {
+                Ok(()) => {}
+                Err(e)
+                    if matches!(
+                        e.kind(),
+                        std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                    ) =>
+                {
+                    return Ok(None);
+                }
+                Err(e) => return Err(e.into()),
+            }
+            let len =
+                u32::from_le_bytes([self.frame[0], self.frame[1], self.frame[2], self.frame[3]])
+                    as usize;
+            self.frame.resize(len, 0);
+            self.stream.set_read_timeout(None)?;
+            self.stream.read_exact(&mut self.frame[..len])?;
+        } else {
+            if !self.read_exact_spin(4, end)? {
+                return Ok(None);
+            }
+            let len =
+                u32::from_le_bytes([self.frame[0], self.frame[1], self.frame[2], self.frame[3]])
+                    as usize;
+            self.frame.resize(len.max(4), 0);
+            self.read_exact_spin(len, Instant::now() + Duration::from_secs(10))?;
+            self.frame.truncate(len);
+        }
+        let bytes: &[u8] =
+            postcard::from_bytes(&self.frame).context("decoding a postcard frame")?;
+        Ok(Some(read_stamp(bytes)))
+    }
+}
+
+/// A running peer process and the local end talking to it.
+pub struct Session {
+    child: Child,
+    end: Box<dyn Endpoint>,
+    prefix: String,
+    socket: Option<String>,
+    round: u64,
+}
+
+impl Session {
+    /// Starts the peer `exe __bench-peer ...` and connects to it.
+    pub fn start(
+        exe: &std::path::Path,
+        transport: Transport,
+        size: usize,
+        mode: Mode,
+    ) -> Result<Session> {
+        let size = size.max(8);
+        let prefix = shm::unique_prefix("bench");
+        let socket = (transport == Transport::Uds).then(|| {
+            std::env::temp_dir()
+                .join(format!("{prefix}ipc.sock"))
+                .to_string_lossy()
+                .into_owned()
+        });
+        let listener = match &socket {
+            Some(path) => {
+                let _ = std::fs::remove_file(path);
+                Some(UnixListener::bind(path).with_context(|| format!("binding {path}"))?)
+            }
+            None => None,
+        };
+        let mut cmd = Command::new(exe);
+        cmd.args([
+            "__bench-peer",
+            "--transport",
+            transport.name(),
+            "--mode",
+            mode.name(),
+        ])
+        .args(["--size", &size.to_string(), "--prefix", &prefix])
+        .stdin(Stdio::null());
+        if let Some(s) = &socket {
+            cmd.args(["--socket", s]);
+        }
+        let child = cmd
+            .spawn()
+            .with_context(|| format!("starting the peer {}", exe.display()))?;
+        let mut session = Session {
+            child,
+            end: Box::new(NoEnd),
+            prefix: prefix.clone(),
+            socket: socket.clone(),
+            round: 0,
+        };
+        session.end = match transport {
+            Transport::Hng => Box::new(HngEnd::new(&prefix, "bench-ping", PING, PONG, size, mode)?),
+            Transport::Iceoryx2 => {
+                Box::new(RawEnd::new(&prefix, "bench-ping", PING, PONG, size, mode)?)
+            }
+            Transport::Uds => {
+                let l = listener.ok_or_else(|| anyhow!("no socket"))?;
+                let (stream, _) = l.accept().context("accepting the peer's connection")?;
+                Box::new(UdsEnd::new(stream, size, mode)?)
+            }
+        };
+        // Handshake: the peer may not be subscribed yet, so ping until it answers.
+        let mut ok = false;
+        for _ in 0..1000 {
+            session.end.send(0)?;
+            if session.end.recv(Duration::from_millis(10))? == Some(0) {
+                ok = true;
+                break;
+            }
+        }
+        if !ok {
+            bail!("the {} peer never answered", transport.name());
+        }
+        while session.end.recv(Duration::from_millis(5))?.is_some() {}
+        Ok(session)
+    }
+
+    /// One round trip; returns its duration.
+    pub fn round_trip(&mut self) -> Result<Duration> {
+        self.round += 1;
+        let t0 = Instant::now();
+        self.end.send(self.round)?;
+        loop {
+            match self.end.recv(Duration::from_secs(5))? {
+                Some(r) if r == self.round => return Ok(t0.elapsed()),
+                Some(_) => continue,
+                None => bail!("no answer to round {} within 5 s", self.round),
+            }
+        }
+    }
+
+    /// Stops the peer and removes what the session created.
+    pub fn finish(mut self) -> Result<()> {
+        let _ = self.end.send(STOP);
+        let deadline = Instant::now() + Duration::from_secs(5);
+        loop {
+            if self.child.try_wait()?.is_some() {
+                break;
+            }
+            if Instant::now() >= deadline {
+                let _ = self.child.kill();
+                let _ = self.child.wait();
+                break;
+            }
+            let _ = self.end.send(STOP);
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        Ok(())
+    }
+}
+
+impl Drop for Session {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+        self.end = Box::new(NoEnd);
+        shm::remove_prefix_files(&self.prefix);
+        if let Some(s) = &self.socket {
+            let _ = std::fs::remove_file(s);
+        }
+    }
+}
+
+struct NoEnd;
+impl Endpoint for NoEnd {
+    fn send(&mut self, _: u64) -> Result<()> {
+        Ok(())
+    }
+    fn recv(&mut self, _: Duration) -> Result<Option<u64>> {
+        Ok(None)
+    }
+}
+
+/// The peer process: echo stamps until STOP.
+pub fn peer(a: &PeerArgs) -> Result<()> {
+    let mut end: Box<dyn Endpoint> = match a.transport {
+        Transport::Hng => Box::new(HngEnd::new(
+            &a.prefix,
+            "bench-pong",
+            PONG,
+            PING,
+            a.size,
+            a.mode,
+        )?),
+        Transport::Iceoryx2 => Box::new(RawEnd::new(
+            &a.prefix,
+            "bench-pong",
+            PONG,
+            PING,
+            a.size,
+            a.mode,
+        )?),
+        Transport::Uds => {
+            let path = a
+                .socket
+                .as_deref()
+                .ok_or_else(|| anyhow!("--socket is required for uds"))?;
+            Box::new(UdsEnd::new(
+                UnixStream::connect(path).with_context(|| format!("connecting {path}"))?,
+                a.size,
+                a.mode,
+            )?)
+        }
+    };
+    let idle_limit = Duration::from_secs(30);
+    let mut idle = Instant::now();
+    loop {
+        match end.recv(Duration::from_millis(100))? {
+            Some(STOP) => return Ok(()),
+            Some(r) => {
+                end.send(r)?;
+                idle = Instant::now();
+            }
+            None if idle.elapsed() > idle_limit => bail!("no ping for {} s", idle_limit.as_secs()),
+            None => {}
+        }
+    }
+}
+
+/// Runs one case and returns its row.
+pub fn run_case(
+    exe: &std::path::Path,
+    t: Transport,
+    size: usize,
+    mode: Mode,
+    samples: usize,
+    max: Duration,
+) -> Result<BenchRow> {
+    let mut s = Session::start(exe, t, size, mode)?;
+    for _ in 0..samples.clamp(10, 200) / 10 {
+        s.round_trip()?;
+    }
+    let mut one_way = Vec::with_capacity(samples);
+    let start = Instant::now();
+    while one_way.len() < samples && start.elapsed() < max {
+        one_way.push(s.round_trip()?.as_nanos() as u64 / 2);
+    }
+    s.finish()?;
+    let p = Percentiles::of(&mut one_way);
+    Ok(
+        BenchRow::new("ipc", &format!("{}/{}/{}", t.name(), size, mode.name()), p)
+            .with("transport", t.name())
+            .with("size", size as u64)
+            .with("mode", mode.name()),
+    )
+}
+
+pub fn run(a: &IpcArgs) -> Result<()> {
+    let exe = std::env::current_exe().context("locating the hng executable")?;
+    let max = Duration::from_secs_f64(a.max_seconds.max(0.01));
+    let mut rows = Vec::new();
+    for &mode in &a.mode {
+        for &size in &a.sizes {
+            for &t in &a.transport {
+                let row = run_case(&exe, t, size, mode, a.samples, max)?;
+                if a.json {
+                    println!("{}", row.to_json());
+                }
+                rows.push(row);
+            }
+        }
+    }
+    if !a.json {
+        super::print_rows(&rows, false);
+    }
+    Ok(())
+}

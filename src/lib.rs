@@ -1,0 +1,4 @@
+//! The `hng` package: the command-line tool, and the benchmark drivers shared by
+//! `hng bench` and the criterion benches in `benches/`.
+
+pub mod bench;

@@ -1,0 +1,366 @@
+//! `hng topic list | echo | hz`: look at the channels of any running system.
+
+use std::time::{Duration, Instant};
+
+use anyhow::{Context as _, Result, bail};
+use clap::Subcommand;
+use hng_runtime::channel::{Node, NodeOptions, Service, iceoryx_config};
+use hng_runtime::msg::{self, Message, SliceMessage};
+use hng_runtime::wait::{WaitMode, Waiter, Wake};
+use iceoryx2::prelude::*;
+use serde::Serialize;
+
+#[derive(Debug, Subcommand)]
+pub enum TopicCommand {
+    /// List the channels (publish-subscribe services) of the system.
+    List {
+        /// One JSON object per channel.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Print the messages of a channel as they arrive.
+    Echo {
+        /// Channel name, e.g. `sim/scan`.
+        name: String,
+        /// Stop after this many messages.
+        #[arg(long)]
+        count: Option<u64>,
+        /// Stop after this many seconds.
+        #[arg(long)]
+        timeout: Option<f64>,
+        /// One JSON object per message (default: the same, pretty-printed).
+        #[arg(long)]
+        json: bool,
+    },
+    /// Measure the publishing rate of a channel.
+    Hz {
+        /// Channel name.
+        name: String,
+        /// Seconds per report.
+        #[arg(long, default_value_t = 1.0)]
+        window: f64,
+        /// Stop after this many reports.
+        #[arg(long)]
+        count: Option<u64>,
+        /// One JSON object per report.
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+#[derive(Debug, Serialize)]
+struct ChannelInfo {
+    name: String,
+    r#type: String,
+    /// Processes (nodes) attached to the channel.
+    nodes: Option<usize>,
+    history: usize,
+    buffer: usize,
+}
+
+fn channels(prefix: &str) -> Result<Vec<ChannelInfo>> {
+    let config = iceoryx_config(prefix)?;
+    let mut out = Vec::new();
+    <Service as iceoryx2::service::Service>::list(&config, |d| {
+        if let iceoryx2::service::static_config::messaging_pattern::MessagingPattern::PublishSubscribe(ps) =
+            d.static_details.messaging_pattern()
+        {
+            let t = ps.message_type_details();
+            let payload = t.payload.type_name().to_string();
+            let header = t.user_header.type_name().to_string();
+            let nodes = d.dynamic_details.as_ref().map(|dy| dy.nodes.len());
+            out.push(ChannelInfo {
+                name: d.static_details.name().to_string(),
+                r#type: if header == "()" { payload } else { header },
+                nodes,
+                history: ps.history_size(),
+                buffer: ps.subscriber_max_buffer_size(),
+            });
+        }
+        CallbackProgression::Continue
+    })
+    .map_err(|e| anyhow::anyhow!("listing the channels of prefix {prefix:?}: {e:?}"))?;
+    out.sort_by(|a, b| a.name.cmp(&b.name));
+    Ok(out)
+}
+
+pub fn run(prefix: &str, cmd: TopicCommand) -> Result<()> {
+    match cmd {
+        TopicCommand::List { json } => {
+            let list = channels(prefix)?;
+            if json {
+                for c in &list {
+                    println!("{}", serde_json::to_string(c)?);
+                }
+            } else if list.is_empty() {
+                println!("no channels under prefix {prefix:?}");
+            } else {
+                let w = list.iter().map(|c| c.name.len()).max().unwrap_or(4).max(4);
+                println!("{:w$}  {:28}  nodes  history", "name", "type");
+                for c in &list {
+                    let n = c.nodes.map_or("-".to_string(), |v| v.to_string());
+                    println!("{:w$}  {:28}  {:>5}  {:>7}", c.name, c.r#type, n, c.history);
+                }
+            }
+            Ok(())
+        }
+        TopicCommand::Echo {
+            name,
+            count,
+            timeout,
+            json,
+        } => {
+            let mode = Mode::Echo {
+                count,
+                timeout: timeout.map(Duration::from_secs_f64),
+                json,
+            };
+            dispatch(prefix, &name, mode)
+        }
+        TopicCommand::Hz {
+            name,
+            window,
+            count,
+            json,
+        } => {
+            if !(window > 0.0) {
+                bail!("--window must be a positive number of seconds");
+            }
+            dispatch(
+                prefix,
+                &name,
+                Mode::Hz {
+                    window: Duration::from_secs_f64(window),
+                    count,
+                    json,
+                },
+            )
+        }
+    }
+}
+
+#[derive(Clone, Copy)]
+enum Mode {
+    Echo {
+        count: Option<u64>,
+        timeout: Option<Duration>,
+        json: bool,
+    },
+    Hz {
+        window: Duration,
+        count: Option<u64>,
+        json: bool,
+    },
+}
+
+fn dispatch(prefix: &str, name: &str, mode: Mode) -> Result<()> {
+    let list = channels(prefix)?;
+    let Some(info) = list.iter().find(|c| c.name == name) else {
+        bail!("no channel {name:?} under prefix {prefix:?} (see `hng topic list`)");
+    };
+    let node =
+        Node::new(NodeOptions::new(&format!("hng-topic-{}", std::process::id())).prefix(prefix))?;
+    macro_rules! fixed {
+        ($($t:ty),*) => {$(
+            if info.r#type == type_name::<$t>() {
+                return watch_fixed::<$t>(&node, name, mode);
+            }
+        )*};
+    }
+    macro_rules! slice {
+        ($($t:ty),*) => {$(
+            if info.r#type == type_name::<$t>() {
+                return watch_slice::<$t>(&node, name, mode);
+            }
+        )*};
+    }
+    fixed!(
+        msg::Twist,
+        msg::Odometry,
+        msg::PoseWithCovariance,
+        msg::LaserScan,
+        msg::BeaconObservation,
+        msg::Goal,
+        msg::Waypoint,
+        msg::Clock,
+        msg::ModuleReport
+    );
+    slice!(msg::GridInfo, msg::ImageInfo, msg::BytesInfo);
+    bail!(
+        "channel {name:?} carries {}, which this hng does not know how to print",
+        info.r#type
+    )
+}
+
+fn type_name<T: ZeroCopySend>() -> String {
+    // SAFETY: only unsafe because implementors may lie; hng's are derived.
+    unsafe { <T as ZeroCopySend>::type_name() }.to_string()
+}
+
+struct Rate {
+    start: Instant,
+    last: Option<Instant>,
+    n: u64,
+    gaps: Vec<f64>,
+    reports: u64,
+}
+
+impl Rate {
+    fn new() -> Rate {
+        Rate {
+            start: Instant::now(),
+            last: None,
+            n: 0,
+            gaps: Vec::new(),
+            reports: 0,
+        }
+    }
+
+    fn tick(&mut self) {
+        let now = Instant::now();
+        if let Some(l) = self.last {
+            self.gaps.push((now - l).as_secs_f64());
+        }
+        self.last = Some(now);
+        self.n += 1;
+    }
+
+    /// Prints a report if the window is over; returns true when enough reports were printed.
+    fn report(&mut self, name: &str, window: Duration, count: Option<u64>, json: bool) -> bool {
+        let el = self.start.elapsed();
+        if el < window {
+            return false;
+        }
+        let rate = self.n as f64 / el.as_secs_f64();
+        let (min, max) = self
+            .gaps
+            .iter()
+            .fold((f64::INFINITY, 0.0f64), |(a, b), g| (a.min(*g), b.max(*g)));
+        let mean = if self.gaps.is_empty() {
+            0.0
+        } else {
+            self.gaps.iter().sum::<f64>() / self.gaps.len() as f64
+        };
+        let sd = if self.gaps.is_empty() {
+            0.0
+        } else {
+            (self.gaps.iter().map(|g| (g - mean).powi(2)).sum::<f64>() / self.gaps.len() as f64)
+                .sqrt()
+        };
+        let min = if min.is_finite() { min } else { 0.0 };
+        if json {
+            println!(
+                "{}",
+                serde_json::json!({"channel": name, "rate_hz": rate, "messages": self.n,
+                "window_s": el.as_secs_f64(), "min_gap_s": min, "max_gap_s": max, "std_dev_s": sd})
+            );
+        } else {
+            println!(
+                "{name}: average rate {rate:.3} Hz ({} msgs in {:.2} s), min {min:.4} s, max {max:.4} s, std dev {sd:.5} s",
+                self.n,
+                el.as_secs_f64()
+            );
+        }
+        self.reports += 1;
+        self.start = Instant::now();
+        self.n = 0;
+        self.gaps.clear();
+        count.is_some_and(|c| self.reports >= c)
+    }
+}
+
+fn run_loop(
+    mode: Mode,
+    waiter: &mut Waiter,
+    mut on_data: impl FnMut(&mut Rate) -> Result<u64>,
+    name: &str,
+) -> Result<()> {
+    waiter.catch_termination_signals()?;
+    let start = Instant::now();
+    let mut rate = Rate::new();
+    let mut seen = 0u64;
+    loop {
+        let step = Duration::from_millis(100);
+        if let Wake::Signal(_) = waiter.wait(Some(step))? {
+            return Ok(());
+        }
+        seen += on_data(&mut rate)?;
+        match mode {
+            Mode::Echo { count, timeout, .. } => {
+                if count.is_some_and(|c| seen >= c) || timeout.is_some_and(|t| start.elapsed() >= t)
+                {
+                    return Ok(());
+                }
+            }
+            Mode::Hz {
+                window,
+                count,
+                json,
+            } => {
+                if rate.report(name, window, count, json) {
+                    return Ok(());
+                }
+            }
+        }
+    }
+}
+
+fn print_json<T: Serialize>(v: &T, json: bool) -> Result<()> {
+    if json {
+        println!("{}", serde_json::to_string(v)?);
+    } else {
+        println!("{}\n---", serde_json::to_string_pretty(v)?);
+    }
+    Ok(())
+}
+
+fn watch_fixed<T: Message>(node: &Node, name: &str, mode: Mode) -> Result<()> {
+    let sub = node
+        .subscriber::<T>(name)
+        .with_context(|| format!("subscribing to {name}"))?;
+    let mut waiter = Waiter::new(WaitMode::default())?;
+    waiter.attach(&sub)?;
+    run_loop(
+        mode,
+        &mut waiter,
+        |rate| {
+            let mut n = 0;
+            while let Some(s) = sub.receive()? {
+                n += 1;
+                rate.tick();
+                if let Mode::Echo { json, .. } = mode {
+                    print_json(&*s, json)?;
+                }
+            }
+            Ok(n)
+        },
+        name,
+    )
+}
+
+fn watch_slice<H: SliceMessage>(node: &Node, name: &str, mode: Mode) -> Result<()> {
+    let sub = node
+        .slice_subscriber::<H>(name)
+        .with_context(|| format!("subscribing to {name}"))?;
+    let mut waiter = Waiter::new(WaitMode::default())?;
+    waiter.attach(&sub)?;
+    run_loop(
+        mode,
+        &mut waiter,
+        |rate| {
+            let mut n = 0;
+            while let Some(s) = sub.receive()? {
+                n += 1;
+                rate.tick();
+                if let Mode::Echo { json, .. } = mode {
+                    print_json(
+                        &serde_json::json!({"header": s.header(), "len": s.data().len()}),
+                        json,
+                    )?;
+                }
+            }
+            Ok(n)
+        },
+        name,
+    )
+}

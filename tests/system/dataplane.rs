@@ -1,0 +1,177 @@
+//! The data plane across processes: ping-pong, content, clean-up, type errors.
+
+use std::time::Duration;
+
+use hng_runtime::channel::{Node, NodeOptions};
+use hng_runtime::msg::{BytesInfo, Goal, Twist};
+use hng_runtime::shm;
+use hng_runtime::wait::{WaitMode, Waiter, Wake};
+
+use crate::common::TestSystem;
+
+fn pattern(round: u64, i: usize) -> u8 {
+    (i as u64)
+        .wrapping_mul(31)
+        .wrapping_add(round.wrapping_mul(7)) as u8
+}
+
+/// Sends `rounds` payloads of `size` bytes to the echo process and checks every byte back.
+fn ping_pong(node: &Node, size: usize, rounds: u64) {
+    let ping = node
+        .slice_publisher::<BytesInfo>("test/ping", size)
+        .expect("ping publisher");
+    let pong = node
+        .slice_subscriber::<BytesInfo>("test/pong")
+        .expect("pong subscriber");
+    let mut waiter = Waiter::new(WaitMode::default()).expect("waiter");
+    waiter.attach(&pong).expect("attach");
+
+    // The echo process may not be subscribed yet: resend the first ping until it answers.
+    let mut answered = false;
+    for _ in 0..500 {
+        ping.publish_copy(BytesInfo::default(), &[0u8; 8])
+            .expect("send");
+        if waiter.wait(Some(Duration::from_millis(20))).expect("wait") == Wake::Data {
+            answered = true;
+            break;
+        }
+    }
+    assert!(answered, "echo process never answered");
+    while pong.receive().expect("drain").is_some() {}
+
+    for round in 1..=rounds {
+        let loan = ping.loan_uninit(size).expect("loan");
+        loan.write_from_fn(|i| pattern(round, i))
+            .publish()
+            .expect("publish");
+        let sample = loop {
+            match waiter.wait(Some(Duration::from_secs(5))).expect("wait") {
+                Wake::Data => {
+                    if let Some(s) = pong.receive().expect("receive") {
+                        break s;
+                    }
+                }
+                other => panic!("no echo for round {round} of {size} bytes: {other:?}"),
+            }
+        };
+        let data = sample.data();
+        assert_eq!(data.len(), size, "echoed length, round {round}");
+        let bad = data
+            .iter()
+            .enumerate()
+            .find(|(i, b)| **b != pattern(round, *i));
+        assert!(
+            bad.is_none(),
+            "byte {:?} differs in round {round} ({size} bytes)",
+            bad
+        );
+    }
+}
+
+#[test]
+fn two_processes_ping_pong_64_bytes_and_1_mib_with_content_verified() {
+    let mut sys = TestSystem::new("pp");
+    sys.spawn_testmod("echo", "echo", "");
+    {
+        let node = Node::new(NodeOptions::new("pinger").prefix(&sys.prefix)).expect("node");
+        ping_pong(&node, 64, 200);
+        ping_pong(&node, 1 << 20, 20);
+    }
+    let statuses = sys.stop_all();
+    assert!(
+        statuses.iter().all(|s| s.success()),
+        "echo exited badly: {statuses:?}"
+    );
+
+    // After a clean stop only the prefix's management file and hng's wake segments remain;
+    // the system's final clean-up removes them.
+    let left = shm::prefix_files(&sys.prefix);
+    let unexpected: Vec<_> = left
+        .iter()
+        .filter(|p| {
+            let n = p.to_string_lossy();
+            !(n.ends_with(".global_mgmt") || n.contains("hngwake_"))
+        })
+        .collect();
+    assert!(
+        unexpected.is_empty(),
+        "left behind after a clean stop: {unexpected:?}"
+    );
+    shm::remove_prefix_files(&sys.prefix);
+    assert_eq!(
+        shm::prefix_files(&sys.prefix),
+        Vec::<std::path::PathBuf>::new()
+    );
+}
+
+#[test]
+fn subscriber_with_another_type_gets_an_error_naming_channel_and_both_types() {
+    let sys = TestSystem::new("ty");
+    let node = Node::new(NodeOptions::new("typed").prefix(&sys.prefix)).expect("node");
+    let _p = node.publisher::<Twist>("robot/cmd_vel").expect("publisher");
+    let err = node
+        .subscriber::<Goal>("robot/cmd_vel")
+        .expect_err("a Goal subscriber on a Twist channel must fail");
+    let msg = err.to_string();
+    assert!(msg.contains("robot/cmd_vel"), "{msg}");
+    assert!(msg.contains("hng/Twist/v1"), "{msg}");
+    assert!(msg.contains("hng/Goal/v1"), "{msg}");
+}
+
+#[test]
+fn state_channels_give_late_joiners_the_latest_sample() {
+    let sys = TestSystem::new("late");
+    let node = Node::new(NodeOptions::new("early").prefix(&sys.prefix)).expect("node");
+    let p = node.publisher::<Goal>("mission/goal").expect("publisher");
+    for id in 1..=3 {
+        p.publish(Goal {
+            id,
+            ..Default::default()
+        })
+        .expect("publish");
+    }
+    let late = Node::new(NodeOptions::new("late").prefix(&sys.prefix)).expect("node");
+    let s = late.subscriber::<Goal>("mission/goal").expect("subscriber");
+    assert!(
+        s.latest().expect("receive").is_none(),
+        "history arrives when the publisher updates"
+    );
+    // What a module's executor does at every wake-up:
+    node.update_connections();
+    let got = s
+        .latest()
+        .expect("receive")
+        .expect("the latest goal is delivered");
+    assert_eq!(got.id, 3);
+    assert_eq!(got.header.seq, 3);
+}
+
+#[test]
+fn overflow_drops_are_counted_and_the_publisher_never_blocks() {
+    let sys = TestSystem::new("ovf");
+    let node = Node::new(NodeOptions::new("fast").prefix(&sys.prefix)).expect("node");
+    let p = node.publisher::<Twist>("robot/cmd_vel").expect("publisher");
+    let s = node
+        .subscriber::<Twist>("robot/cmd_vel")
+        .expect("subscriber");
+    // Drops are counted from the first message seen from a publisher.
+    p.publish(Twist::default()).expect("publish");
+    assert!(s.receive().expect("receive").is_some());
+    // The subscriber reads nothing while 100 commands go out: the buffer (4) overflows.
+    for i in 1..=100 {
+        p.publish(Twist {
+            linear_x: f64::from(i),
+            ..Default::default()
+        })
+        .expect("publish never blocks");
+    }
+    let mut got = Vec::new();
+    while let Some(m) = s.receive().expect("receive") {
+        got.push(m.linear_x);
+    }
+    assert_eq!(got.last(), Some(&100.0), "the newest command survives");
+    let stats = s.stats();
+    assert_eq!(stats.received as usize, got.len() + 1);
+    assert_eq!(stats.dropped + stats.received, 101, "{stats:?}");
+    assert!(stats.dropped > 0);
+}

@@ -1,0 +1,71 @@
+//! The module SDK across processes: deadlines, clean stop on SIGTERM, checkpoint and restore.
+
+use std::time::Duration;
+
+use hng_runtime::msg::Goal;
+use hng_runtime::wait::{WaitMode, Waiter};
+use hng_runtime::{Node, NodeOptions};
+
+use crate::common::{TestSystem, wait_for_report};
+
+#[test]
+fn a_missed_receive_deadline_is_reported_by_the_module() {
+    let mut sys = TestSystem::new("dl");
+    let node = Node::new(NodeOptions::new("observer").prefix(&sys.prefix)).expect("node");
+    sys.spawn_testmod("watcher", "watcher", "deadline_ms = 30");
+    let r = wait_for_report(&node, "watcher", Duration::from_secs(10), |r| {
+        r.deadline_misses > 0
+    });
+    assert_eq!(
+        r.deadline_misses, 1,
+        "one silence is one miss, reported once"
+    );
+    assert!(sys.stop_all().iter().all(|s| s.success()));
+}
+
+fn next_count(sub: &hng_runtime::Subscriber<Goal>, waiter: &mut Waiter) -> u32 {
+    loop {
+        if let Some(g) = sub.receive().expect("receive") {
+            return g.id;
+        }
+        waiter.wait(Some(Duration::from_secs(10))).expect("wait");
+        assert!(waiter.any_ready(), "the counter stopped publishing");
+    }
+}
+
+#[test]
+fn sigterm_stops_cleanly_and_the_restarted_module_restores_its_checkpoint() {
+    let mut sys = TestSystem::new("ckpt");
+    let dir = std::env::temp_dir().join(format!("{}ckpt", sys.prefix));
+    let dir_s = dir.to_string_lossy().into_owned();
+    let env = [
+        ("HNG_CHECKPOINT_DIR", dir_s.as_str()),
+        ("HNG_CHECKPOINT_PERIOD_MS", "50"),
+    ];
+    let node = Node::new(NodeOptions::new("observer").prefix(&sys.prefix)).expect("node");
+    let sub = node.subscriber::<Goal>("test/count").expect("subscriber");
+    let mut waiter = Waiter::new(WaitMode::default()).expect("waiter");
+    waiter.attach(&sub).expect("attach");
+
+    sys.spawn_testmod_with("counter", "counter", "period_ms = 5", &env);
+    let mut last = 0;
+    while last < 20 {
+        last = next_count(&sub, &mut waiter);
+    }
+    let statuses = sys.stop_all();
+    assert!(
+        statuses[0].success(),
+        "SIGTERM must be a clean stop: {:?}",
+        statuses[0]
+    );
+    while let Some(g) = sub.receive().expect("drain") {
+        last = g.id;
+    }
+
+    // The final checkpoint was written on stop: the new process counts on from there.
+    sys.spawn_testmod_with("counter", "counter", "period_ms = 5", &env);
+    let first = next_count(&sub, &mut waiter);
+    assert_eq!(first, last + 1, "restored count");
+    sys.stop_all();
+    let _ = std::fs::remove_dir_all(&dir);
+}

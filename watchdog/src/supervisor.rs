@@ -1,0 +1,1251 @@
+//! The supervisor: one event loop, driven by the caller, that owns the module
+//! processes.
+//!
+//! ```no_run
+//! use std::time::{Duration, Instant};
+//! use hng_watchdog::{ModuleSpec, Supervisor, SupervisorOptions};
+//! # fn main() -> Result<(), hng_watchdog::SupervisorError> {
+//! let mut sup = Supervisor::new(
+//!     vec![ModuleSpec::new("sleeper", "/bin/sleep", &["1000"])],
+//!     SupervisorOptions::default(),
+//! )?;
+//! sup.start_all();
+//! loop {
+//!     // Blocks until a child exits, a timer (backoff, hang, stop timeout)
+//!     // is due, the Waker is woken, or 50 ms pass.
+//!     for event in sup.poll(Duration::from_millis(50))? {
+//!         println!("{event}");
+//!     }
+//!     // ... read heartbeats from iceoryx2 here, then:
+//!     // sup.heartbeat("sleeper", Instant::now())?;
+//! #   break;
+//! }
+//! sup.shutdown()?;
+//! # Ok(()) }
+//! ```
+//!
+//! Exits are detected through a pidfd per child in an epoll set, so
+//! detection latency is the wake-up latency of `epoll_wait`, not a polling
+//! period. Timers are computed from the earliest deadline; nothing sleeps.
+
+use std::collections::{BTreeMap, HashMap, VecDeque};
+use std::fmt;
+use std::io;
+use std::os::fd::{AsFd, BorrowedFd};
+use std::os::unix::process::{CommandExt, ExitStatusExt};
+use std::process::{Child, Command, ExitStatus, Stdio};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use nix::sys::signal::Signal;
+use serde::Serialize;
+
+use crate::launch::{ModuleSpec, RestartPolicy};
+use crate::sys::{self, Epoll, EventFd, PidFd};
+
+const WAKE_TOKEN: u64 = u64::MAX;
+
+/// Serialize a `Duration` as floating-point milliseconds (for JSON).
+mod ms {
+    use serde::Serializer;
+    use std::time::Duration;
+
+    pub fn serialize<S: Serializer>(d: &Duration, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_f64(d.as_secs_f64() * 1e3)
+    }
+
+    pub mod opt {
+        use serde::Serializer;
+        use std::time::Duration;
+
+        pub fn serialize<S: Serializer>(d: &Option<Duration>, s: S) -> Result<S::Ok, S::Error> {
+            match d {
+                Some(d) => s.serialize_some(&(d.as_secs_f64() * 1e3)),
+                None => s.serialize_none(),
+            }
+        }
+    }
+}
+
+/// Why a module process ended.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum ExitCause {
+    /// It called `exit(code)`.
+    Exited {
+        /// Exit status.
+        code: i32,
+    },
+    /// A signal killed it (that the supervisor did not send for a hang, a
+    /// limit or a stop; `kill()` fault injection shows up here).
+    Signaled {
+        /// `SIGSEGV`, `SIGKILL`, ...
+        signal: String,
+        /// Signal number.
+        number: i32,
+        /// A core dump was written.
+        core_dumped: bool,
+    },
+    /// The kernel OOM killer (as reported by [`SupervisorHooks::oom_killed`]).
+    OomKilled,
+    /// No heartbeat within the timeout; the supervisor sent SIGKILL.
+    Hang {
+        /// Time since the last heartbeat (or since spawn) when detected.
+        #[serde(rename = "silent_for_ms", with = "ms")]
+        silent_for: Duration,
+    },
+    /// Killed at the caller's request for exceeding a resource limit.
+    OverLimit {
+        /// The caller's reason, e.g. "memory 600 MiB > 512 MiB".
+        reason: String,
+    },
+    /// Did not exit within `stop_timeout` after SIGTERM; SIGKILLed.
+    StopTimeout,
+    /// The process could not be started.
+    SpawnFailed {
+        /// The OS error.
+        error: String,
+    },
+    /// The exit status could not be collected.
+    Unknown {
+        /// Why.
+        error: String,
+    },
+}
+
+impl ExitCause {
+    /// Everything except `exit(0)` is a failure (for `on-failure`).
+    pub fn is_failure(&self) -> bool {
+        !matches!(self, Self::Exited { code: 0 })
+    }
+
+    fn from_status(status: ExitStatus) -> Self {
+        if let Some(code) = status.code() {
+            return Self::Exited { code };
+        }
+        if let Some(number) = status.signal() {
+            return Self::Signaled {
+                signal: signal_name(number),
+                number,
+                core_dumped: status.core_dumped(),
+            };
+        }
+        Self::Unknown {
+            error: format!("unrecognised wait status {status:?}"),
+        }
+    }
+}
+
+/// `SIGSEGV` for 11, `SIG42` for an unnamed (real-time) signal.
+pub fn signal_name(number: i32) -> String {
+    Signal::try_from(number).map_or_else(|_| format!("SIG{number}"), |s| s.as_str().to_owned())
+}
+
+impl fmt::Display for ExitCause {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::Exited { code } => write!(f, "exited with code {code}"),
+            Self::Signaled {
+                signal,
+                core_dumped,
+                ..
+            } => write!(
+                f,
+                "killed by {signal}{}",
+                if *core_dumped { " (core dumped)" } else { "" }
+            ),
+            Self::OomKilled => write!(f, "killed by the OOM killer"),
+            Self::Hang { silent_for } => write!(
+                f,
+                "hang: no heartbeat for {:.0} ms, SIGKILLed",
+                silent_for.as_secs_f64() * 1e3
+            ),
+            Self::OverLimit { reason } => write!(f, "killed over limit: {reason}"),
+            Self::StopTimeout => write!(f, "ignored SIGTERM, SIGKILLed after the stop timeout"),
+            Self::SpawnFailed { error } => write!(f, "could not start: {error}"),
+            Self::Unknown { error } => write!(f, "unknown exit: {error}"),
+        }
+    }
+}
+
+/// Lifecycle state of a module.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ModuleState {
+    /// Spawned, no heartbeat yet (only with heartbeats configured).
+    Starting,
+    /// Alive (and heartbeating, if configured).
+    Running,
+    /// SIGTERM sent, waiting for exit (then SIGKILL).
+    Stopping,
+    /// Dead, waiting for its restart delay.
+    BackingOff,
+    /// Gave up: too many failures within the window. `start`/`restart` revive it.
+    Deactivated,
+    /// Not running and not going to be restarted.
+    Stopped,
+}
+
+impl fmt::Display for ModuleState {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Self::Starting => "starting",
+            Self::Running => "running",
+            Self::Stopping => "stopping",
+            Self::BackingOff => "backing-off",
+            Self::Deactivated => "deactivated",
+            Self::Stopped => "stopped",
+        })
+    }
+}
+
+/// Something that happened to a module.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[serde(tag = "event", rename_all = "snake_case")]
+pub enum EventKind {
+    /// A process was spawned.
+    Started {
+        /// Its pid.
+        pid: u32,
+        /// Restarts of this module before this start.
+        restarts: u32,
+    },
+    /// First heartbeat after a start.
+    Running {
+        /// Its pid.
+        pid: u32,
+    },
+    /// Spawning failed (the failure then goes through the restart policy).
+    SpawnFailed {
+        /// The OS error.
+        error: String,
+    },
+    /// No heartbeat within the timeout: SIGKILL sent.
+    HangDetected {
+        /// Its pid.
+        pid: u32,
+        /// Time since the last heartbeat (or since spawn).
+        #[serde(rename = "silent_for_ms", with = "ms")]
+        silent_for: Duration,
+    },
+    /// SIGTERM sent (stop, restart or shutdown).
+    StopRequested {
+        /// Its pid.
+        pid: u32,
+    },
+    /// `stop_timeout` elapsed after SIGTERM: SIGKILL sent.
+    StopTimedOut {
+        /// Its pid.
+        pid: u32,
+    },
+    /// The process ended.
+    Exited {
+        /// Its pid.
+        pid: u32,
+        /// Why.
+        cause: ExitCause,
+        /// How long it ran.
+        #[serde(rename = "uptime_ms", with = "ms")]
+        uptime: Duration,
+    },
+    /// A restart is scheduled.
+    Restarting {
+        /// Delay before the spawn (zero: immediately).
+        #[serde(rename = "delay_ms", with = "ms")]
+        delay: Duration,
+        /// Which restart this will be (1 for the first).
+        attempt: u32,
+    },
+    /// The give-up rule fired: more than `give_up_failures` restarts within
+    /// `give_up_window`. The module stays down until `start`/`restart`.
+    Deactivated {
+        /// Restarts counted in the window.
+        failures: u32,
+        /// The window.
+        #[serde(rename = "window_ms", with = "ms")]
+        window: Duration,
+    },
+    /// The module is down for good (policy, stop or shutdown).
+    Stopped,
+}
+
+/// An [`EventKind`] with its module and monotonic time.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Event {
+    /// When the supervisor saw it (`Instant::now()` right after waking).
+    #[serde(skip)]
+    pub at: Instant,
+    /// The module.
+    pub module: String,
+    /// What happened.
+    #[serde(flatten)]
+    pub kind: EventKind,
+}
+
+impl fmt::Display for Event {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let m = &self.module;
+        match &self.kind {
+            EventKind::Started { pid, restarts } => {
+                write!(f, "{m}: started, pid {pid} (restarts so far: {restarts})")
+            }
+            EventKind::Running { pid } => write!(f, "{m}: running (first heartbeat), pid {pid}"),
+            EventKind::SpawnFailed { error } => write!(f, "{m}: spawn failed: {error}"),
+            EventKind::HangDetected { pid, silent_for } => write!(
+                f,
+                "{m}: hang detected, pid {pid} silent for {:.0} ms, sending SIGKILL",
+                silent_for.as_secs_f64() * 1e3
+            ),
+            EventKind::StopRequested { pid } => write!(f, "{m}: SIGTERM sent to pid {pid}"),
+            EventKind::StopTimedOut { pid } => {
+                write!(f, "{m}: pid {pid} ignored SIGTERM, sending SIGKILL")
+            }
+            EventKind::Exited { pid, cause, uptime } => write!(
+                f,
+                "{m}: pid {pid} {cause} after {:.3} s",
+                uptime.as_secs_f64()
+            ),
+            EventKind::Restarting { delay, attempt } => write!(
+                f,
+                "{m}: restart #{attempt} in {:.0} ms",
+                delay.as_secs_f64() * 1e3
+            ),
+            EventKind::Deactivated { failures, window } => write!(
+                f,
+                "{m}: deactivated after {failures} failures within {:.1} s",
+                window.as_secs_f64()
+            ),
+            EventKind::Stopped => write!(f, "{m}: stopped"),
+        }
+    }
+}
+
+/// One row of `hng ps`.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ModuleStatus {
+    /// Module name.
+    pub name: String,
+    /// Lifecycle state.
+    pub state: ModuleState,
+    /// Current pid.
+    pub pid: Option<u32>,
+    /// Time since the current process started.
+    #[serde(rename = "uptime_ms", with = "ms::opt")]
+    pub uptime: Option<Duration>,
+    /// Restarts since the module was (re)started by the user.
+    pub restarts: u32,
+    /// Why the previous process ended.
+    pub last_exit: Option<ExitCause>,
+    /// Age of the last heartbeat.
+    #[serde(rename = "heartbeat_age_ms", with = "ms::opt")]
+    pub heartbeat_age: Option<Duration>,
+    /// Time left before a scheduled restart.
+    #[serde(rename = "restart_in_ms", with = "ms::opt")]
+    pub restart_in: Option<Duration>,
+    /// The Manager module.
+    pub manager: bool,
+}
+
+/// Supervisor errors; each names the module concerned.
+#[derive(Debug, thiserror::Error)]
+pub enum SupervisorError {
+    /// No module of that name.
+    #[error("no module named {name:?} in this system")]
+    UnknownModule {
+        /// The name asked for.
+        name: String,
+    },
+    /// Two specs with the same name.
+    #[error("module {name:?} is defined twice")]
+    DuplicateModule {
+        /// The name.
+        name: String,
+    },
+    /// The module has no live process.
+    #[error("module {name:?} has no running process (state: {state})")]
+    NotRunning {
+        /// The module.
+        name: String,
+        /// Its state.
+        state: ModuleState,
+    },
+    /// Sending a signal failed.
+    #[error("sending {signal} to module {name:?} (pid {pid}) failed: {source}")]
+    Signal {
+        /// The module.
+        name: String,
+        /// Its pid.
+        pid: u32,
+        /// The signal.
+        signal: String,
+        /// The OS error.
+        #[source]
+        source: io::Error,
+    },
+    /// An OS call of the event loop failed.
+    #[error("supervisor {op} failed: {source}")]
+    Io {
+        /// The call.
+        op: &'static str,
+        /// The OS error.
+        #[source]
+        source: io::Error,
+    },
+}
+
+/// Caller hooks. Every method has a default that does nothing.
+pub trait SupervisorHooks {
+    /// Called before every spawn with the ready-to-spawn command: add
+    /// environment variables or a `pre_exec` step (e.g. writing `0` to an
+    /// already opened `cgroup.procs` so the child is charged to its cgroup
+    /// from its first page). An error counts as a spawn failure.
+    fn before_spawn(&mut self, module: &ModuleSpec, command: &mut Command) -> io::Result<()> {
+        let _ = (module, command);
+        Ok(())
+    }
+
+    /// Called right before a module is spawned again, with the pid of its
+    /// previous (dead, reaped) process: the place to clean stale iceoryx2
+    /// resources of that pid.
+    fn before_restart(&mut self, module: &ModuleSpec, dead_pid: u32) {
+        let _ = (module, dead_pid);
+    }
+
+    /// Called when a process died of a SIGKILL the supervisor did not send:
+    /// return true if it was the OOM killer (e.g. `memory.events` `oom_kill`
+    /// went up in the module's cgroup).
+    fn oom_killed(&mut self, module: &ModuleSpec, pid: u32) -> bool {
+        let _ = (module, pid);
+        false
+    }
+}
+
+/// Hooks that do nothing.
+#[derive(Debug, Default, Clone, Copy)]
+pub struct NoHooks;
+
+impl SupervisorHooks for NoHooks {}
+
+/// Process-level settings for all modules.
+#[derive(Debug, Clone)]
+pub struct SupervisorOptions {
+    /// Extra environment for every module (e.g. `HNG_PREFIX`).
+    pub env: BTreeMap<String, String>,
+    /// Put each module in its own process group (default true): terminal
+    /// signals (Ctrl-C) reach only the supervisor, which stops modules in
+    /// order, and after a module's main process dies, leftovers in its group
+    /// are SIGKILLed.
+    pub process_group: bool,
+    /// `PR_SET_PDEATHSIG(SIGKILL)` in each child (default true): modules die
+    /// if the thread that spawned them dies, so a crashed supervisor leaves
+    /// no orphans. Drive the supervisor from a thread that lives as long as it.
+    pub kill_on_supervisor_exit: bool,
+}
+
+impl Default for SupervisorOptions {
+    fn default() -> Self {
+        Self {
+            env: BTreeMap::new(),
+            process_group: true,
+            kill_on_supervisor_exit: true,
+        }
+    }
+}
+
+/// Wakes a blocked [`Supervisor::poll`] from another thread.
+#[derive(Debug, Clone)]
+pub struct Waker(Arc<EventFd>);
+
+impl Waker {
+    /// Make the current or next `poll` return promptly.
+    pub fn wake(&self) -> io::Result<()> {
+        self.0.signal()
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum StopKind {
+    Stop,
+    Restart,
+}
+
+#[derive(Debug)]
+struct Proc {
+    child: Child,
+    pidfd: PidFd,
+    pid: u32,
+    started: Instant,
+    last_heartbeat: Option<Instant>,
+    /// Set when the supervisor killed it on purpose: overrides the wait status.
+    kill_cause: Option<ExitCause>,
+    sent_sigkill: bool,
+    stop: Option<StopKind>,
+    kill_at: Option<Instant>,
+}
+
+#[derive(Debug)]
+struct Slot {
+    spec: ModuleSpec,
+    state: ModuleState,
+    proc_: Option<Proc>,
+    restarts: u32,
+    consecutive: u32,
+    restart_times: VecDeque<Instant>,
+    restart_at: Option<Instant>,
+    last_exit: Option<ExitCause>,
+    last_pid: Option<u32>,
+    start_seq: Option<u64>,
+}
+
+/// Supervises a fixed set of modules. See the module documentation.
+pub struct Supervisor<H: SupervisorHooks = NoHooks> {
+    slots: Vec<Slot>,
+    index: HashMap<String, usize>,
+    epoll: Epoll,
+    wake: Arc<EventFd>,
+    opts: SupervisorOptions,
+    hooks: H,
+    pending: Vec<Event>,
+    seq: u64,
+    shutting_down: bool,
+    stop_queue: Vec<usize>,
+}
+
+impl<H: SupervisorHooks> fmt::Debug for Supervisor<H> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("Supervisor")
+            .field("slots", &self.slots)
+            .field("shutting_down", &self.shutting_down)
+            .finish_non_exhaustive()
+    }
+}
+
+impl Supervisor<NoHooks> {
+    /// A supervisor without hooks. Nothing starts until [`start_all`](Self::start_all).
+    pub fn new(modules: Vec<ModuleSpec>, opts: SupervisorOptions) -> Result<Self, SupervisorError> {
+        Self::with_hooks(modules, opts, NoHooks)
+    }
+}
+
+fn io_err(op: &'static str) -> impl FnOnce(io::Error) -> SupervisorError {
+    move |source| SupervisorError::Io { op, source }
+}
+
+impl<H: SupervisorHooks> Supervisor<H> {
+    /// A supervisor for `modules` (start order = vector order) with caller hooks.
+    pub fn with_hooks(
+        modules: Vec<ModuleSpec>,
+        opts: SupervisorOptions,
+        hooks: H,
+    ) -> Result<Self, SupervisorError> {
+        let epoll = Epoll::new().map_err(io_err("epoll_create1"))?;
+        let wake = Arc::new(EventFd::new().map_err(io_err("eventfd"))?);
+        epoll
+            .add(wake.as_fd(), WAKE_TOKEN)
+            .map_err(io_err("epoll_ctl(eventfd)"))?;
+        let mut index = HashMap::new();
+        let mut slots = Vec::with_capacity(modules.len());
+        for (i, spec) in modules.into_iter().enumerate() {
+            if index.insert(spec.name.clone(), i).is_some() {
+                return Err(SupervisorError::DuplicateModule { name: spec.name });
+            }
+            slots.push(Slot {
+                spec,
+                state: ModuleState::Stopped,
+                proc_: None,
+                restarts: 0,
+                consecutive: 0,
+                restart_times: VecDeque::new(),
+                restart_at: None,
+                last_exit: None,
+                last_pid: None,
+                start_seq: None,
+            });
+        }
+        Ok(Self {
+            slots,
+            index,
+            epoll,
+            wake,
+            opts,
+            hooks,
+            pending: Vec::new(),
+            seq: 0,
+            shutting_down: false,
+            stop_queue: Vec::new(),
+        })
+    }
+
+    /// The caller's hooks.
+    pub fn hooks_mut(&mut self) -> &mut H {
+        &mut self.hooks
+    }
+
+    /// A handle that wakes `poll` from another thread.
+    pub fn waker(&self) -> Waker {
+        Waker(Arc::clone(&self.wake))
+    }
+
+    /// Module specs in start order.
+    pub fn modules(&self) -> impl Iterator<Item = &ModuleSpec> {
+        self.slots.iter().map(|s| &s.spec)
+    }
+
+    fn slot_index(&self, name: &str) -> Result<usize, SupervisorError> {
+        self.index
+            .get(name)
+            .copied()
+            .ok_or_else(|| SupervisorError::UnknownModule {
+                name: name.to_owned(),
+            })
+    }
+
+    fn push(&mut self, at: Instant, i: usize, kind: EventKind) {
+        let module = self.slots[i].spec.name.clone();
+        tracing::debug!(module, ?kind, "supervisor event");
+        self.pending.push(Event { at, module, kind });
+    }
+
+    /// Spawn every stopped module, in order. Spawn failures are events and go
+    /// through the restart policy.
+    pub fn start_all(&mut self) {
+        let now = Instant::now();
+        self.shutting_down = false;
+        self.stop_queue.clear();
+        for i in 0..self.slots.len() {
+            if matches!(self.slots[i].state, ModuleState::Stopped) {
+                self.fresh_start(i, now);
+            }
+        }
+    }
+
+    /// Start a stopped or deactivated module (with a clean failure history).
+    pub fn start(&mut self, name: &str) -> Result<(), SupervisorError> {
+        let i = self.slot_index(name)?;
+        if matches!(
+            self.slots[i].state,
+            ModuleState::Stopped | ModuleState::Deactivated | ModuleState::BackingOff
+        ) {
+            self.fresh_start(i, Instant::now());
+        }
+        Ok(())
+    }
+
+    fn fresh_start(&mut self, i: usize, now: Instant) {
+        let slot = &mut self.slots[i];
+        slot.consecutive = 0;
+        slot.restart_times.clear();
+        slot.restart_at = None;
+        if let Some(dead) = slot.last_pid {
+            self.hooks.before_restart(&self.slots[i].spec, dead);
+        }
+        self.spawn(i, now);
+    }
+
+    fn spawn(&mut self, i: usize, now: Instant) {
+        let spec = &self.slots[i].spec;
+        let mut cmd = Command::new(&spec.program);
+        cmd.args(&spec.args)
+            .envs(&self.opts.env)
+            .envs(&spec.env)
+            .env("HNG_MODULE_NAME", &spec.name)
+            .env("HNG_RESTART_COUNT", self.slots[i].restarts.to_string())
+            .env("HNG_SUPERVISOR_PID", std::process::id().to_string())
+            .stdin(Stdio::null());
+        if let Some(hb) = spec.heartbeat {
+            cmd.env("HNG_HEARTBEAT_PERIOD_MS", hb.period.as_millis().to_string());
+        }
+        if let Some(p) = spec.checkpoint_period {
+            cmd.env("HNG_CHECKPOINT_PERIOD_MS", p.as_millis().to_string());
+        }
+        if self.opts.process_group {
+            cmd.process_group(0);
+        }
+        if self.opts.kill_on_supervisor_exit {
+            let parent = sys::getpid();
+            // SAFETY: the closure only makes async-signal-safe syscalls and
+            // does not allocate.
+            unsafe {
+                cmd.pre_exec(move || sys::set_parent_death_kill(parent));
+            }
+        }
+        let spawned = self
+            .hooks
+            .before_spawn(spec, &mut cmd)
+            .and_then(|()| cmd.spawn())
+            .and_then(|mut child| match PidFd::open(child.id()) {
+                Ok(fd) => Ok((child, fd)),
+                Err(e) => {
+                    let _ = child.kill();
+                    let _ = child.wait();
+                    Err(e)
+                }
+            })
+            .and_then(|(child, pidfd)| {
+                self.epoll.add(pidfd.as_fd(), i as u64)?;
+                Ok((child, pidfd))
+            });
+        match spawned {
+            Ok((child, pidfd)) => {
+                let pid = child.id();
+                let slot = &mut self.slots[i];
+                slot.state = if slot.spec.heartbeat.is_some() {
+                    ModuleState::Starting
+                } else {
+                    ModuleState::Running
+                };
+                if slot.start_seq.is_none() {
+                    slot.start_seq = Some(self.seq);
+                    self.seq += 1;
+                }
+                slot.proc_ = Some(Proc {
+                    child,
+                    pidfd,
+                    pid,
+                    started: now,
+                    last_heartbeat: None,
+                    kill_cause: None,
+                    sent_sigkill: false,
+                    stop: None,
+                    kill_at: None,
+                });
+                let restarts = slot.restarts;
+                self.push(now, i, EventKind::Started { pid, restarts });
+            }
+            Err(e) => {
+                let error = format!("{}: {e}", self.slots[i].spec.program.display());
+                tracing::warn!(module = %self.slots[i].spec.name, %error, "spawn failed");
+                self.push(
+                    now,
+                    i,
+                    EventKind::SpawnFailed {
+                        error: error.clone(),
+                    },
+                );
+                self.after_exit(
+                    i,
+                    now,
+                    ExitCause::SpawnFailed { error },
+                    Duration::ZERO,
+                    None,
+                );
+            }
+        }
+    }
+
+    /// Record a heartbeat of `name` at `now`. The first one after a start moves
+    /// the module from Starting to Running. Heartbeats for a module without a
+    /// live process are ignored (returns false).
+    pub fn heartbeat(&mut self, name: &str, now: Instant) -> Result<bool, SupervisorError> {
+        let i = self.slot_index(name)?;
+        let slot = &mut self.slots[i];
+        let Some(p) = slot.proc_.as_mut() else {
+            return Ok(false);
+        };
+        p.last_heartbeat = Some(p.last_heartbeat.map_or(now, |t| t.max(now)));
+        if slot.state == ModuleState::Starting {
+            slot.state = ModuleState::Running;
+            let pid = p.pid;
+            self.push(now, i, EventKind::Running { pid });
+        }
+        Ok(true)
+    }
+
+    fn signal_proc(&mut self, i: usize, signal: Signal) -> Result<(), SupervisorError> {
+        let slot = &mut self.slots[i];
+        let Some(p) = slot.proc_.as_mut() else {
+            return Err(SupervisorError::NotRunning {
+                name: slot.spec.name.clone(),
+                state: slot.state,
+            });
+        };
+        if signal == Signal::SIGKILL {
+            p.sent_sigkill = true;
+        }
+        p.pidfd
+            .send_signal(signal as i32)
+            .map_err(|source| SupervisorError::Signal {
+                name: slot.spec.name.clone(),
+                pid: p.pid,
+                signal: signal.as_str().to_owned(),
+                source,
+            })
+    }
+
+    /// Send `signal` to the module's process (fault injection). The resulting
+    /// exit is classified from the wait status, like a real crash; SIGSTOP
+    /// makes a hang once heartbeats stop.
+    pub fn kill(&mut self, name: &str, signal: Signal) -> Result<(), SupervisorError> {
+        let i = self.slot_index(name)?;
+        self.signal_proc(i, signal)
+    }
+
+    /// SIGKILL the module because it exceeds a resource limit; the exit cause
+    /// is `OverLimit { reason }` and the restart policy applies.
+    pub fn kill_over_limit(&mut self, name: &str, reason: &str) -> Result<(), SupervisorError> {
+        let i = self.slot_index(name)?;
+        if let Some(p) = self.slots[i].proc_.as_mut()
+            && p.kill_cause.is_none()
+        {
+            p.kill_cause = Some(ExitCause::OverLimit {
+                reason: reason.to_owned(),
+            });
+        }
+        self.signal_proc(i, Signal::SIGKILL)
+    }
+
+    /// Stop one module: SIGTERM, SIGKILL after its `stop_timeout`. It stays
+    /// Stopped (no restart). A module waiting for a restart is just Stopped.
+    pub fn stop(&mut self, name: &str) -> Result<(), SupervisorError> {
+        let i = self.slot_index(name)?;
+        self.begin_stop(i, StopKind::Stop, Instant::now());
+        Ok(())
+    }
+
+    /// Maintenance restart: stop (SIGTERM, then SIGKILL) and start again at
+    /// once; does not count as a failure. Also revives a Stopped or
+    /// Deactivated module.
+    pub fn restart(&mut self, name: &str) -> Result<(), SupervisorError> {
+        let i = self.slot_index(name)?;
+        let now = Instant::now();
+        if self.slots[i].proc_.is_some() {
+            self.begin_stop(i, StopKind::Restart, now);
+        } else {
+            self.fresh_start(i, now);
+        }
+        Ok(())
+    }
+
+    fn begin_stop(&mut self, i: usize, kind: StopKind, now: Instant) {
+        let slot = &mut self.slots[i];
+        let stop_timeout = slot.spec.stop_timeout;
+        match slot.proc_.as_mut() {
+            Some(p) => {
+                if p.stop.is_some() {
+                    // Already stopping: a Stop request wins over a Restart.
+                    if kind == StopKind::Stop {
+                        p.stop = Some(kind);
+                    }
+                    return;
+                }
+                p.stop = Some(kind);
+                p.kill_at = Some(now + stop_timeout);
+                let pid = p.pid;
+                // SIGCONT after SIGTERM so a SIGSTOPped process can act on it.
+                let r = p
+                    .pidfd
+                    .send_signal(libc::SIGTERM)
+                    .and_then(|()| p.pidfd.send_signal(libc::SIGCONT));
+                if let Err(e) = r {
+                    tracing::warn!(module = %slot.spec.name, pid, "SIGTERM failed: {e}");
+                }
+                slot.state = ModuleState::Stopping;
+                self.push(now, i, EventKind::StopRequested { pid });
+            }
+            None => {
+                if kind == StopKind::Stop
+                    && matches!(slot.state, ModuleState::BackingOff | ModuleState::Starting)
+                {
+                    slot.restart_at = None;
+                    slot.state = ModuleState::Stopped;
+                    self.push(now, i, EventKind::Stopped);
+                }
+            }
+        }
+    }
+
+    /// Begin an orderly shutdown: modules are stopped one at a time in reverse
+    /// start order (SIGTERM, SIGKILL after each one's `stop_timeout`); no
+    /// restarts happen any more. Keep calling [`poll`](Self::poll) until
+    /// [`is_shut_down`](Self::is_shut_down), or call [`shutdown`](Self::shutdown).
+    pub fn begin_shutdown(&mut self) {
+        if self.shutting_down {
+            return;
+        }
+        self.shutting_down = true;
+        let mut order: Vec<usize> = (0..self.slots.len()).collect();
+        // Never-started modules first (popped last), then by start sequence.
+        order.sort_by_key(|&i| self.slots[i].start_seq.map_or(0, |s| s + 1));
+        self.stop_queue = order;
+        self.advance_shutdown(Instant::now());
+    }
+
+    /// All modules are down after [`begin_shutdown`](Self::begin_shutdown).
+    pub fn is_shut_down(&self) -> bool {
+        self.shutting_down
+            && self.stop_queue.is_empty()
+            && self.slots.iter().all(|s| s.proc_.is_none())
+    }
+
+    /// Orderly shutdown, blocking until every module process is gone.
+    /// Returns the events of the shutdown.
+    pub fn shutdown(&mut self) -> Result<Vec<Event>, SupervisorError> {
+        self.begin_shutdown();
+        let mut events = Vec::new();
+        while !self.is_shut_down() {
+            events.extend(self.poll(Duration::from_secs(1))?);
+        }
+        events.append(&mut self.pending);
+        Ok(events)
+    }
+
+    fn advance_shutdown(&mut self, now: Instant) {
+        if !self.shutting_down {
+            return;
+        }
+        while let Some(&i) = self.stop_queue.last() {
+            if self.slots[i].proc_.is_some() {
+                self.begin_stop(i, StopKind::Stop, now);
+                return;
+            }
+            self.stop_queue.pop();
+            let slot = &mut self.slots[i];
+            slot.restart_at = None;
+            if !matches!(slot.state, ModuleState::Stopped | ModuleState::Deactivated) {
+                slot.state = ModuleState::Stopped;
+                self.push(now, i, EventKind::Stopped);
+            }
+        }
+    }
+
+    /// The earliest time at which the supervisor has something to do without
+    /// an fd becoming ready (restart due, heartbeat deadline, stop timeout).
+    pub fn next_deadline(&self) -> Option<Instant> {
+        let mut next: Option<Instant> = None;
+        let mut consider = |t: Instant| next = Some(next.map_or(t, |n| n.min(t)));
+        for s in &self.slots {
+            if let Some(t) = s.restart_at {
+                consider(t);
+            }
+            if let Some(p) = &s.proc_ {
+                if let Some(t) = p.kill_at {
+                    consider(t);
+                }
+                if let Some(t) = hang_deadline(&s.spec, p) {
+                    consider(t);
+                }
+            }
+        }
+        next
+    }
+
+    /// Run the event loop once: block until a module process exits, a timer
+    /// is due, the [`Waker`] fires or `timeout` passes (whichever is first),
+    /// handle what happened and return the events. Returns at once if events
+    /// are already pending (from `start_all`, `kill`, `heartbeat`, ...).
+    pub fn poll(&mut self, timeout: Duration) -> Result<Vec<Event>, SupervisorError> {
+        let now = Instant::now();
+        let mut wait = timeout;
+        if let Some(d) = self.next_deadline() {
+            wait = wait.min(d.saturating_duration_since(now));
+        }
+        if !self.pending.is_empty() {
+            wait = Duration::ZERO;
+        }
+        let tokens = self.epoll.wait(wait).map_err(io_err("epoll_wait"))?;
+        let now = Instant::now();
+        for t in tokens {
+            if t == WAKE_TOKEN {
+                self.wake.drain();
+            } else if let Ok(i) = usize::try_from(t) {
+                self.reap(i, now);
+            }
+        }
+        self.run_timers(now);
+        self.advance_shutdown(now);
+        Ok(std::mem::take(&mut self.pending))
+    }
+
+    fn reap(&mut self, i: usize, now: Instant) {
+        let Some(slot) = self.slots.get_mut(i) else {
+            return;
+        };
+        let Some(p) = slot.proc_.as_mut() else {
+            return;
+        };
+        let status = match p.child.try_wait() {
+            Ok(Some(status)) => Ok(status),
+            // Readable pidfd but not yet waitable: level-triggered epoll retries.
+            Ok(None) => return,
+            Err(e) => Err(e),
+        };
+        let Some(p) = slot.proc_.take() else {
+            return;
+        };
+        let _ = self.epoll.delete(p.pidfd.as_fd());
+        if self.opts.process_group
+            && let Err(e) = sys::kill_group(p.pid, libc::SIGKILL)
+        {
+            tracing::warn!(module = %slot.spec.name, pid = p.pid, "killing leftover process group failed: {e}");
+        }
+        let cause = match (p.kill_cause, status) {
+            (Some(c), _) => c,
+            (None, Err(e)) => ExitCause::Unknown {
+                error: format!("waitpid: {e}"),
+            },
+            (None, Ok(status)) => {
+                let c = ExitCause::from_status(status);
+                let oom = matches!(c, ExitCause::Signaled { number, .. } if number == libc::SIGKILL)
+                    && !p.sent_sigkill
+                    && self.hooks.oom_killed(&slot.spec, p.pid);
+                if oom { ExitCause::OomKilled } else { c }
+            }
+        };
+        let uptime = now.saturating_duration_since(p.started);
+        slot.last_pid = Some(p.pid);
+        self.push(
+            now,
+            i,
+            EventKind::Exited {
+                pid: p.pid,
+                cause: cause.clone(),
+                uptime,
+            },
+        );
+        self.after_exit(i, now, cause, uptime, p.stop);
+    }
+
+    /// Decide what follows an exit (or a failed spawn).
+    fn after_exit(
+        &mut self,
+        i: usize,
+        now: Instant,
+        cause: ExitCause,
+        uptime: Duration,
+        stop: Option<StopKind>,
+    ) {
+        let shutting_down = self.shutting_down;
+        let slot = &mut self.slots[i];
+        slot.last_exit = Some(cause.clone());
+        match stop {
+            Some(StopKind::Restart) if !shutting_down => {
+                slot.restart_at = Some(now);
+                slot.state = ModuleState::BackingOff;
+                let attempt = slot.restarts + 1;
+                self.push(
+                    now,
+                    i,
+                    EventKind::Restarting {
+                        delay: Duration::ZERO,
+                        attempt,
+                    },
+                );
+                return;
+            }
+            Some(_) => {
+                slot.state = ModuleState::Stopped;
+                self.push(now, i, EventKind::Stopped);
+                return;
+            }
+            None => {}
+        }
+        let wanted = match slot.spec.restart {
+            RestartPolicy::Always => true,
+            RestartPolicy::OnFailure => cause.is_failure(),
+            RestartPolicy::Never => false,
+        };
+        if shutting_down || !wanted {
+            slot.state = ModuleState::Stopped;
+            self.push(now, i, EventKind::Stopped);
+            return;
+        }
+        if uptime >= slot.spec.backoff_reset_after {
+            slot.consecutive = 0;
+        }
+        let window = slot.spec.give_up_window;
+        slot.restart_times.push_back(now);
+        while slot
+            .restart_times
+            .front()
+            .is_some_and(|&t| now.saturating_duration_since(t) > window)
+        {
+            slot.restart_times.pop_front();
+        }
+        let failures = u32::try_from(slot.restart_times.len()).unwrap_or(u32::MAX);
+        if failures > slot.spec.give_up_failures {
+            slot.state = ModuleState::Deactivated;
+            slot.restart_at = None;
+            tracing::warn!(module = %slot.spec.name, failures, "module deactivated");
+            self.push(now, i, EventKind::Deactivated { failures, window });
+            return;
+        }
+        let delay = backoff_delay(&slot.spec, slot.consecutive);
+        slot.consecutive = slot.consecutive.saturating_add(1);
+        slot.restart_at = Some(now + delay);
+        slot.state = ModuleState::BackingOff;
+        let attempt = slot.restarts + 1;
+        self.push(now, i, EventKind::Restarting { delay, attempt });
+    }
+
+    fn run_timers(&mut self, now: Instant) {
+        for i in 0..self.slots.len() {
+            // Hang detection and stop escalation.
+            let slot = &mut self.slots[i];
+            let mut hang = None;
+            let mut escalated = None;
+            if let Some(p) = slot.proc_.as_mut() {
+                if p.kill_cause.is_none()
+                    && p.stop.is_none()
+                    && let Some(deadline) = hang_deadline(&slot.spec, p)
+                    && now >= deadline
+                {
+                    let silent_for =
+                        now.saturating_duration_since(p.last_heartbeat.unwrap_or(p.started));
+                    p.kill_cause = Some(ExitCause::Hang { silent_for });
+                    p.sent_sigkill = true;
+                    if let Err(e) = p.pidfd.send_signal(libc::SIGKILL) {
+                        tracing::warn!(module = %slot.spec.name, pid = p.pid, "SIGKILL failed: {e}");
+                    }
+                    hang = Some((p.pid, silent_for));
+                }
+                if let Some(t) = p.kill_at
+                    && now >= t
+                {
+                    p.kill_at = None;
+                    p.sent_sigkill = true;
+                    if p.kill_cause.is_none() {
+                        p.kill_cause = Some(ExitCause::StopTimeout);
+                    }
+                    if let Err(e) = p.pidfd.send_signal(libc::SIGKILL) {
+                        tracing::warn!(module = %slot.spec.name, pid = p.pid, "SIGKILL failed: {e}");
+                    }
+                    escalated = Some(p.pid);
+                }
+            }
+            if let Some((pid, silent_for)) = hang {
+                tracing::warn!(module = %self.slots[i].spec.name, pid, ?silent_for, "hang detected");
+                self.push(now, i, EventKind::HangDetected { pid, silent_for });
+            }
+            if let Some(pid) = escalated {
+                self.push(now, i, EventKind::StopTimedOut { pid });
+            }
+            // Due restarts.
+            let slot = &mut self.slots[i];
+            if slot.state == ModuleState::BackingOff
+                && slot.proc_.is_none()
+                && slot.restart_at.is_some_and(|t| now >= t)
+                && !self.shutting_down
+            {
+                slot.restart_at = None;
+                slot.restarts = slot.restarts.saturating_add(1);
+                if let Some(dead) = slot.last_pid {
+                    self.hooks.before_restart(&self.slots[i].spec, dead);
+                }
+                self.spawn(i, now);
+            }
+        }
+    }
+
+    /// A snapshot for `hng ps`.
+    pub fn status(&self, now: Instant) -> Vec<ModuleStatus> {
+        self.slots
+            .iter()
+            .map(|s| ModuleStatus {
+                name: s.spec.name.clone(),
+                state: s.state,
+                pid: s.proc_.as_ref().map(|p| p.pid),
+                uptime: s
+                    .proc_
+                    .as_ref()
+                    .map(|p| now.saturating_duration_since(p.started)),
+                restarts: s.restarts,
+                last_exit: s.last_exit.clone(),
+                heartbeat_age: s
+                    .proc_
+                    .as_ref()
+                    .and_then(|p| p.last_heartbeat)
+                    .map(|t| now.saturating_duration_since(t)),
+                restart_in: s.restart_at.map(|t| t.saturating_duration_since(now)),
+                manager: s.spec.manager,
+            })
+            .collect()
+    }
+
+    /// State of one module.
+    pub fn state(&self, name: &str) -> Result<ModuleState, SupervisorError> {
+        Ok(self.slots[self.slot_index(name)?].state)
+    }
+
+    /// Current pid of one module.
+    pub fn pid(&self, name: &str) -> Result<Option<u32>, SupervisorError> {
+        Ok(self.slots[self.slot_index(name)?]
+            .proc_
+            .as_ref()
+            .map(|p| p.pid))
+    }
+}
+
+/// Delay before restart number `consecutive` (0-based) of a crash series:
+/// 0, initial, 2*initial, 4*initial, ... capped at `backoff_max`.
+pub fn backoff_delay(spec: &ModuleSpec, consecutive: u32) -> Duration {
+    if consecutive == 0 {
+        return Duration::ZERO;
+    }
+    let factor = 1u32.checked_shl(consecutive - 1).unwrap_or(u32::MAX);
+    spec.backoff_initial
+        .checked_mul(factor)
+        .unwrap_or(spec.backoff_max)
+        .min(spec.backoff_max)
+}
+
+fn hang_deadline(spec: &ModuleSpec, p: &Proc) -> Option<Instant> {
+    if p.kill_cause.is_some() || p.stop.is_some() {
+        return None;
+    }
+    let hb = spec.heartbeat?;
+    Some(match p.last_heartbeat {
+        Some(t) => t + hb.timeout,
+        None => p.started + spec.start_timeout,
+    })
+}
+
+impl<H: SupervisorHooks> AsFd for Supervisor<H> {
+    /// The epoll fd: readable when a module process has exited or the
+    /// [`Waker`] fired. To embed the supervisor in another poll loop, wait on
+    /// this fd with a timeout up to [`Supervisor::next_deadline`], then call
+    /// `poll(Duration::ZERO)`.
+    fn as_fd(&self) -> BorrowedFd<'_> {
+        self.epoll.as_fd()
+    }
+}
+
+impl<H: SupervisorHooks> Drop for Supervisor<H> {
+    /// Last resort (the caller should `shutdown()`): SIGKILL and reap every
+    /// module process so none outlives the supervisor.
+    fn drop(&mut self) {
+        for slot in &mut self.slots {
+            if let Some(mut p) = slot.proc_.take() {
+                let _ = p.pidfd.send_signal(libc::SIGKILL);
+                let _ = p.child.wait();
+                if self.opts.process_group {
+                    let _ = sys::kill_group(p.pid, libc::SIGKILL);
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn backoff_doubles_to_cap() {
+        let mut spec = ModuleSpec::new("m", "/bin/true", &[]);
+        spec.backoff_initial = Duration::from_millis(100);
+        spec.backoff_max = Duration::from_millis(500);
+        let delays: Vec<u128> = (0..7)
+            .map(|n| backoff_delay(&spec, n).as_millis())
+            .collect();
+        assert_eq!(delays, vec![0, 100, 200, 400, 500, 500, 500]);
+        assert_eq!(backoff_delay(&spec, u32::MAX), Duration::from_millis(500));
+    }
+
+    #[test]
+    fn signal_names() {
+        assert_eq!(signal_name(9), "SIGKILL");
+        assert_eq!(signal_name(11), "SIGSEGV");
+        assert_eq!(signal_name(6), "SIGABRT");
+        assert_eq!(signal_name(40), "SIG40");
+    }
+}
