@@ -5,6 +5,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 mod bench;
+mod modules;
 mod topic;
 
 /// hng: a runtime for robot control architectures (HNG: processes, zero-copy channels,
@@ -31,6 +32,11 @@ enum Command {
         #[command(subcommand)]
         bench: bench::BenchCommand,
     },
+    /// Run a built-in module as this process (what launch files start).
+    Module {
+        /// The module's name.
+        name: String,
+    },
     /// The peer side of a two-process benchmark (started by `hng bench`).
     #[command(hide = true, name = "__bench-peer")]
     BenchPeer(bench::ipc::PeerArgs),
@@ -40,6 +46,7 @@ fn main() -> ExitCode {
     hng_runtime::module::init_tracing();
     let cli = Cli::parse();
     let result = match cli.command {
+        Command::Module { name } => return modules::run(&name),
         Command::Topic { command } => topic::run(&cli.prefix, command),
         Command::Bench { bench } => bench::run(bench),
         Command::BenchPeer(args) => bench::ipc::peer(&args),

@@ -8,7 +8,10 @@ use hng_modules::slam::{SlamConfig, eval_slam_with};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut args = std::env::args().skip(1);
-    let log = PathBuf::from(args.next().ok_or("usage: slam_eval <log> [map_base] [local_scans]")?);
+    let log = PathBuf::from(
+        args.next()
+            .ok_or("usage: slam_eval <log> [map_base] [local_scans]")?,
+    );
     let out = args.next().filter(|s| s != "-").map(PathBuf::from);
     let mut cfg = SlamConfig::default();
     if let Some(n) = args.next() {

@@ -16,8 +16,10 @@ fn shared(rel: &str) -> Option<PathBuf> {
 
 #[test]
 fn movingai_arena_every_optimal_length_exact() {
-    let (Some(map), Some(scen)) = (shared("movingai/arena.map"), shared("movingai/arena.map.scen"))
-    else {
+    let (Some(map), Some(scen)) = (
+        shared("movingai/arena.map"),
+        shared("movingai/arena.map.scen"),
+    ) else {
         return;
     };
     let eval = hng_modules::planning::eval_movingai(&map, &scen).expect("eval");

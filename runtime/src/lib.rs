@@ -19,6 +19,7 @@ pub mod msg;
 pub mod qos;
 pub mod shm;
 pub mod stats;
+pub mod system;
 pub mod wait;
 mod wake;
 

@@ -9,11 +9,11 @@
 //! |---|---|---|---|---|---|
 //! | `Sensor` | 0 | 8 | yes | 4 | 16 |
 //! | `Command` | 0 | 4 | yes | 16 | 8 |
-//! | `State` | 1 (the latest) | 4 | yes | 4 | 16 |
+//! | `State` | 1 (the latest) | 4 | yes | 4 | 64 |
 //! | `StateBulk` | 1 (the latest) | 2 | yes | 2 | 8 |
 //! | `Bulk` | 0 | 2 | yes | 2 | 8 |
-//! | `Control` | 0 | 64 | yes | 64 | 64 |
-//! | `Report` | 0 | 64 | yes | 64 | 8 |
+//! | `Control` | 0 | 64 | yes | 128 | 128 |
+//! | `Report` | 0 | 64 | yes | 128 | 8 |
 //!
 //! Every kind uses safe overflow: a full buffer drops the subscriber's oldest sample, so a
 //! slow or killed subscriber can never block a publisher. Drops are detected from sequence
@@ -62,11 +62,11 @@ impl ChannelKind {
         let (history, buffer, max_publishers, max_subscribers) = match self {
             ChannelKind::Sensor => (0, 8, 4, 16),
             ChannelKind::Command => (0, 4, 16, 8),
-            ChannelKind::State => (1, 4, 4, 16),
+            ChannelKind::State => (1, 4, 4, 64),
             ChannelKind::StateBulk => (1, 2, 2, 8),
             ChannelKind::Bulk => (0, 2, 2, 8),
-            ChannelKind::Control => (0, 64, 64, 64),
-            ChannelKind::Report => (0, 64, 64, 8),
+            ChannelKind::Control => (0, 64, 128, 128),
+            ChannelKind::Report => (0, 64, 128, 8),
         };
         Qos {
             history,

@@ -78,7 +78,9 @@ pub enum PlanError {
         value: i8,
     },
     /// Start and goal are in different connected components.
-    #[error("no path from {start:?} to {goal:?}: goal unreachable after expanding {expanded} cells")]
+    #[error(
+        "no path from {start:?} to {goal:?}: goal unreachable after expanding {expanded} cells"
+    )]
     NoPath {
         /// Start cell.
         start: (i64, i64),

@@ -28,7 +28,9 @@ pub struct OccupancyGrid {
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum GridError {
     /// Width or height is zero, or `width * height` overflows.
-    #[error("grid size {width}x{height} is invalid: both must be > 0 and the product must fit in memory")]
+    #[error(
+        "grid size {width}x{height} is invalid: both must be > 0 and the product must fit in memory"
+    )]
     BadSize {
         /// Requested width in cells.
         width: u32,

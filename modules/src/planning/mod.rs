@@ -20,7 +20,9 @@ mod inflate;
 pub mod movingai;
 mod smooth;
 
-pub use astar::{GridPath, GridPlanner, Path, PlanError, PlannerConfig, SQRT_2, octile, path_length_cells};
+pub use astar::{
+    GridPath, GridPlanner, Path, PlanError, PlannerConfig, SQRT_2, octile, path_length_cells,
+};
 pub use grid::{FREE, GridError, OCCUPIED, OccupancyGrid, UNKNOWN};
 pub use inflate::{InflationConfig, inflate, squared_distance_transform};
 pub use movingai::{MovingAiError, PlannerEval, eval_movingai};

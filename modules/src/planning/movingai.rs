@@ -110,32 +110,54 @@ pub fn read_map(path: &Path) -> Result<MovingAiMap, MovingAiError> {
 /// Parses `.map` text; `path` is only used in errors. Passable: `.` `G` `S`;
 /// impassable: `@` `O` `T` `W` (water is impassable for a ground robot).
 pub fn parse_map(text: &str, path: &Path) -> Result<MovingAiMap, MovingAiError> {
-    let mut lines = text.lines().enumerate().map(|(i, l)| (i + 1, l.trim_end_matches('\r')));
+    let mut lines = text
+        .lines()
+        .enumerate()
+        .map(|(i, l)| (i + 1, l.trim_end_matches('\r')));
     let mut header = |field: &'static str| -> Result<(usize, String), MovingAiError> {
         let (n, l) = lines
             .next()
             .ok_or_else(|| perr(path, 0, field, "file ended before the header was complete"))?;
         let mut it = l.split_whitespace();
         if it.next() != Some(field) {
-            return Err(perr(path, n, field, format!("expected `{field} ...`, found {l:?}")));
+            return Err(perr(
+                path,
+                n,
+                field,
+                format!("expected `{field} ...`, found {l:?}"),
+            ));
         }
         Ok((n, it.collect::<Vec<_>>().join(" ")))
     };
     let (n, ty) = header("type")?;
     if ty != "octile" {
-        return Err(perr(path, n, "type", format!("expected `octile`, found {ty:?}")));
+        return Err(perr(
+            path,
+            n,
+            "type",
+            format!("expected `octile`, found {ty:?}"),
+        ));
     }
     let parse_dim = |(n, v): (usize, String), field: &'static str| -> Result<u32, MovingAiError> {
-        v.parse::<u32>()
-            .ok()
-            .filter(|&d| d > 0)
-            .ok_or_else(|| perr(path, n, field, format!("expected a positive integer, found {v:?}")))
+        v.parse::<u32>().ok().filter(|&d| d > 0).ok_or_else(|| {
+            perr(
+                path,
+                n,
+                field,
+                format!("expected a positive integer, found {v:?}"),
+            )
+        })
     };
     let height = parse_dim(header("height")?, "height")?;
     let width = parse_dim(header("width")?, "width")?;
     let (n, rest) = header("map")?;
     if !rest.is_empty() {
-        return Err(perr(path, n, "map", format!("unexpected text after `map`: {rest:?}")));
+        return Err(perr(
+            path,
+            n,
+            "map",
+            format!("unexpected text after `map`: {rest:?}"),
+        ));
     }
     let total = (width as usize)
         .checked_mul(height as usize)
@@ -143,18 +165,33 @@ pub fn parse_map(text: &str, path: &Path) -> Result<MovingAiMap, MovingAiError> 
     let mut passable = Vec::with_capacity(total);
     for row in 0..height as usize {
         let (n, l) = lines.next().ok_or_else(|| {
-            perr(path, 0, "map", format!("file ended after {row} of {height} rows"))
+            perr(
+                path,
+                0,
+                "map",
+                format!("file ended after {row} of {height} rows"),
+            )
         })?;
         let len = l.chars().count();
         if len != width as usize {
-            return Err(perr(path, n, "map", format!("row has {len} cells, expected width {width}")));
+            return Err(perr(
+                path,
+                n,
+                "map",
+                format!("row has {len} cells, expected width {width}"),
+            ));
         }
         for (col, c) in l.chars().enumerate() {
             passable.push(match c {
                 '.' | 'G' | 'S' => true,
                 '@' | 'O' | 'T' | 'W' => false,
                 other => {
-                    return Err(perr(path, n, "map", format!("column {col}: unknown terrain {other:?}")));
+                    return Err(perr(
+                        path,
+                        n,
+                        "map",
+                        format!("column {col}: unknown terrain {other:?}"),
+                    ));
                 }
             });
         }
@@ -194,13 +231,21 @@ pub fn read_scen(path: &Path) -> Result<Vec<ScenProblem>, MovingAiError> {
 
 /// Parses `.scen` text (`version 1`, then tab-separated problem lines).
 pub fn parse_scen(text: &str, path: &Path) -> Result<Vec<ScenProblem>, MovingAiError> {
-    let mut lines = text.lines().enumerate().map(|(i, l)| (i + 1, l.trim_end_matches('\r')));
+    let mut lines = text
+        .lines()
+        .enumerate()
+        .map(|(i, l)| (i + 1, l.trim_end_matches('\r')));
     let (n, first) = lines
         .next()
         .ok_or_else(|| perr(path, 0, "version", "empty file"))?;
     let v: Vec<&str> = first.split_whitespace().collect();
     if v.len() != 2 || v[0] != "version" || v[1].parse::<f64>().is_err() {
-        return Err(perr(path, n, "version", format!("expected `version 1`, found {first:?}")));
+        return Err(perr(
+            path,
+            n,
+            "version",
+            format!("expected `version 1`, found {first:?}"),
+        ));
     }
     const FIELDS: [&str; 9] = [
         "bucket",
@@ -225,11 +270,21 @@ pub fn parse_scen(text: &str, path: &Path) -> Result<Vec<ScenProblem>, MovingAiE
         };
         if f.len() != FIELDS.len() {
             let field = FIELDS.get(f.len()).copied().unwrap_or("optimal_length");
-            return Err(perr(path, n, field, format!("expected {} fields, found {}", FIELDS.len(), f.len())));
+            return Err(perr(
+                path,
+                n,
+                field,
+                format!("expected {} fields, found {}", FIELDS.len(), f.len()),
+            ));
         }
         let int = |i: usize| -> Result<u32, MovingAiError> {
             f[i].trim().parse::<u32>().map_err(|e| {
-                perr(path, n, FIELDS[i], format!("{:?} is not a non-negative integer: {e}", f[i]))
+                perr(
+                    path,
+                    n,
+                    FIELDS[i],
+                    format!("{:?} is not a non-negative integer: {e}", f[i]),
+                )
             })
         };
         let optimal_length = f[8]
@@ -237,7 +292,14 @@ pub fn parse_scen(text: &str, path: &Path) -> Result<Vec<ScenProblem>, MovingAiE
             .parse::<f64>()
             .ok()
             .filter(|v| v.is_finite() && *v >= 0.0)
-            .ok_or_else(|| perr(path, n, FIELDS[8], format!("{:?} is not a finite length >= 0", f[8])))?;
+            .ok_or_else(|| {
+                perr(
+                    path,
+                    n,
+                    FIELDS[8],
+                    format!("{:?} is not a finite length >= 0", f[8]),
+                )
+            })?;
         out.push(ScenProblem {
             line: n,
             bucket: int(0)?,
@@ -296,7 +358,10 @@ pub fn eval_movingai(map_path: &Path, scen_path: &Path) -> Result<PlannerEval, M
                 scen_path,
                 p.line,
                 "width",
-                format!("problem is for a {}x{} map, map file is {}x{}", p.width, p.height, map.width, map.height),
+                format!(
+                    "problem is for a {}x{} map, map file is {}x{}",
+                    p.width, p.height, map.width, map.height
+                ),
             ));
         }
         let s = map.to_grid_cell(p.start.0, p.start.1);
@@ -332,8 +397,11 @@ mod tests {
 
     #[test]
     fn parses_small_map() {
-        let m = parse_map("type octile\nheight 2\nwidth 3\nmap\n.@G\nSTW\n", Path::new("t.map"))
-            .expect("map");
+        let m = parse_map(
+            "type octile\nheight 2\nwidth 3\nmap\n.@G\nSTW\n",
+            Path::new("t.map"),
+        )
+        .expect("map");
         assert_eq!((m.width, m.height), (3, 2));
         assert_eq!(m.passable, vec![true, false, true, true, false, false]);
         let g = m.to_occupancy_grid(1.0).expect("grid");
@@ -347,12 +415,24 @@ mod tests {
     fn map_errors_name_line_and_field() {
         let e = parse_map("type octile\nheight 2\nwidth x\nmap\n", Path::new("a.map"))
             .expect_err("bad width");
-        assert_eq!(e.to_string(), "a.map:3: field `width`: expected a positive integer, found \"x\"");
-        let e = parse_map("type octile\nheight 1\nwidth 2\nmap\n.?\n", Path::new("a.map"))
-            .expect_err("bad cell");
-        assert!(e.to_string().starts_with("a.map:5: field `map`: column 1"), "{e}");
-        let e = parse_map("type octile\nheight 2\nwidth 2\nmap\n..\n", Path::new("a.map"))
-            .expect_err("short");
+        assert_eq!(
+            e.to_string(),
+            "a.map:3: field `width`: expected a positive integer, found \"x\""
+        );
+        let e = parse_map(
+            "type octile\nheight 1\nwidth 2\nmap\n.?\n",
+            Path::new("a.map"),
+        )
+        .expect_err("bad cell");
+        assert!(
+            e.to_string().starts_with("a.map:5: field `map`: column 1"),
+            "{e}"
+        );
+        let e = parse_map(
+            "type octile\nheight 2\nwidth 2\nmap\n..\n",
+            Path::new("a.map"),
+        )
+        .expect_err("short");
         assert!(e.to_string().contains("ended after 1 of 2 rows"), "{e}");
     }
 
@@ -367,18 +447,30 @@ mod tests {
         assert_eq!(p[0].start, (1, 11));
         assert_eq!(p[0].goal, (1, 12));
         assert_eq!(p[0].line, 2);
-        let e = parse_scen("version 1\n0\tm.map\t49\t49\t1\tq\t1\t12\t1\n", Path::new("s.scen"))
-            .expect_err("bad start_y");
-        assert!(e.to_string().starts_with("s.scen:2: field `start_y`"), "{e}");
+        let e = parse_scen(
+            "version 1\n0\tm.map\t49\t49\t1\tq\t1\t12\t1\n",
+            Path::new("s.scen"),
+        )
+        .expect_err("bad start_y");
+        assert!(
+            e.to_string().starts_with("s.scen:2: field `start_y`"),
+            "{e}"
+        );
         let e = parse_scen("version 1\n0\tm.map\t49\n", Path::new("s.scen")).expect_err("short");
         assert!(e.to_string().starts_with("s.scen:2: field `height`"), "{e}");
         let e = parse_scen("v 1\n", Path::new("s.scen")).expect_err("header");
-        assert!(e.to_string().starts_with("s.scen:1: field `version`"), "{e}");
+        assert!(
+            e.to_string().starts_with("s.scen:1: field `version`"),
+            "{e}"
+        );
     }
 
     #[test]
     fn missing_file_is_io_error() {
         let e = read_map(Path::new("/nonexistent/x.map")).expect_err("missing");
-        assert!(e.to_string().starts_with("/nonexistent/x.map: cannot read"), "{e}");
+        assert!(
+            e.to_string().starts_with("/nonexistent/x.map: cannot read"),
+            "{e}"
+        );
     }
 }

@@ -8,7 +8,12 @@ use super::grid::OccupancyGrid;
 /// is checked, and where the segment passes exactly through a cell corner both
 /// cells beside the corner must be passable (the same no-corner-cutting rule as
 /// the planner).
-pub fn line_of_sight(grid: &OccupancyGrid, cfg: &PlannerConfig, a: (i64, i64), b: (i64, i64)) -> bool {
+pub fn line_of_sight(
+    grid: &OccupancyGrid,
+    cfg: &PlannerConfig,
+    a: (i64, i64),
+    b: (i64, i64),
+) -> bool {
     let pass = |x: i64, y: i64| grid.get(x, y).is_some_and(|v| cfg.passable(v));
     let (mut x, mut y) = a;
     if !pass(x, y) {

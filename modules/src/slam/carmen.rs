@@ -163,7 +163,11 @@ impl CarmenLog {
                     crossed = false;
                 }
                 Record::Laser(_) => {
-                    out.push(if out.is_empty() { Isometry2::identity() } else { acc });
+                    out.push(if out.is_empty() {
+                        Isometry2::identity()
+                    } else {
+                        acc
+                    });
                     acc = Isometry2::identity();
                     crossed = true;
                 }
@@ -210,7 +214,9 @@ impl<'a> Fields<'a> {
         }
     }
     fn raw(&mut self, field: &str) -> Result<&'a str, CarmenError> {
-        self.it.next().ok_or_else(|| self.err(field, "missing (line too short)"))
+        self.it
+            .next()
+            .ok_or_else(|| self.err(field, "missing (line too short)"))
     }
     fn f64(&mut self, field: &str) -> Result<f64, CarmenError> {
         let s = self.raw(field)?;
@@ -260,11 +266,12 @@ pub fn parse_log(text: &str, path: &Path) -> Result<CarmenLog, CarmenError> {
             }));
         } else {
             let ns = f.raw("num_readings")?;
-            let n: usize = ns
-                .parse()
-                .ok()
-                .filter(|&n| n <= 10_000)
-                .ok_or_else(|| f.err("num_readings", format!("{ns:?} is not a count in 0..=10000")))?;
+            let n: usize = ns.parse().ok().filter(|&n| n <= 10_000).ok_or_else(|| {
+                f.err(
+                    "num_readings",
+                    format!("{ns:?} is not a count in 0..=10000"),
+                )
+            })?;
             let mut ranges = Vec::with_capacity(n);
             for k in 0..n {
                 let field = format!("range[{k}]");
@@ -316,10 +323,16 @@ mod tests {
     #[test]
     fn errors_name_line_and_field() {
         let e = parse_log("ODOM 1 2\n", Path::new("x.log")).expect_err("short");
-        assert_eq!(e.to_string(), "x.log:1: ODOM field `theta`: missing (line too short)");
+        assert_eq!(
+            e.to_string(),
+            "x.log:1: ODOM field `theta`: missing (line too short)"
+        );
         let e = parse_log("\nFLASER 2 1.0 abc 0 0 0 0 0 0 1 h 1\n", Path::new("x.log"))
             .expect_err("bad range");
-        assert_eq!(e.to_string(), "x.log:2: FLASER field `range[1]`: \"abc\" is not a finite number");
+        assert_eq!(
+            e.to_string(),
+            "x.log:2: FLASER field `range[1]`: \"abc\" is not a finite number"
+        );
         let e = parse_log("FLASER 2 1.0 1.0 0 0 0 0 0\n", Path::new("x.log")).expect_err("short");
         assert!(e.to_string().contains("field `odom_theta`"), "{e}");
         let e = parse_log("FLASER -1\n", Path::new("x.log")).expect_err("count");

@@ -64,7 +64,11 @@ fn rel_err(a: &Isometry2<f64>, b: &Isometry2<f64>) -> (f64, f64) {
 }
 
 fn mean(v: &[f64]) -> f64 {
-    if v.is_empty() { 0.0 } else { v.iter().sum::<f64>() / v.len() as f64 }
+    if v.is_empty() {
+        0.0
+    } else {
+        v.iter().sum::<f64>() / v.len() as f64
+    }
 }
 
 /// Nearest-rank 95th percentile.

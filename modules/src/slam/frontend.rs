@@ -9,6 +9,9 @@ use super::carmen::LaserConfig;
 use super::mapping::{LogOddsMap, MapperConfig};
 use super::matcher::{MatcherConfig, ReferenceMap, match_scan, scan_normals};
 
+/// A local-map point in the map frame with its normal, if any.
+type MapPoint = (Vector2<f64>, Option<Vector2<f64>>);
+
 /// Front-end parameters.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SlamConfig {
@@ -84,7 +87,7 @@ pub struct SlamFrontEnd {
     cfg: SlamConfig,
     pose: Isometry2<f64>,
     /// Recent scans: map-frame points and normals.
-    local: VecDeque<Vec<(Vector2<f64>, Option<Vector2<f64>>)>>,
+    local: VecDeque<Vec<MapPoint>>,
     map: LogOddsMap,
     scans: usize,
 }

@@ -73,16 +73,33 @@ impl LogOddsMap {
             (lo - Vector2::repeat(pad), hi + Vector2::repeat(pad))
         } else {
             let cur_hi = self.origin + Vector2::new(self.width as f64, self.height as f64) * res;
-            if lo.x >= self.origin.x && lo.y >= self.origin.y && hi.x < cur_hi.x && hi.y < cur_hi.y {
+            if lo.x >= self.origin.x && lo.y >= self.origin.y && hi.x < cur_hi.x && hi.y < cur_hi.y
+            {
                 return;
             }
             let new_lo = Vector2::new(
-                if lo.x < self.origin.x { lo.x - pad } else { self.origin.x },
-                if lo.y < self.origin.y { lo.y - pad } else { self.origin.y },
+                if lo.x < self.origin.x {
+                    lo.x - pad
+                } else {
+                    self.origin.x
+                },
+                if lo.y < self.origin.y {
+                    lo.y - pad
+                } else {
+                    self.origin.y
+                },
             );
             let new_hi = Vector2::new(
-                if hi.x >= cur_hi.x { hi.x + pad } else { cur_hi.x },
-                if hi.y >= cur_hi.y { hi.y + pad } else { cur_hi.y },
+                if hi.x >= cur_hi.x {
+                    hi.x + pad
+                } else {
+                    cur_hi.x
+                },
+                if hi.y >= cur_hi.y {
+                    hi.y + pad
+                } else {
+                    cur_hi.y
+                },
             );
             (new_lo, new_hi)
         };
@@ -226,11 +243,18 @@ pub const PGM_FREE_THRESHOLD: i8 = 25;
 /// format (trinary, like `map_saver`): occupied 0, free 254, unknown 205;
 /// image row 0 is the top (largest y) and the YAML `origin` is the map-frame
 /// position of the lower-left pixel. Returns the two paths.
-pub fn write_pgm_yaml(grid: &OccupancyGrid, base: &Path) -> Result<(PathBuf, PathBuf), MapWriteError> {
+pub fn write_pgm_yaml(
+    grid: &OccupancyGrid,
+    base: &Path,
+) -> Result<(PathBuf, PathBuf), MapWriteError> {
     let pgm = base.with_extension("pgm");
     let yaml = base.with_extension("yaml");
     let (w, h) = (grid.width() as usize, grid.height() as usize);
-    let mut bytes = format!("P5\n# hng occupancy map, {} m/cell\n{w} {h}\n255\n", grid.resolution()).into_bytes();
+    let mut bytes = format!(
+        "P5\n# hng occupancy map, {} m/cell\n{w} {h}\n255\n",
+        grid.resolution()
+    )
+    .into_bytes();
     bytes.reserve(w * h);
     for row in grid.data().chunks(w).rev() {
         bytes.extend(row.iter().map(|&v| match v {
@@ -276,7 +300,10 @@ mod tests {
         assert_eq!(v[0], (0, 0));
         v.push((4, 2));
         for w in v.windows(2) {
-            assert!((w[1].0 - w[0].0).abs() <= 1 && (w[1].1 - w[0].1).abs() <= 1, "{v:?}");
+            assert!(
+                (w[1].0 - w[0].0).abs() <= 1 && (w[1].1 - w[0].1).abs() <= 1,
+                "{v:?}"
+            );
         }
         let mut v = Vec::new();
         bresenham((2, 2), (2, 2), |x, y| v.push((x, y)));
@@ -286,15 +313,25 @@ mod tests {
     #[test]
     fn integrates_wall_and_free_space() {
         let mut m = LogOddsMap::new(MapperConfig::default());
-        let pts: Vec<Vector2<f64>> = (-10..=10).map(|i| Vector2::new(2.0, f64::from(i) * 0.05)).collect();
+        let pts: Vec<Vector2<f64>> = (-10..=10)
+            .map(|i| Vector2::new(2.0, f64::from(i) * 0.05))
+            .collect();
         for _ in 0..5 {
             m.integrate(&Isometry2::new(Vector2::new(1.0, 1.0), 0.0), &pts);
         }
         let g = m.to_occupancy_grid().expect("grid");
         let (wx, wy) = g.world_to_cell(3.02, 1.0);
-        assert!(g.get(wx, wy).is_some_and(|v| v >= 90), "{:?}", g.get(wx, wy));
+        assert!(
+            g.get(wx, wy).is_some_and(|v| v >= 90),
+            "{:?}",
+            g.get(wx, wy)
+        );
         let (fx, fy) = g.world_to_cell(2.0, 1.0);
-        assert!(g.get(fx, fy).is_some_and(|v| v <= 20), "{:?}", g.get(fx, fy));
+        assert!(
+            g.get(fx, fy).is_some_and(|v| v <= 20),
+            "{:?}",
+            g.get(fx, fy)
+        );
         let (ux, uy) = g.world_to_cell(0.0, 3.0);
         assert_eq!(g.get(ux, uy), Some(UNKNOWN));
         // Growing keeps old content in place.

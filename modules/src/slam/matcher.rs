@@ -23,7 +23,12 @@ pub struct LikelihoodField {
 impl LikelihoodField {
     /// Builds the field from map-frame points. `depth` is the number of
     /// coarser levels for branch-and-bound. Returns `None` if `points` is empty.
-    pub fn build(points: &[Vector2<f64>], resolution: f64, sigma: f64, depth: usize) -> Option<Self> {
+    pub fn build(
+        points: &[Vector2<f64>],
+        resolution: f64,
+        sigma: f64,
+        depth: usize,
+    ) -> Option<Self> {
         let first = points.first()?;
         let (mut lo, mut hi) = (*first, *first);
         for p in points {
@@ -155,7 +160,10 @@ impl LikelihoodField {
         }
         let s: f64 = points
             .iter()
-            .map(|p| self.interpolate(&(pose * nalgebra::Point2::from(*p)).coords).0)
+            .map(|p| {
+                self.interpolate(&(pose * nalgebra::Point2::from(*p)).coords)
+                    .0
+            })
             .sum();
         s / points.len() as f64
     }
@@ -314,7 +322,10 @@ pub fn match_scan(
         .fold(0.0f64, f64::max)
         .clamp(1.0, cfg.max_range_for_step.max(1.0));
     // Step such that the farthest point moves by about one cell.
-    let step = (1.0 - res * res / (2.0 * max_r * max_r)).clamp(-1.0, 1.0).acos().max(1e-4);
+    let step = (1.0 - res * res / (2.0 * max_r * max_r))
+        .clamp(-1.0, 1.0)
+        .acos()
+        .max(1e-4);
     let na = (cfg.angular_window / step).ceil().max(0.0) as i64;
     let angles: Vec<f64> = (-na..=na).map(|i| i as f64 * step).collect();
     let theta0 = prior.rotation.angle();
@@ -384,7 +395,11 @@ pub fn match_scan(
 pub fn scan_normals(points: &[Vector2<f64>]) -> Vec<Option<Vector2<f64>>> {
     (0..points.len())
         .map(|i| {
-            let (a, p, b) = (points.get(i.checked_sub(1)?)?, &points[i], points.get(i + 1)?);
+            let (a, p, b) = (
+                points.get(i.checked_sub(1)?)?,
+                &points[i],
+                points.get(i + 1)?,
+            );
             let gap = (0.1 * p.norm()).max(0.2);
             if (p - a).norm() > gap || (b - p).norm() > gap {
                 return None;
@@ -446,11 +461,18 @@ pub fn refine(
     const HUBER: f64 = 0.02;
     const MAX_RESIDUAL: f64 = 0.1;
     let res = map.field.resolution;
-    let x0 = Vector3::new(start.translation.x, start.translation.y, start.rotation.angle());
-    let prior_info = Vector3::new(1.0 / (res * res), 1.0 / (res * res), 1.0 / 1f64.to_radians().powi(2));
+    let x0 = Vector3::new(
+        start.translation.x,
+        start.translation.y,
+        start.rotation.angle(),
+    );
+    let prior_info = Vector3::new(
+        1.0 / (res * res),
+        1.0 / (res * res),
+        1.0 / 1f64.to_radians().powi(2),
+    );
     let mut xi = x0;
     let mut h_icp = Matrix3::zeros();
-    let mut sigma2 = 1e-4;
     for _ in 0..iterations {
         let (s, c) = xi.z.sin_cos();
         let mut h = Matrix3::zeros();
@@ -468,7 +490,11 @@ pub fn refine(
             if r.abs() > MAX_RESIDUAL {
                 continue;
             }
-            let w = if r.abs() <= HUBER { 1.0 } else { HUBER / r.abs() };
+            let w = if r.abs() <= HUBER {
+                1.0
+            } else {
+                HUBER / r.abs()
+            };
             let dq = Vector2::new(-s * p.x - c * p.y, c * p.x - s * p.y);
             let j = Vector3::new(nrm.x, nrm.y, nrm.dot(&dq));
             h += j * j.transpose() * w;
@@ -480,7 +506,7 @@ pub fn refine(
         if n < 3 {
             break;
         }
-        sigma2 = (wr2 / (wsum - 3.0).max(1.0)).max(1e-4);
+        let sigma2 = (wr2 / (wsum - 3.0).max(1.0)).max(1e-4);
         h_icp = h / sigma2;
         let d = xi - x0;
         let mut hp = h_icp;
@@ -501,7 +527,6 @@ pub fn refine(
             break;
         }
     }
-    let _ = sigma2;
     let mut hp = h_icp;
     for i in 0..3 {
         hp[(i, i)] += prior_info[i];
@@ -568,9 +593,17 @@ mod tests {
         let m = match_scan(&field, &scan, &prior, &MatcherConfig::default()).expect("match");
         let err = truth.inverse() * m.pose;
         assert!(err.translation.vector.norm() < 0.01, "{:?}", m.pose);
-        assert!(err.rotation.angle().abs() < 0.2f64.to_radians(), "{:?}", m.pose);
+        assert!(
+            err.rotation.angle().abs() < 0.2f64.to_radians(),
+            "{:?}",
+            m.pose
+        );
         assert!(m.score > 0.8, "{}", m.score);
-        assert!(m.covariance[(0, 0)] > 0.0 && m.covariance[(0, 0)] < 1e-4, "{}", m.covariance);
+        assert!(
+            m.covariance[(0, 0)] > 0.0 && m.covariance[(0, 0)] < 1e-4,
+            "{}",
+            m.covariance
+        );
     }
 
     /// Branch-and-bound must find the same optimum as exhaustive search.
@@ -589,13 +622,25 @@ mod tests {
         let cfg0 = MatcherConfig { depth: 0, ..cfg };
         let field0 = reference(0);
         let b = match_scan(&field0, &scan, &prior, &cfg0).expect("match");
-        assert!((m.csm_score - b.csm_score).abs() < 1e-6, "{} vs {}", m.csm_score, b.csm_score);
-        assert!(m.nodes < b.nodes / 3, "bnb {} vs brute {}", m.nodes, b.nodes);
+        assert!(
+            (m.csm_score - b.csm_score).abs() < 1e-6,
+            "{} vs {}",
+            m.csm_score,
+            b.csm_score
+        );
+        assert!(
+            m.nodes < b.nodes / 3,
+            "bnb {} vs brute {}",
+            m.nodes,
+            b.nodes
+        );
     }
 
     #[test]
     fn normals_of_a_line() {
-        let pts: Vec<Vector2<f64>> = (0..5).map(|i| Vector2::new(1.0, f64::from(i) * 0.1)).collect();
+        let pts: Vec<Vector2<f64>> = (0..5)
+            .map(|i| Vector2::new(1.0, f64::from(i) * 0.1))
+            .collect();
         let n = scan_normals(&pts);
         assert!(n[0].is_none() && n[4].is_none());
         let n1 = n[1].expect("normal");
@@ -606,6 +651,14 @@ mod tests {
     fn empty_inputs() {
         assert!(LikelihoodField::build(&[], 0.05, 0.05, 3).is_none());
         let field = reference(3);
-        assert!(match_scan(&field, &[], &Isometry2::identity(), &MatcherConfig::default()).is_none());
+        assert!(
+            match_scan(
+                &field,
+                &[],
+                &Isometry2::identity(),
+                &MatcherConfig::default()
+            )
+            .is_none()
+        );
     }
 }

@@ -48,12 +48,15 @@ mod mapping;
 mod matcher;
 
 pub use carmen::{
-    CarmenError, CarmenLog, LaserConfig, LaserRecord, OdomRecord, Record, parse_log, pose_from, pose_to,
-    read_log,
+    CarmenError, CarmenLog, LaserConfig, LaserRecord, OdomRecord, Record, parse_log, pose_from,
+    pose_to, read_log,
 };
 pub use eval::{SlamEval, SlamEvalError, eval_slam, eval_slam_with};
 pub use frontend::{EstimateSource, PoseEstimate, SlamConfig, SlamFrontEnd};
 pub use mapping::{
-    LogOddsMap, MapWriteError, MapperConfig, PGM_FREE_THRESHOLD, PGM_OCCUPIED_THRESHOLD, write_pgm_yaml,
+    LogOddsMap, MapWriteError, MapperConfig, PGM_FREE_THRESHOLD, PGM_OCCUPIED_THRESHOLD,
+    write_pgm_yaml,
 };
-pub use matcher::{LikelihoodField, MatchResult, MatcherConfig, ReferenceMap, match_scan, refine, scan_normals};
+pub use matcher::{
+    LikelihoodField, MatchResult, MatcherConfig, ReferenceMap, match_scan, refine, scan_normals,
+};
