@@ -29,7 +29,16 @@ fn random_field(density: f64, seed: u64) -> OccupancyGrid {
             }
         }
     }
-    for (x, y) in [(0, 0), (1, 0), (0, 1), (1, 1), (511, 511), (510, 511), (511, 510), (510, 510)] {
+    for (x, y) in [
+        (0, 0),
+        (1, 0),
+        (0, 1),
+        (1, 1),
+        (511, 511),
+        (510, 511),
+        (511, 510),
+        (510, 510),
+    ] {
         g.set(x, y, FREE);
     }
     g
@@ -62,24 +71,43 @@ fn benches(c: &mut Criterion) {
 
     let open = OccupancyGrid::new(512, 512, 0.05, [0.0, 0.0], FREE).expect("grid");
     grp.bench_function("astar_open_corner_to_corner", |b| {
-        b.iter(|| planner.plan_cells(black_box(&open), (0, 0), (511, 511)).expect("path"))
+        b.iter(|| {
+            planner
+                .plan_cells(black_box(&open), (0, 0), (511, 511))
+                .expect("path")
+        })
     });
 
     let field = random_field(0.25, 7);
-    let p = planner.plan_cells(&field, (0, 0), (511, 511)).expect("random field must be solvable");
+    let p = planner
+        .plan_cells(&field, (0, 0), (511, 511))
+        .expect("random field must be solvable");
     println!(
         "random 25% field: length {:.2} cells, {} expanded",
         p.length_cells, p.expanded
     );
     grp.bench_function("astar_random25_corner_to_corner", |b| {
-        b.iter(|| planner.plan_cells(black_box(&field), (0, 0), (511, 511)).expect("path"))
+        b.iter(|| {
+            planner
+                .plan_cells(black_box(&field), (0, 0), (511, 511))
+                .expect("path")
+        })
     });
 
     let maze = serpentine();
-    let p = planner.plan_cells(&maze, (0, 0), (511, 511)).expect("serpentine solvable");
-    println!("serpentine: length {:.2} cells, {} expanded", p.length_cells, p.expanded);
+    let p = planner
+        .plan_cells(&maze, (0, 0), (511, 511))
+        .expect("serpentine solvable");
+    println!(
+        "serpentine: length {:.2} cells, {} expanded",
+        p.length_cells, p.expanded
+    );
     grp.bench_function("astar_serpentine_corner_to_corner", |b| {
-        b.iter(|| planner.plan_cells(black_box(&maze), (0, 0), (511, 511)).expect("path"))
+        b.iter(|| {
+            planner
+                .plan_cells(black_box(&maze), (0, 0), (511, 511))
+                .expect("path")
+        })
     });
     grp.bench_function("simplify_serpentine_path", |b| {
         b.iter(|| simplify(black_box(&maze), &cfg, black_box(&p)))

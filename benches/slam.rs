@@ -6,15 +6,16 @@ use std::hint::black_box;
 use std::path::PathBuf;
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use hng_modules::slam::{
-    LaserConfig, LogOddsMap, MapperConfig, MatcherConfig, ReferenceMap, match_scan, pose_from, read_log,
-    scan_normals,
-};
 use hng_modules::nalgebra::{Isometry2, Point2, Vector2};
+use hng_modules::slam::{
+    LaserConfig, LogOddsMap, MapperConfig, MatcherConfig, ReferenceMap, match_scan, pose_from,
+    read_log, scan_normals,
+};
 
 /// (scan end points in the sensor frame, true pose) for a run of scans.
 fn scans() -> Vec<(Vec<Vector2<f64>>, Isometry2<f64>)> {
-    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data/carmen/intel-corrected.log");
+    let path =
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data/carmen/intel-corrected.log");
     let laser = LaserConfig::default();
     match read_log(&path) {
         Ok(log) => {
@@ -36,8 +37,20 @@ fn scans() -> Vec<(Vec<Vector2<f64>>, Isometry2<f64>)> {
                             let d = Vector2::new(a.cos(), a.sin());
                             // Room [-5, 5] x [-4, 4] seen from `pose`.
                             let o = pose.translation.vector;
-                            let tx = if d.x > 1e-9 { (5.0 - o.x) / d.x } else if d.x < -1e-9 { (-5.0 - o.x) / d.x } else { f64::INFINITY };
-                            let ty = if d.y > 1e-9 { (4.0 - o.y) / d.y } else if d.y < -1e-9 { (-4.0 - o.y) / d.y } else { f64::INFINITY };
+                            let tx = if d.x > 1e-9 {
+                                (5.0 - o.x) / d.x
+                            } else if d.x < -1e-9 {
+                                (-5.0 - o.x) / d.x
+                            } else {
+                                f64::INFINITY
+                            };
+                            let ty = if d.y > 1e-9 {
+                                (4.0 - o.y) / d.y
+                            } else if d.y < -1e-9 {
+                                (-4.0 - o.y) / d.y
+                            } else {
+                                f64::INFINITY
+                            };
                             let t = tx.min(ty);
                             t.is_finite().then(|| d * t)
                         })

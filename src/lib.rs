@@ -2,3 +2,4 @@
 //! `hng bench` and the criterion benches in `benches/`.
 
 pub mod bench;
+pub mod contract_probe;

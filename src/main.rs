@@ -5,7 +5,12 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 mod bench;
+mod contracts;
+mod eval;
 mod modules;
+mod run;
+mod sim;
+mod top;
 mod topic;
 
 /// hng: a runtime for robot control architectures (HNG: processes, zero-copy channels,
@@ -32,10 +37,56 @@ enum Command {
         #[command(subcommand)]
         bench: bench::BenchCommand,
     },
+    /// Evaluate an algorithm on recorded data (planner: MovingAI; SLAM: CARMEN log).
+    Eval {
+        #[command(subcommand)]
+        command: eval::EvalCommand,
+    },
     /// Run a built-in module as this process (what launch files start).
     Module {
         /// The module's name.
         name: String,
+    },
+    /// Start a system from a launch file (or the built-in default) and supervise it.
+    Run(run::RunArgs),
+    /// Show the modules of the running system: state, pid, uptime, restarts, last exit.
+    Ps {
+        /// One JSON document (the supervisor's status).
+        #[arg(long)]
+        json: bool,
+    },
+    /// Send a signal to a module (fault injection); the supervisor handles the outcome.
+    Kill {
+        /// The module.
+        module: String,
+        /// Signal name (KILL, SEGV, STOP, TERM, ...) or number.
+        #[arg(long, short, default_value = "KILL")]
+        signal: String,
+    },
+    /// Restart a module (maintenance: stop, start again; not counted as a failure).
+    Restart {
+        /// The module.
+        module: String,
+    },
+    /// Start a stopped or deactivated module.
+    Start {
+        /// The module.
+        module: String,
+    },
+    /// Stop one module, or without MODULE the whole system (orderly, reverse start order).
+    Stop {
+        /// The module (default: the whole system).
+        module: Option<String>,
+    },
+    /// Live view of every module: state, CPU %, memory, caps, restarts, V, contracts,
+    /// degraded mode and C_R (text or --json snapshots when stdout is not a terminal).
+    Top(top::TopArgs),
+    /// The live contract tree (client, provider, service, priority, V) and data network.
+    Contracts(contracts::ContractsArgs),
+    /// Simulator tools (ground-truth maps of worlds).
+    Sim {
+        #[command(subcommand)]
+        command: sim::SimCommand,
     },
     /// The peer side of a two-process benchmark (started by `hng bench`).
     #[command(hide = true, name = "__bench-peer")]
@@ -47,8 +98,18 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Module { name } => return modules::run(&name),
+        Command::Run(args) => return run::run(&cli.prefix, &args),
+        Command::Ps { json } => run::ctl::ps(&cli.prefix, json),
+        Command::Kill { module, signal } => run::ctl::kill(&cli.prefix, &module, &signal),
+        Command::Restart { module } => run::ctl::restart(&cli.prefix, &module),
+        Command::Start { module } => run::ctl::start(&cli.prefix, &module),
+        Command::Stop { module } => run::ctl::stop(&cli.prefix, module.as_deref()),
         Command::Topic { command } => topic::run(&cli.prefix, command),
+        Command::Top(args) => top::run(&cli.prefix, &args),
+        Command::Contracts(args) => contracts::run(&cli.prefix, &args),
         Command::Bench { bench } => bench::run(bench),
+        Command::Eval { command } => eval::run(command),
+        Command::Sim { command } => sim::run(command),
         Command::BenchPeer(args) => bench::ipc::peer(&args),
     };
     match result {

@@ -6,12 +6,42 @@
 use std::process::ExitCode;
 
 /// The built-in modules' names.
-pub const BUILTIN: &[&str] = &[];
+pub const BUILTIN: &[&str] = &[
+    "heartbeat-probe",
+    "simulator",
+    "rm",
+    "contract-probe",
+    // HNG v1.0 modules (paper, Table 1; docs/modules.md).
+    "manager",
+    "security",
+    "robot",
+    "laser",
+    "camera",
+    "planning",
+    "servo",
+    "slam",
+    "gps",
+    "maps",
+];
 
 /// Runs built-in module `name` as this process.
 pub fn run(name: &str) -> ExitCode {
     #[allow(clippy::match_single_binding)]
     match name {
+        "heartbeat-probe" => hng_runtime::run_module::<crate::run::probe::Probe>(),
+        "simulator" => hng_simulator::module::main(),
+        "rm" => hng_runtime::run_module::<hng_rm::RmModule>(),
+        "contract-probe" => hng_runtime::run_module::<hng::contract_probe::Probe>(),
+        "manager" => hng_runtime::run_module::<hng_modules::manager::ManagerModule>(),
+        "security" => hng_runtime::run_module::<hng_modules::security::SecurityModule>(),
+        "robot" => hng_runtime::run_module::<hng_modules::robot::RobotModule>(),
+        "laser" => hng_runtime::run_module::<hng_modules::laser::LaserModule>(),
+        "camera" => hng_runtime::run_module::<hng_modules::camera::CameraModule>(),
+        "planning" => hng_runtime::run_module::<hng_modules::planning_module::PlanningModule>(),
+        "servo" => hng_runtime::run_module::<hng_modules::servo::ServoModule>(),
+        "slam" => hng_runtime::run_module::<hng_modules::slam_module::SlamModule>(),
+        "gps" => hng_runtime::run_module::<hng_modules::gps::GpsModule>(),
+        "maps" => hng_runtime::run_module::<hng_modules::maps::MapsModule>(),
         _ => {
             eprintln!(
                 "hng: no built-in module {name:?}; built-in modules: {}",

@@ -6,6 +6,7 @@ use anyhow::{Context as _, Result, bail};
 use clap::Subcommand;
 use hng_runtime::channel::{Node, NodeOptions, Service, iceoryx_config};
 use hng_runtime::msg::{self, Message, SliceMessage};
+use hng_runtime::system;
 use hng_runtime::wait::{WaitMode, Waiter, Wake};
 use iceoryx2::prelude::*;
 use serde::Serialize;
@@ -123,7 +124,7 @@ pub fn run(prefix: &str, cmd: TopicCommand) -> Result<()> {
             count,
             json,
         } => {
-            if !(window > 0.0) {
+            if !window.is_finite() || window <= 0.0 {
                 bail!("--window must be a positive number of seconds");
             }
             dispatch(
@@ -183,9 +184,24 @@ fn dispatch(prefix: &str, name: &str, mode: Mode) -> Result<()> {
         msg::Goal,
         msg::Waypoint,
         msg::Clock,
-        msg::ModuleReport
+        msg::ModuleReport,
+        system::SupervisorCommand,
+        system::ModuleEvent,
+        system::ResourceCosts,
+        system::EffectiveCosts,
+        system::ContractTable,
+        hng_simulator::module::SimStatus,
+        hng_simulator::module::SimCollision,
+        hng_modules::msgs::GoalStatus,
+        hng_modules::msgs::Mission,
+        hng_modules::msgs::MissionStatus
     );
-    slice!(msg::GridInfo, msg::ImageInfo, msg::BytesInfo);
+    slice!(
+        msg::GridInfo,
+        msg::ImageInfo,
+        msg::BytesInfo,
+        system::JsonInfo
+    );
     bail!(
         "channel {name:?} carries {}, which this hng does not know how to print",
         info.r#type

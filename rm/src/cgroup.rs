@@ -503,6 +503,9 @@ pub struct CgroupRun {
     /// One directory per distinct hierarchy with the controllers it serves.
     dirs: Vec<(PathBuf, [bool; 5])>,
     name: String,
+    /// Created by this process (removed on drop when empty); false for a run attached
+    /// with [`CgroupRun::open`], which never removes anything.
+    owned: bool,
 }
 
 /// A run id unique on this machine for this process: `<pid>-<ns since epoch>`.
@@ -555,7 +558,87 @@ impl CgroupRun {
             support: support.clone(),
             dirs,
             name,
+            owned: true,
         })
+    }
+
+    /// Attaches to the run `name` (`<system>-<run id>`, what the supervisor passes in
+    /// `HNG_CGROUP_RUN`) that another process created, without creating or removing
+    /// anything: for the resource manager, which runs as a module inside the run (its
+    /// own cgroup is `<base>/hng/<name>/<module>`, so the run is found among its own
+    /// cgroup's ancestors, else under `<base>/hng/<name>`). Hierarchies without the run
+    /// are skipped; fails when no hierarchy has it.
+    pub fn open(support: &CgroupSupport, name: &str) -> Result<Self> {
+        check_name(name)?;
+        let find = |base: &Path| -> Option<PathBuf> {
+            let up = base.ancestors().find(|d| {
+                d.file_name() == Some(OsStr::new(name))
+                    && d.parent().and_then(Path::file_name) == Some(OsStr::new("hng"))
+            });
+            let run = up.map_or_else(|| base.join("hng").join(name), Path::to_path_buf);
+            run.is_dir().then_some(run)
+        };
+        let mut dirs: Vec<(PathBuf, [bool; 5])> = Vec::new();
+        match &support.backend {
+            Backend::None { reason } => {
+                return Err(RmError::NoCgroups(reason.clone()));
+            }
+            Backend::V2 { base, controllers } => {
+                if let Some(run) = find(base) {
+                    let mut set = *controllers;
+                    set[Controller::Cpuacct.index()] = true;
+                    dirs.push((run, set));
+                }
+            }
+            Backend::V1 { bases } => {
+                for c in Controller::ALL {
+                    let Some(run) = bases[c.index()].as_deref().and_then(find) else {
+                        continue;
+                    };
+                    if let Some((_, set)) = dirs.iter_mut().find(|(d, _)| *d == run) {
+                        set[c.index()] = true;
+                        continue;
+                    }
+                    let mut set = [false; 5];
+                    set[c.index()] = true;
+                    dirs.push((run, set));
+                }
+            }
+        }
+        if dirs.is_empty() {
+            return Err(RmError::NoCgroups(format!(
+                "no hierarchy of {} has the run {name}",
+                support.describe()
+            )));
+        }
+        Ok(CgroupRun {
+            support: support.clone(),
+            dirs,
+            name: name.to_owned(),
+            owned: false,
+        })
+    }
+
+    /// A view of the existing cgroup of `module` in this run, without creating it;
+    /// `None` when no hierarchy has it. The view never removes the directories (its
+    /// owner, the supervisor, does); use it to read counters and caps.
+    pub fn existing_module(&self, module: &str) -> Result<Option<ModuleCgroup>> {
+        check_name(module)?;
+        let dirs: Vec<(PathBuf, [bool; 5])> = self
+            .dirs
+            .iter()
+            .map(|(run, set)| (run.join(module), *set))
+            .filter(|(d, _)| d.is_dir())
+            .collect();
+        if dirs.is_empty() {
+            return Ok(None);
+        }
+        Ok(Some(ModuleCgroup {
+            module: module.to_owned(),
+            version: self.support.version(),
+            dirs,
+            removed: true,
+        }))
     }
 
     /// `<system>-<run id>`.
@@ -608,6 +691,9 @@ impl CgroupRun {
 
 impl Drop for CgroupRun {
     fn drop(&mut self) {
+        if !self.owned {
+            return;
+        }
         for (run, _) in &self.dirs {
             if fs::remove_dir(run).is_ok() {
                 rmdir_shared_parent(run);
@@ -874,6 +960,53 @@ impl ModuleCgroup {
         });
         let text = fs::read(&path).map_err(|e| RmError::io("read", &path, e))?;
         Ok(find_kv(&text, b"oom_kill ").or_else(|| find_kv(&text, b"oom_kill\t")))
+    }
+
+    /// The caps the kernel currently enforces on this group, read back from the cgroup
+    /// files (`cpu.max` / `cpu.cfs_quota_us`+`cpu.cfs_period_us`, `memory.max` /
+    /// `memory.limit_in_bytes`, `pids.max`): `None` fields are unlimited or unreadable.
+    /// Lets a process that did not write the caps (the RM) tell which limits the kernel
+    /// takes care of.
+    #[must_use]
+    pub fn kernel_caps(&self) -> ResourceLimits {
+        let read = |c: Controller, file: &str| -> Option<String> {
+            fs::read_to_string(self.dir(c)?.join(file)).ok()
+        };
+        let num = |t: &str| t.trim().parse::<u64>().ok();
+        let mut caps = ResourceLimits::default();
+        match self.version {
+            Some(CgroupVersion::V2) => {
+                if let Some(t) = read(Controller::Cpu, "cpu.max") {
+                    let mut it = t.split_whitespace();
+                    if let (Some(q), Some(p)) = (it.next().and_then(num), it.next().and_then(num))
+                        && p > 0
+                    {
+                        caps.cpu_percent = Some(100.0 * q as f64 / p as f64);
+                    }
+                }
+                caps.memory_bytes = read(Controller::Memory, "memory.max").and_then(|t| num(&t));
+                caps.memory_high_bytes =
+                    read(Controller::Memory, "memory.high").and_then(|t| num(&t));
+            }
+            Some(CgroupVersion::V1) => {
+                let quota = read(Controller::Cpu, "cpu.cfs_quota_us")
+                    .and_then(|t| t.trim().parse::<i64>().ok());
+                let period = read(Controller::Cpu, "cpu.cfs_period_us").and_then(|t| num(&t));
+                if let (Some(q), Some(p)) = (quota, period)
+                    && q > 0
+                    && p > 0
+                {
+                    caps.cpu_percent = Some(100.0 * q as f64 / p as f64);
+                }
+                // v1 reports "no limit" as a huge page-aligned number.
+                caps.memory_bytes = read(Controller::Memory, "memory.limit_in_bytes")
+                    .and_then(|t| num(&t))
+                    .filter(|&b| b < (1 << 62));
+            }
+            None => {}
+        }
+        caps.pids = read(Controller::Pids, "pids.max").and_then(|t| num(&t));
+        caps
     }
 
     /// Pids currently in the module's cgroup(s).

@@ -9,9 +9,9 @@
 //! * [`degraded`]: the degraded mode (minimum priority) and [`degraded::RmCore`], the
 //!   decision part of the RM, fed with observations.
 //! * [`mod@bench`]: the `sample_N` benchmark.
-//!
-//! The RM process (reports over iceoryx2, publishing costs) is wired on top of these
-//! pure structs: feed them data and `now`.
+//! * [`manager`]: [`manager::ResourceManager`], the RM's state fed with reports,
+//!   contract tables and the supervisor's status, one `tick` per period.
+//! * [`module`]: [`RmModule`], the RM process (`hng module rm`) on iceoryx2.
 
 pub mod bench;
 pub mod cgroup;
@@ -19,6 +19,9 @@ pub mod cost;
 pub mod degraded;
 pub mod error;
 pub mod limits;
+pub mod manager;
+pub mod module;
 pub mod sampler;
 
 pub use error::{Result, RmError};
+pub use module::RmModule;

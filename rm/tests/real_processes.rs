@@ -448,3 +448,48 @@ fn cgroup_v2_placement_counter_kill_and_teardown() {
     cg.remove().expect("remove module cgroup");
     run.remove().expect("remove run");
 }
+
+/// The RM's view of a run another process created: `CgroupRun::open` finds it,
+/// `existing_module` never creates a group, `kernel_caps` reads the caps back, and
+/// dropping the view removes nothing.
+#[test]
+fn an_opened_run_reads_caps_back_and_removes_nothing() {
+    let Some(support) = support_with(&[Controller::Cpu, Controller::Memory]) else {
+        return;
+    };
+    let run = CgroupRun::create(&support, "test-open", &unique_run_id()).expect("run");
+    let cg = run.module("capped").expect("module cgroup");
+    let applied = cg.apply_limits(&ResourceLimits {
+        cpu_percent: Some(20.0),
+        memory_bytes: Some(64 << 20),
+        ..Default::default()
+    });
+    assert_eq!(applied.cpu, Cap::Kernel);
+    assert_eq!(applied.memory, Cap::Kernel);
+    {
+        let view = CgroupRun::open(&support, run.name()).expect("open the run");
+        assert!(
+            view.existing_module("absent")
+                .expect("valid name")
+                .is_none(),
+            "a view never creates a module cgroup"
+        );
+        let m = view
+            .existing_module("capped")
+            .expect("valid name")
+            .expect("the module's cgroup");
+        let caps = m.kernel_caps();
+        assert_eq!(caps.cpu_percent, Some(20.0));
+        assert_eq!(caps.memory_bytes, Some(64 << 20));
+        assert!(m.cpu_counter().is_some());
+        assert!(CgroupRun::open(&support, "no-such-run-here").is_err());
+    }
+    // The views are gone; the run and the module's group are still there.
+    assert!(cg.dirs().all(std::path::Path::is_dir));
+    let uncapped = run.module("free").expect("module cgroup");
+    let caps = uncapped.kernel_caps();
+    assert_eq!((caps.cpu_percent, caps.memory_bytes), (None, None));
+    uncapped.remove().expect("remove");
+    cg.remove().expect("remove");
+    run.remove().expect("remove run");
+}

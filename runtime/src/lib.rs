@@ -7,12 +7,14 @@
 //! - [`module`]: the [`Module`] trait and [`run_module`].
 //! - [`clock`]: the common clock (wall or simulated).
 //! - [`contract`]: the Contract-Net protocol logic.
+//! - [`control`]: contracts between processes: the control channels, provider inputs.
 //! - [`checkpoint`]: atomic, checksummed checkpoint files.
 
 pub mod channel;
 pub mod checkpoint;
 pub mod clock;
 pub mod contract;
+pub mod control;
 mod error;
 pub mod module;
 pub mod msg;

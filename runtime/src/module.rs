@@ -29,6 +29,10 @@ use crate::channel::{
 };
 use crate::checkpoint::CheckpointStore;
 use crate::clock::{CLOCK_CHANNEL, Clock, ClockMode, monotonic_ns};
+use crate::contract::{
+    ContractAgent, DropCounters, ModuleId, NeedSpec, Priority, ServiceOffer, Timing, Verdict,
+};
+use crate::control::{ContractSpec, ControlPlane, PlaneEvent, ProviderInfo};
 use crate::error::Error;
 use crate::msg::{self, Message, ModuleReport, ModuleState, SliceMessage};
 use crate::wait::{WaitMode, Waiter, Wake};
@@ -88,6 +92,31 @@ pub trait Module: Sized {
 
     /// Called once on a clean stop, before the final checkpoint.
     fn stop(&mut self, _ctx: &mut Context) {}
+
+    /// Contracts: the module became active (it holds a client contract, or it is the
+    /// Manager, called once at start) or inactive (its last client contract ended). A
+    /// provider starts working on `true` and stops on `false` (paper 5.6: "a module provides
+    /// its service only if it has been selected").
+    fn on_activation(&mut self, _ctx: &mut Context, _active: bool) -> ModuleResult {
+        Ok(())
+    }
+
+    /// Contracts: need `need` (its rank) is now served by `provider`, or by nobody. Follow the
+    /// provider's data channel here, e.g. with [`crate::control::ProviderInput::follow`].
+    fn on_provider_changed(
+        &mut self,
+        _ctx: &mut Context,
+        _need: u16,
+        _provider: Option<&ProviderInfo>,
+    ) -> ModuleResult {
+        Ok(())
+    }
+
+    /// Contracts: any contract of the module changed (a client came or went, a provider
+    /// changed, the priority changed). Called after the more specific callbacks.
+    fn on_contracts_changed(&mut self, _ctx: &mut Context) -> ModuleResult {
+        Ok(())
+    }
 }
 
 /// Identifies a timer created with [`Context::add_timer`].
@@ -119,6 +148,8 @@ pub struct Context {
     stop_requested: bool,
     deadline_misses: u64,
     checkpoints: u64,
+    contract_spec: ContractSpec,
+    plane: Option<ControlPlane>,
 }
 
 impl std::fmt::Debug for Context {
@@ -145,6 +176,8 @@ impl Context {
             stop_requested: false,
             deadline_misses: 0,
             checkpoints: 0,
+            contract_spec: ContractSpec::default(),
+            plane: None,
         })
     }
 
@@ -270,6 +303,119 @@ impl Context {
         self.deadline_misses
     }
 
+    // ----- contracts (paper 4.2, 5.5, 5.6; see docs/contracts.md) -----
+
+    /// Declares a service this module provides (in `configure`). The runtime then answers
+    /// queries for it, and [`Module::on_activation`] tells the module when it is selected.
+    pub fn provide(&mut self, offer: ServiceOffer) -> &mut Self {
+        self.contract_spec.provides.push(offer);
+        self
+    }
+
+    /// Declares a need (in `configure`): a service, its rank in the module (the contract gets
+    /// priority `P(module).rank`) and whether it is required. The runtime finds the best
+    /// provider while the module is active and calls [`Module::on_provider_changed`].
+    pub fn need(&mut self, need: NeedSpec) -> &mut Self {
+        self.contract_spec.needs.push(need);
+        self
+    }
+
+    /// Declares this module the Manager (in `configure`): always active, priority root, its
+    /// `objectives` are needs of ranks 1, 2, ... in mission order (1 is the most important).
+    pub fn manager(&mut self, objectives: &[&str]) -> &mut Self {
+        self.contract_spec.manager = Some(objectives.iter().map(|s| s.to_string()).collect());
+        self
+    }
+
+    /// Replaces the protocol timing (reply window, refresh period, peer timeout, ...).
+    pub fn contract_timing(&mut self, timing: Timing) -> &mut Self {
+        self.contract_spec.timing = Some(timing);
+        self
+    }
+
+    /// Sets the re-negotiation threshold (default 0.1).
+    pub fn contract_hysteresis(&mut self, hysteresis: f64) -> &mut Self {
+        self.contract_spec.hysteresis = Some(hysteresis);
+        self
+    }
+
+    /// Sets the validity time tau of the client feedback (default 5 s).
+    pub fn feedback_tau(&mut self, tau: Duration) -> &mut Self {
+        self.contract_spec.tau = Some(tau);
+        self
+    }
+
+    /// Declares this module a driver of `service` (paper 5.6): commands for it are obeyed
+    /// only from the live client with the most important contract; a client that sent no
+    /// command for `freshness` loses control to the next. See [`Context::command_verdict`].
+    pub fn drive(&mut self, service: &str, freshness: Duration) -> &mut Self {
+        self.contract_spec
+            .drives
+            .push((service.to_string(), freshness));
+        self
+    }
+
+    /// The module's contract agent, once the runtime started it (after `configure`).
+    pub fn contracts(&self) -> Option<&ContractAgent> {
+        self.plane.as_ref().map(ControlPlane::agent)
+    }
+
+    /// The module's priority, derived from its client contracts (`None`: inactive). There is
+    /// deliberately no setter: priorities come from the contract tree only.
+    pub fn priority(&self) -> Option<Priority> {
+        self.contracts().and_then(ContractAgent::priority)
+    }
+
+    /// True when the module holds a client contract or is the Manager.
+    pub fn is_active(&self) -> bool {
+        self.contracts().is_some_and(ContractAgent::is_active)
+    }
+
+    /// The provider currently serving need `need`.
+    pub fn provider(&self, need: u16) -> Option<ProviderInfo> {
+        self.contracts()?.contract(need).map(|c| ProviderInfo {
+            module: c.provider,
+            channel: c.channel.to_string(),
+        })
+    }
+
+    /// The module's evaluation `e` in [-1, 1] of the provider currently serving need `need`
+    /// (paper 4.2): sent to it as feedback with each refresh, it enters its value V. Without
+    /// one, the module forwards the feedback it receives from its own clients.
+    pub fn evaluate_provider(&mut self, need: u16, e: f64) {
+        let Some(provider) = self.provider(need) else {
+            return;
+        };
+        if let Some(p) = self.plane.as_mut() {
+            p.agent_mut().evaluate_provider(need, provider.module, e);
+        }
+    }
+
+    /// A driver's decision on a command for `service` whose header is `header`:
+    /// [`Verdict::Accept`] only for the live contract holder with the most important
+    /// priority. Commands from publishers holding no contract, or preempted ones, are
+    /// ignored and counted (in the module's contract table).
+    pub fn command_verdict(&mut self, service: &str, header: &msg::Header) -> Verdict {
+        let now = self.now();
+        match self.plane.as_mut() {
+            Some(p) => p.command_verdict(service, header, now),
+            None => Verdict::Ignore(crate::contract::DropReason::NoContract),
+        }
+    }
+
+    /// Control messages dropped so far by the transport (undecodable, spoofed).
+    pub fn control_drops(&self) -> DropCounters {
+        self.plane
+            .as_ref()
+            .map(|p| p.drops().clone())
+            .unwrap_or_default()
+    }
+
+    /// This module's id in contracts (the `source` of its messages' headers).
+    pub fn module_id(&self) -> ModuleId {
+        ModuleId(self.node.id())
+    }
+
     fn report(&self, period_ns: u64) -> ModuleReport {
         let c = self.node.counters();
         let mut r = ModuleReport {
@@ -304,7 +450,8 @@ pub struct RunOptions {
     pub checkpoint_dir: Option<PathBuf>,
     /// Checkpoint period (`HNG_CHECKPOINT_PERIOD_MS`, default 1000).
     pub checkpoint_period: Duration,
-    /// Report (heartbeat) period (`HNG_REPORT_PERIOD_MS`, default 100).
+    /// Report (heartbeat) period (`HNG_REPORT_PERIOD_MS` or `HNG_HEARTBEAT_PERIOD_MS`, default
+    /// 100).
     pub report_period: Duration,
     /// Clock (`HNG_CLOCK`: `wall` or `sim`).
     pub clock: ClockMode,
@@ -348,7 +495,11 @@ impl RunOptions {
         o.config_toml = var("HNG_MODULE_CONFIG").unwrap_or_default();
         o.checkpoint_dir = var("HNG_CHECKPOINT_DIR").map(PathBuf::from);
         o.checkpoint_period = ms("HNG_CHECKPOINT_PERIOD_MS", 1000)?;
-        o.report_period = ms("HNG_REPORT_PERIOD_MS", 100)?;
+        // The supervisor names it the heartbeat period; both spellings are accepted.
+        o.report_period = match var("HNG_REPORT_PERIOD_MS") {
+            Some(_) => ms("HNG_REPORT_PERIOD_MS", 100)?,
+            None => ms("HNG_HEARTBEAT_PERIOD_MS", 100)?,
+        };
         o.clock = match var("HNG_CLOCK").as_deref() {
             None | Some("wall") => ClockMode::Wall,
             Some("sim") => ClockMode::Sim,
@@ -499,6 +650,16 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
     }
     ctx.state = ModuleState::Running;
     module.start(&mut ctx).map_err(|e| module_err("start", e))?;
+    if ctx.contract_spec.declared() {
+        let plane = ControlPlane::new(&ctx.node, &mut ctx.waiter, &ctx.contract_spec)
+            .map_err(|e| module_err("contracts", Box::new(e)))?;
+        let manager = plane.agent().config().manager;
+        ctx.plane = Some(plane);
+        if manager && let Err(e) = module.on_activation(&mut ctx, true) {
+            tracing::warn!(module = %opts.name, "on_activation: {e}");
+        }
+        poll_contracts(&mut module, &mut ctx, &opts.name);
+    }
 
     let report_ns = opts.report_period.as_nanos() as u64;
     let checkpoint_ns = opts.checkpoint_period.as_nanos() as u64;
@@ -522,6 +683,11 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
             for d in ctx.deadlines.iter().filter(|d| !d.missed) {
                 wake_at = wake_at.min(d.last_ns.saturating_add(d.deadline_ns));
             }
+            if let Some(p) = &ctx.plane {
+                let plane_ns = u64::try_from(p.next_wake().as_nanos()).unwrap_or(u64::MAX);
+                let in_ns = plane_ns.saturating_sub(clock.now_ns());
+                wake_at = wake_at.min(wall_now.saturating_add(in_ns));
+            }
         }
         let timeout = Duration::from_nanos(wake_at.saturating_sub(wall_now));
         match ctx.waiter.wait(Some(timeout))? {
@@ -543,7 +709,9 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
             .waiter
             .ready()
             .filter(|id| Some(*id) != clock_id)
+            .filter(|id| !ctx.plane.as_ref().is_some_and(|p| p.owns(*id)))
             .collect();
+        poll_contracts(&mut module, &mut ctx, &opts.name);
         for id in ready {
             for d in ctx.deadlines.iter_mut().filter(|d| d.input == id) {
                 d.last_ns = now;
@@ -594,11 +762,37 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
 
     ctx.state = ModuleState::Stopping;
     module.stop(&mut ctx);
+    if let Some(p) = ctx.plane.as_mut() {
+        let now = ctx.node.clock().now();
+        p.shutdown(&ctx.node, now);
+    }
     if let Some(store) = &store {
         save_checkpoint(&module, store, &mut ctx, &opts.name);
     }
     let _ = reports.publish(ctx.report(report_ns));
     Ok(())
+}
+
+/// Runs the contract plane once and hands its events to the module's callbacks.
+fn poll_contracts<M: Module>(module: &mut M, ctx: &mut Context, name: &str) {
+    let Some(plane) = ctx.plane.as_mut() else {
+        return;
+    };
+    let now = ctx.node.clock().now();
+    plane.poll(&ctx.node, ctx.aptitude, f64::from(ctx.quality), now);
+    let events = plane.take_events();
+    for ev in events {
+        let r = match &ev {
+            PlaneEvent::Activation(active) => module.on_activation(ctx, *active),
+            PlaneEvent::Provider(need, info) => {
+                module.on_provider_changed(ctx, *need, info.as_ref())
+            }
+            PlaneEvent::ContractsChanged => module.on_contracts_changed(ctx),
+        };
+        if let Err(e) = r {
+            tracing::warn!(module = %name, event = ?ev, "contract callback: {e}");
+        }
+    }
 }
 
 fn save_checkpoint<M: Module>(module: &M, store: &CheckpointStore, ctx: &mut Context, name: &str) {

@@ -13,6 +13,7 @@
 //! | `StateBulk` | 1 (the latest) | 2 | yes | 2 | 8 |
 //! | `Bulk` | 0 | 2 | yes | 2 | 8 |
 //! | `Control` | 0 | 64 | yes | 128 | 128 |
+//! | `Contract` | 0 | 16 | yes | 128 | 32 |
 //! | `Report` | 0 | 64 | yes | 128 | 8 |
 //!
 //! Every kind uses safe overflow: a full buffer drops the subscriber's oldest sample, so a
@@ -35,8 +36,11 @@ pub enum ChannelKind {
     StateBulk,
     /// Large streams (images, raw bytes).
     Bulk,
-    /// Contract-protocol messages.
+    /// Supervisor commands and events.
     Control,
+    /// Contract-protocol messages (module inboxes, service query channels): one publisher per
+    /// peer, few subscribers, so each publisher preallocates little shared memory.
+    Contract,
     /// Module reports (heartbeats).
     Report,
 }
@@ -66,6 +70,7 @@ impl ChannelKind {
             ChannelKind::StateBulk => (1, 2, 2, 8),
             ChannelKind::Bulk => (0, 2, 2, 8),
             ChannelKind::Control => (0, 64, 128, 128),
+            ChannelKind::Contract => (0, 16, 128, 32),
             ChannelKind::Report => (0, 64, 128, 8),
         };
         Qos {

@@ -43,6 +43,8 @@ pub const MAX_MODULES: usize = 64;
 pub const MAX_CONTRACTS: usize = 16;
 /// Length of a service name in system messages.
 pub const SERVICE_LEN: usize = 32;
+/// Length of a data channel name in a [`ContractEntry`].
+pub const CHANNEL_LEN: usize = 64;
 
 /// Largest depth of a priority carried in system messages.
 pub const MAX_PRIORITY_DEPTH: usize = 24;
@@ -394,7 +396,7 @@ pub enum ContractRole {
 
 /// One contract as a module sees it.
 #[repr(C)]
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
 pub struct ContractEntry {
     /// [`ContractRole`] as a byte.
     pub role: u8,
@@ -408,6 +410,25 @@ pub struct ContractEntry {
     pub priority_len: u8,
     /// The contract's priority.
     pub priority: [u16; MAX_PRIORITY_DEPTH],
+    /// The client's need rank.
+    pub need: u16,
+    /// The data channel the provider named (NUL-padded).
+    pub channel: [u8; CHANNEL_LEN],
+}
+
+impl Default for ContractEntry {
+    fn default() -> Self {
+        ContractEntry {
+            role: 0,
+            peer: 0,
+            service: [0; SERVICE_LEN],
+            value: 0.0,
+            priority_len: 0,
+            priority: [0; MAX_PRIORITY_DEPTH],
+            need: 0,
+            channel: [0; CHANNEL_LEN],
+        }
+    }
 }
 
 impl ContractEntry {
@@ -434,15 +455,35 @@ impl ContractEntry {
     pub fn priority(&self) -> &[u16] {
         &self.priority[..usize::from(self.priority_len).min(MAX_PRIORITY_DEPTH)]
     }
+
+    /// Sets the priority (cut to [`MAX_PRIORITY_DEPTH`] components).
+    pub fn set_priority(&mut self, parts: &[u16]) {
+        let n = parts.len().min(MAX_PRIORITY_DEPTH);
+        self.priority = [0; MAX_PRIORITY_DEPTH];
+        self.priority[..n].copy_from_slice(&parts[..n]);
+        self.priority_len = n as u8;
+    }
+
+    /// The data channel.
+    pub fn channel(&self) -> &str {
+        get_str(&self.channel)
+    }
+
+    /// Sets the data channel (cut to [`CHANNEL_LEN`] bytes).
+    pub fn set_channel(&mut self, s: &str) {
+        put_str(&mut self.channel, s);
+    }
 }
 
 impl Serialize for ContractEntry {
     fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
         use serde::ser::SerializeStruct;
-        let mut st = s.serialize_struct("ContractEntry", 5)?;
+        let mut st = s.serialize_struct("ContractEntry", 7)?;
         st.serialize_field("role", &self.role())?;
         st.serialize_field("peer", &self.peer)?;
         st.serialize_field("service", self.service())?;
+        st.serialize_field("need", &self.need)?;
+        st.serialize_field("channel", self.channel())?;
         st.serialize_field("value", &self.value)?;
         st.serialize_field("priority", self.priority())?;
         st.end()
@@ -452,7 +493,7 @@ impl Serialize for ContractEntry {
 /// A module's contracts, published periodically on [`CONTRACTS`].
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
-#[type_name("hng/ContractTable/v1")]
+#[type_name("hng/ContractTable/v2")]
 pub struct ContractTable {
     /// Header.
     pub header: Header,
@@ -470,6 +511,19 @@ pub struct ContractTable {
     pub count: u32,
     /// The contracts; only the first `count` are meaningful.
     pub entries: [ContractEntry; MAX_CONTRACTS],
+    /// The module's own value V (eq. 3); NaN when it cannot propose (f = 0).
+    pub value: f32,
+    /// Control messages dropped by the transport: malformed, truncated, wrong version,
+    /// oversized, bad magic, out-of-range fields, spoofed sender.
+    pub control_drops: u64,
+    /// Control messages the protocol ignored (stale replies, unknown contracts, ...).
+    pub protocol_drops: u64,
+    /// Driver: commands obeyed.
+    pub commands_accepted: u64,
+    /// Driver: commands ignored because a more important client has control.
+    pub commands_preempted: u64,
+    /// Driver: commands ignored because their publisher holds no contract.
+    pub commands_no_contract: u64,
 }
 
 impl Default for ContractTable {
@@ -483,6 +537,12 @@ impl Default for ContractTable {
             priority: [0; MAX_PRIORITY_DEPTH],
             count: 0,
             entries: [ContractEntry::default(); MAX_CONTRACTS],
+            value: f32::NAN,
+            control_drops: 0,
+            protocol_drops: 0,
+            commands_accepted: 0,
+            commands_preempted: 0,
+            commands_no_contract: 0,
         }
     }
 }
@@ -507,18 +567,43 @@ impl ContractTable {
     pub fn priority(&self) -> &[u16] {
         &self.priority[..usize::from(self.priority_len).min(MAX_PRIORITY_DEPTH)]
     }
+
+    /// Sets the module's priority (cut to [`MAX_PRIORITY_DEPTH`] components).
+    pub fn set_priority(&mut self, parts: &[u16]) {
+        let n = parts.len().min(MAX_PRIORITY_DEPTH);
+        self.priority = [0; MAX_PRIORITY_DEPTH];
+        self.priority[..n].copy_from_slice(&parts[..n]);
+        self.priority_len = n as u8;
+    }
+
+    /// Appends an entry; false when the table is full.
+    pub fn push(&mut self, entry: ContractEntry) -> bool {
+        let n = self.count as usize;
+        if n >= MAX_CONTRACTS {
+            return false;
+        }
+        self.entries[n] = entry;
+        self.count += 1;
+        true
+    }
 }
 
 impl Serialize for ContractTable {
     fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
         use serde::ser::SerializeStruct;
-        let mut st = s.serialize_struct("ContractTable", 6)?;
+        let mut st = s.serialize_struct("ContractTable", 12)?;
         st.serialize_field("header", &self.header)?;
         st.serialize_field("module", self.module())?;
         st.serialize_field("module_id", &self.module_id)?;
         st.serialize_field("active", &(self.active != 0))?;
         st.serialize_field("priority", self.priority())?;
+        st.serialize_field("value", &self.value.is_finite().then_some(self.value))?;
         st.serialize_field("contracts", self.entries())?;
+        st.serialize_field("control_drops", &self.control_drops)?;
+        st.serialize_field("protocol_drops", &self.protocol_drops)?;
+        st.serialize_field("commands_accepted", &self.commands_accepted)?;
+        st.serialize_field("commands_preempted", &self.commands_preempted)?;
+        st.serialize_field("commands_no_contract", &self.commands_no_contract)?;
         st.end()
     }
 }

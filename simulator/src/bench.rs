@@ -96,6 +96,30 @@ pub fn wander(scan: &LidarScan) -> (f64, f64) {
     }
 }
 
+/// Like [`headless_10hz`], but returns one sample per simulated second: the wall time it took,
+/// in nanoseconds (the realtime factor of a sample is 1e9 / sample).
+pub fn headless_10hz_samples(sim_seconds: u32) -> Result<Vec<u64>> {
+    let mut sim = Simulator::new(World::default_world())?;
+    let mut out = Vec::new();
+    let mut samples = Vec::with_capacity(sim_seconds as usize);
+    for second in 1..=u64::from(sim_seconds) {
+        let end = second * 1_000_000_000;
+        let start = Instant::now();
+        while sim.now_ns() < end {
+            out.clear();
+            sim.step_into(&mut out);
+            for o in &out {
+                if let SensorOutput::Lidar(scan) = o {
+                    let (v, w) = wander(scan);
+                    sim.set_cmd_vel(v, w)?;
+                }
+            }
+        }
+        samples.push(u64::try_from(start.elapsed().as_nanos()).unwrap_or(u64::MAX));
+    }
+    Ok(samples)
+}
+
 /// Runs the default world (lidar 10 Hz and the other default sensors, physics 100 Hz) with the
 /// [`wander`] driver as fast as possible for `sim_seconds`; returns the realtime factor
 /// (simulated seconds per wall second).

@@ -19,19 +19,23 @@
 pub mod bench;
 mod error;
 pub mod map;
+pub mod module;
 mod pacing;
 mod sensors;
 mod sim;
+mod snapshot;
 mod world;
 
 pub use error::{Result, SimError};
 pub use map::OccupancyGrid;
+pub use module::{SimModuleConfig, SimStatus, SimulatorModule};
 pub use pacing::{Pacer, Speed};
 pub use sensors::{
     BeaconDetection, CameraFrame, CollisionEvent, GpsReading, GpsStatus, GroundTruth, LidarScan,
     Odometry, SensorKind, SensorOutput, SimStats,
 };
 pub use sim::{CONTACT_MARGIN, Simulator, secs_to_ns, wrap_angle};
+pub use snapshot::SimSnapshot;
 pub use world::{
     Beacon, BoxObstacle, CameraConfig, Circle, GpsConfig, GpsZone, GpsZoneKind, GroundTruthConfig,
     LidarConfig, MapRef, OdometryConfig, Pose2D, Rect, RobotConfig, SensorsConfig, Wall, World,

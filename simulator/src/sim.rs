@@ -7,7 +7,7 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
 use rapier2d::prelude::{
     ColliderBuilder, ColliderHandle, PhysicsWorld, Pose, QueryFilter, Ray, RigidBodyBuilder,
-    RigidBodyHandle, Vector,
+    RigidBodyHandle, Rotation, Vector,
 };
 
 use crate::error::{Result, SimError};
@@ -15,6 +15,7 @@ use crate::sensors::{
     BeaconDetection, CameraFrame, CollisionEvent, GpsReading, GpsStatus, GroundTruth, LidarScan,
     Odometry, SensorKind, SensorOutput, SimStats,
 };
+use crate::snapshot::SimSnapshot;
 use crate::world::{GpsZoneKind, Pose2D, World};
 
 /// A contact begins when the gap between robot and obstacle falls below this, metres (and ends
@@ -354,6 +355,86 @@ impl Simulator {
         self.pose = self.body_pose();
         self.true_twist = (0.0, 0.0);
         self.update_clearance();
+        Ok(())
+    }
+
+    /// The restorable state now (see [`SimSnapshot`] for what is and is not kept).
+    #[must_use]
+    pub fn snapshot(&self) -> SimSnapshot {
+        let pose = |p: TruePose| Pose2D::new(p.x, p.y, p.theta);
+        let body = self.phys.bodies.get(self.robot).map_or(
+            [
+                self.pose.x as f32,
+                self.pose.y as f32,
+                self.pose.theta.cos() as f32,
+                self.pose.theta.sin() as f32,
+            ],
+            |b| {
+                let (t, r) = (b.translation(), b.rotation());
+                [t.x, t.y, r.re, r.im]
+            },
+        );
+        SimSnapshot {
+            now_ns: self.now_ns,
+            pose: pose(self.pose),
+            body,
+            odom: pose(self.odom_pose),
+            stats: self.stats,
+            next_due_ns: [
+                self.lidar_timer.next_ns,
+                self.odom_timer.next_ns,
+                self.gps_timer.next_ns,
+                self.camera_timer.next_ns,
+                self.gt_timer.next_ns,
+            ],
+            rng_word_pos: [
+                self.lidar_rng.get_word_pos(),
+                self.odom_rng.get_word_pos(),
+                self.gps_rng.get_word_pos(),
+                self.camera_rng.get_word_pos(),
+                0,
+            ],
+        }
+    }
+
+    /// Resumes from a snapshot of a simulator built from the same world: simulated time,
+    /// poses, counters, sensor schedule and noise streams. The robot resumes at rest.
+    pub fn restore(&mut self, snap: &SimSnapshot) -> Result<()> {
+        self.teleport(snap.pose)?;
+        let [x, y, re, im] = snap.body;
+        if let Some(body) = self.phys.bodies.get_mut(self.robot) {
+            body.set_position(
+                Pose::from_parts(Vector::new(x, y), Rotation::from_cos_sin_unchecked(re, im)),
+                true,
+            );
+        }
+        self.pose = self.body_pose();
+        self.update_clearance();
+        self.now_ns = snap.now_ns;
+        self.odom_pose = TruePose {
+            x: snap.odom.x,
+            y: snap.odom.y,
+            theta: wrap_angle(snap.odom.theta),
+        };
+        self.odom_twist = (0.0, 0.0);
+        self.stats = snap.stats;
+        self.drive.last_cmd_ns = None;
+        self.drive.timed_out = false;
+        let timers = [
+            &mut self.lidar_timer,
+            &mut self.odom_timer,
+            &mut self.gps_timer,
+            &mut self.camera_timer,
+            &mut self.gt_timer,
+        ];
+        for (t, next) in timers.into_iter().zip(snap.next_due_ns) {
+            t.next_ns = next.max(snap.now_ns);
+        }
+        self.lidar_rng.set_word_pos(snap.rng_word_pos[0]);
+        self.odom_rng.set_word_pos(snap.rng_word_pos[1]);
+        self.gps_rng.set_word_pos(snap.rng_word_pos[2]);
+        self.camera_rng.set_word_pos(snap.rng_word_pos[3]);
+        self.in_contact = self.last_clearance < 2.0 * CONTACT_MARGIN;
         Ok(())
     }
 

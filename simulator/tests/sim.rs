@@ -142,9 +142,14 @@ fn robot_driven_at_a_wall_never_passes_through() -> Result<()> {
     w.robot.max_linear_accel = 10.0;
     let face = 5.0 - 0.025;
     let mut sim = Simulator::new(w)?;
+    let mut events = 0;
     for _ in 0..3000 {
         sim.set_cmd_vel(3.0, 0.0)?;
-        sim.step();
+        events += sim
+            .step()
+            .iter()
+            .filter(|o| matches!(o, SensorOutput::Collision(_)))
+            .count();
         let gt = sim.ground_truth();
         assert!(
             gt.x + 0.2 <= face + 0.005,
@@ -153,7 +158,11 @@ fn robot_driven_at_a_wall_never_passes_through() -> Result<()> {
         );
     }
     let stats = sim.stats();
-    assert!(stats.collisions >= 1);
+    assert_eq!(
+        stats.collisions, 1,
+        "pushing against the wall is one contact"
+    );
+    assert_eq!(events, 1);
     assert!(stats.min_clearance > -0.005, "{}", stats.min_clearance);
     assert!(
         (sim.ground_truth().x + 0.2 - face).abs() < 0.01,

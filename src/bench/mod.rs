@@ -7,12 +7,27 @@ use anyhow::Result;
 use clap::Subcommand;
 use hng_runtime::stats::{BenchRow, table};
 
+pub mod contracts;
 pub mod ipc;
+pub mod loop_;
+pub mod recovery;
+pub mod rm;
+pub mod sim;
 
 #[derive(Debug, Subcommand)]
 pub enum BenchCommand {
     /// Two-process ping-pong latency: hng channels vs raw iceoryx2 vs Unix sockets.
     Ipc(ipc::IpcArgs),
+    /// Contracts: 15-module tree set-up, switch after SIGKILL, one query among N candidates.
+    Contracts(contracts::ContractsArgs),
+    /// Simulator: one 360-beam lidar scan among 100 walls, and headless simulation speed.
+    Sim(sim::SimArgs),
+    /// Resource manager: CPU cost of sampling N = 10, 50, 200 processes at 10 Hz.
+    Rm(rm::RmArgs),
+    /// Watchdog: SIGKILL/SIGSTOP of a module to detection, restart and first message.
+    Recovery(recovery::RecoveryArgs),
+    /// Control loop across processes: lidar scan -> Security decision -> command out of Robot.
+    Loop(loop_::LoopArgs),
 }
 
 /// Prints rows as JSON lines or as a table.
@@ -29,5 +44,10 @@ pub fn print_rows(rows: &[BenchRow], json: bool) {
 pub fn run(cmd: BenchCommand) -> Result<()> {
     match cmd {
         BenchCommand::Ipc(args) => ipc::run(&args),
+        BenchCommand::Contracts(args) => contracts::run(&args),
+        BenchCommand::Sim(args) => sim::run(&args),
+        BenchCommand::Rm(args) => rm::run(&args),
+        BenchCommand::Recovery(args) => recovery::run(&args),
+        BenchCommand::Loop(args) => loop_::run(&args),
     }
 }

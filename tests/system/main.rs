@@ -1,5 +1,13 @@
 //! hng's integration tests: real processes, each test under its own shared-memory prefix.
 
 mod common;
+mod contracts;
 mod dataplane;
+mod eval;
+mod faults;
+mod mission;
+mod modules;
+mod rm;
 mod sdk;
+mod sim;
+mod topic;

@@ -10,6 +10,9 @@
 //!
 //! ```toml
 //! system = "explorer"                 # required: name of the system
+//! clock = "wall"                      # optional: "wall" (default) or "sim" (modules follow hng/clock)
+//! checkpoint_dir = "/var/lib/hng/explorer" # optional: where modules keep checkpoints
+//!                                     # (relative to this file; default: the run directory)
 //!
 //! [defaults]                          # optional: applies to every module
 //! restart = "on-failure"              # always | on-failure | never
@@ -37,6 +40,9 @@
 //! restart = "always"                  # any [defaults] key can be overridden here
 //! memory_max = "1GiB"
 //! env = { SLAM_THREADS = "2" }        # merged over [defaults].env
+//!
+//! [module.config]                     # optional: the module's own typed configuration,
+//! resolution_m = 0.05                 # passed to it as TOML in HNG_MODULE_CONFIG
 //! ```
 //!
 //! # Programs
@@ -147,6 +153,8 @@ pub struct ModuleSpec {
     pub needs: Vec<String>,
     /// Names this module provides.
     pub provides: Vec<String>,
+    /// The module's `config` table as TOML text (empty: none); passed in `HNG_MODULE_CONFIG`.
+    pub config: String,
 }
 
 impl ModuleSpec {
@@ -171,6 +179,7 @@ impl ModuleSpec {
             resources: ResourceCaps::default(),
             needs: Vec::new(),
             provides: Vec::new(),
+            config: String::new(),
         }
     }
 }
@@ -201,6 +210,11 @@ pub struct LaunchPlan {
     pub system: String,
     /// Modules in start order.
     pub modules: Vec<ModuleSpec>,
+    /// The modules run on the simulated clock (`clock = "sim"`: `HNG_CLOCK=sim`).
+    pub sim_clock: bool,
+    /// Where checkpoints go (`checkpoint_dir`, resolved against the file's folder);
+    /// `None`: the runner's default (its run directory).
+    pub checkpoint_dir: Option<PathBuf>,
     /// Problems that do not prevent starting (e.g. a need nobody provides).
     pub warnings: Vec<String>,
 }
@@ -353,6 +367,8 @@ type S<T> = Spanned<T>;
 #[serde(deny_unknown_fields)]
 struct RawTop {
     system: S<String>,
+    clock: Option<S<String>>,
+    checkpoint_dir: Option<S<String>>,
     defaults: Option<S<RawSettings>>,
 }
 
@@ -387,6 +403,7 @@ struct RawModule {
     manager: Option<S<bool>>,
     needs: Option<Vec<S<String>>>,
     provides: Option<Vec<S<String>>>,
+    config: Option<S<toml::Table>>,
     restart: Option<S<RestartPolicy>>,
     backoff_initial: Option<S<Scalar>>,
     backoff_max: Option<S<Scalar>>,
@@ -624,6 +641,43 @@ impl Cx<'_> {
             );
         }
         self.validate_settings_alone(defaults);
+        let sim_clock = match &top.clock {
+            None => false,
+            Some(c) => match c.get_ref().trim() {
+                "wall" => false,
+                "sim" => true,
+                other => {
+                    self.err(
+                        c.span(),
+                        Some("clock".to_owned()),
+                        LaunchErrorKind::InvalidValue(format!(
+                            "clock {other:?}: expected \"wall\" or \"sim\""
+                        )),
+                    );
+                    false
+                }
+            },
+        };
+        let checkpoint_dir = top.checkpoint_dir.as_ref().and_then(|d| {
+            let text = d.get_ref().trim();
+            if text.is_empty() {
+                self.err(
+                    d.span(),
+                    Some("checkpoint_dir".to_owned()),
+                    LaunchErrorKind::InvalidValue(
+                        "checkpoint_dir must not be empty (leave it out for the default)"
+                            .to_owned(),
+                    ),
+                );
+                return None;
+            }
+            let p = Path::new(text);
+            Some(if p.is_absolute() {
+                p.to_owned()
+            } else {
+                self.file.parent().unwrap_or_else(|| Path::new(".")).join(p)
+            })
+        });
 
         let mut specs = Vec::new();
         let mut seen: HashMap<String, usize> = HashMap::new();
@@ -699,6 +753,18 @@ impl Cx<'_> {
                 .map(|s| s.get_ref().clone())
                 .collect();
             self.apply_settings(&merged, &mut spec);
+            if let Some(cfg) = &raw.config {
+                match toml::to_string(cfg.get_ref()) {
+                    Ok(text) => spec.config = text,
+                    Err(e) => self.err(
+                        cfg.span(),
+                        Some(format!("{prefix}.config")),
+                        LaunchErrorKind::InvalidValue(format!(
+                            "the config table cannot be passed on as TOML: {e}"
+                        )),
+                    ),
+                }
+            }
             specs.push(spec);
             spans.push((
                 span,
@@ -718,6 +784,8 @@ impl Cx<'_> {
             file: self.file.to_owned(),
             system,
             modules,
+            sim_clock,
+            checkpoint_dir,
             warnings,
         })
     }

@@ -933,6 +933,10 @@ impl<H: SupervisorHooks> Supervisor<H> {
     /// is due, the [`Waker`] fires or `timeout` passes (whichever is first),
     /// handle what happened and return the events. Returns at once if events
     /// are already pending (from `start_all`, `kill`, `heartbeat`, ...).
+    ///
+    /// A call that reaps a process returns its exit (and the scheduled restart)
+    /// without spawning: the caller can tell the system about the death before
+    /// the restart's clean-up and spawn; the next call spawns without sleeping.
     pub fn poll(&mut self, timeout: Duration) -> Result<Vec<Event>, SupervisorError> {
         let now = Instant::now();
         let mut wait = timeout;
@@ -944,6 +948,7 @@ impl<H: SupervisorHooks> Supervisor<H> {
         }
         let tokens = self.epoll.wait(wait).map_err(io_err("epoll_wait"))?;
         let now = Instant::now();
+        let before = self.pending.len();
         for t in tokens {
             if t == WAKE_TOKEN {
                 self.wake.drain();
@@ -951,7 +956,10 @@ impl<H: SupervisorHooks> Supervisor<H> {
                 self.reap(i, now);
             }
         }
-        self.run_timers(now);
+        // A death is reported at once: restarts due now (clean-up and spawn take
+        // milliseconds) wait for the next call, which returns without sleeping.
+        let reaped = self.pending.len() > before;
+        self.run_timers(now, !reaped);
         self.advance_shutdown(now);
         Ok(std::mem::take(&mut self.pending))
     }
@@ -1077,7 +1085,7 @@ impl<H: SupervisorHooks> Supervisor<H> {
         self.push(now, i, EventKind::Restarting { delay, attempt });
     }
 
-    fn run_timers(&mut self, now: Instant) {
+    fn run_timers(&mut self, now: Instant, restarts: bool) {
         for i in 0..self.slots.len() {
             // Hang detection and stop escalation.
             let slot = &mut self.slots[i];
@@ -1121,7 +1129,8 @@ impl<H: SupervisorHooks> Supervisor<H> {
             }
             // Due restarts.
             let slot = &mut self.slots[i];
-            if slot.state == ModuleState::BackingOff
+            if restarts
+                && slot.state == ModuleState::BackingOff
                 && slot.proc_.is_none()
                 && slot.restart_at.is_some_and(|t| now >= t)
                 && !self.shutting_down

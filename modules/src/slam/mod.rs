@@ -18,15 +18,23 @@
 //!    candidates. This stage is what makes the matcher *robust*: it finds the
 //!    global optimum inside the window, so odometry errors of 20 cm / 10° (the
 //!    Intel log's worst) cannot trap it in a local minimum.
-//! 2. **Gauss-Newton refinement** on the bilinearly interpolated field (Hector
-//!    SLAM, Kohlbrecher et al. 2011) from the grid optimum. This removes the
-//!    cell/step quantisation of stage 1 (5 cm, ~0.2°) and gives sub-centimetre
-//!    *accuracy*; its Hessian yields the covariance.
+//! 2. **Point-to-line ICP refinement** (residual `n·(T·p − m)`, Censi's
+//!    PL-ICP metric) from the grid optimum, correspondences from a
+//!    nearest-map-point table stored in the field, Huber weights, the grid
+//!    optimum as a weak prior (one cell, one degree) so unconstrained
+//!    directions such as a corridor's axis do not drift. This removes the
+//!    5 cm / ~0.2° quantisation of stage 1; its Hessian gives the covariance
+//!    in metres and radians.
 //!
-//! Point-to-line ICP would refine as well as stage 2, but needs
-//! correspondences and a good start; gradient methods alone (Hector) diverge
-//! at the Intel log's inter-scan motions (up to 1.1 m and 35°, odometry error
-//! up to 22 cm and 10°). The combination is robust *and* accurate.
+//! Why not Hector-style Gauss-Newton on the bilinearly interpolated field:
+//! tried first; a piecewise-bilinear surface has its maxima at cell centres,
+//! so the estimate is pulled onto the cell lattice (7 mm and 0.35° of error
+//! on an exact synthetic room at 5 cm cells, which PL-ICP matches to < 1 mm).
+//! And gradient/ICP methods alone diverge at the Intel log's inter-scan
+//! motions (up to 1.1 m and 35°, odometry error up to 22 cm and 10°), which
+//! the exhaustive stage 1 absorbs. Measured on the Intel log: 2.9 cm and 0.46°
+//! mean relative error against the corrected poses (odometry alone: 5.9 cm,
+//! 2.7°), about 4 ms per scan in release with mapping.
 //!
 //! Matching against a sliding window of recent scans rather than the global
 //! map keeps the reference consistent: without loop closure the global map

@@ -239,6 +239,8 @@ enum NeedState {
         query_id: u64,
         deadline: Duration,
         proposals: Vec<Proposal>,
+        /// Providers that answered (proposal or refusal).
+        replied: BTreeSet<ModuleId>,
     },
     Contracted {
         provider: ModuleId,
@@ -290,6 +292,8 @@ pub struct ContractAgent {
     lineage: Vec<ModuleId>,
     drops: DropCounters,
     events: Vec<AgentEvent>,
+    /// Number of providers the transport knows for a service (early close of calls).
+    expected: BTreeMap<String, usize>,
 }
 
 fn sorted_union(a: &[ModuleId], b: &[ModuleId]) -> Vec<ModuleId> {
@@ -362,7 +366,47 @@ impl ContractAgent {
             lineage,
             drops: DropCounters::default(),
             events: Vec::new(),
+            expected: BTreeMap::new(),
         })
+    }
+
+    /// The transport knows that `n` modules listen for queries of `service`
+    /// (e.g. the subscribers of its query channel). A call for that service
+    /// then closes as soon as `n` distinct providers answered (proposal or
+    /// refusal) instead of waiting for its whole reply window; a silent
+    /// provider still delays the decision by the reply window at most.
+    /// Without it (the default) every call waits for its deadline.
+    pub fn set_provider_count(&mut self, service: &str, n: usize) {
+        match self.expected.get_mut(service) {
+            Some(v) => *v = n,
+            None => {
+                self.expected.insert(service.to_string(), n);
+            }
+        }
+    }
+
+    fn all_replied(&self, i: usize, replied: usize) -> bool {
+        self.expected
+            .get(&self.needs[i].spec.service)
+            .is_some_and(|&n| n > 0 && replied >= n)
+    }
+
+    /// The module is stopping: ends every contract at once (clients are
+    /// told [`Reason::Inactive`], providers [`Reason::NotNeeded`]) so the
+    /// tree re-forms without waiting for timeouts. Call it last: the agent is
+    /// inactive afterwards (the Manager would call its objectives again at
+    /// the next tick).
+    pub fn shutdown(&mut self, now: Duration) -> Vec<Outgoing> {
+        let mut out = Vec::new();
+        let keys: Vec<(ModuleId, u16)> = self.clients.keys().copied().collect();
+        for key in keys {
+            self.remove_client(key, Some(Reason::Inactive), &mut out);
+        }
+        self.deactivate_needs(&mut out);
+        if !self.cfg.manager {
+            self.refresh_identity(now, &mut out);
+        }
+        out
     }
 
     // ----- inputs from the module code, the RM and the watchdog -----
@@ -567,20 +611,35 @@ impl ContractAgent {
 
     /// Handles one incoming message, then does what is due at `now`.
     pub fn handle(&mut self, env: &Envelope, now: Duration) -> Vec<Outgoing> {
+        self.handle_all(std::slice::from_ref(env), now)
+    }
+
+    /// Handles every message of a batch (all that arrived since the last wake-up), then
+    /// does what is due at `now` once. A transport that was descheduled past a reply
+    /// deadline thus still counts the replies that arrived before it ran again.
+    pub fn handle_all(&mut self, envs: &[Envelope], now: Duration) -> Vec<Outgoing> {
         let mut out = Vec::new();
+        for env in envs {
+            self.receive(env, now, &mut out);
+        }
+        self.step(now, &mut out);
+        out
+    }
+
+    fn receive(&mut self, env: &Envelope, now: Duration, out: &mut Vec<Outgoing>) {
         let from = env.from;
         if from == self.cfg.id {
             self.drops.record(DropReason::FromSelf);
-            return out;
+            return;
         }
         match &env.body {
-            Message::Query(q) => self.on_query(from, q, now, &mut out),
+            Message::Query(q) => self.on_query(from, q, now, out),
             Message::Propose(p) => self.on_propose(from, p),
             Message::Refuse(r) => self.on_refuse(from, r),
-            Message::Accept(a) => self.on_accept(from, a, now, &mut out),
+            Message::Accept(a) => self.on_accept(from, a, now, out),
             Message::Reject(_) => {}
-            Message::Cancel(c) => self.on_cancel(from, c, now, &mut out),
-            Message::BetterOffer(b) => self.on_better_offer(from, b, now, &mut out),
+            Message::Cancel(c) => self.on_cancel(from, c, now, out),
+            Message::BetterOffer(b) => self.on_better_offer(from, b, now, out),
             Message::Feedback(f) => match self.clients.get_mut(&(from, f.need)) {
                 Some(c) => {
                     c.last_heard = now;
@@ -588,11 +647,9 @@ impl ContractAgent {
                 }
                 None => self.drops.record(DropReason::UnknownContract),
             },
-            Message::Value(v) => self.on_value(from, v, now, &mut out),
-            Message::Update(u) => self.on_update(from, u, now, &mut out),
+            Message::Value(v) => self.on_value(from, v, now, out),
+            Message::Update(u) => self.on_update(from, u, now, out),
         }
-        self.step(now, &mut out);
-        out
     }
 
     fn offer_for(&self, service: &str) -> Option<&ServiceOffer> {
@@ -732,8 +789,10 @@ impl ContractAgent {
             NeedState::Calling {
                 query_id,
                 proposals,
+                replied,
                 ..
             } if *query_id == p.query_id => {
+                replied.insert(from);
                 // Duplicates are resolved at the deadline (the last one counts).
                 proposals.push(Proposal {
                     provider: from,
@@ -761,8 +820,12 @@ impl ContractAgent {
             NeedState::Calling {
                 query_id,
                 proposals,
+                replied,
                 ..
-            } if *query_id == r.query_id => proposals.retain(|x| x.provider != from),
+            } if *query_id == r.query_id => {
+                replied.insert(from);
+                proposals.retain(|x| x.provider != from);
+            }
             _ => self.drops.record(DropReason::StaleReply),
         }
         self.needs[i].candidates.retain(|x| x.provider != from);
@@ -1145,6 +1208,7 @@ impl ContractAgent {
             query_id,
             deadline,
             proposals: Vec::new(),
+            replied: BTreeSet::new(),
         };
     }
 
@@ -1258,7 +1322,9 @@ impl ContractAgent {
             for i in 0..self.needs.len() {
                 match &self.needs[i].state {
                     NeedState::Idle => self.start_call(i, now, out),
-                    NeedState::Calling { deadline, .. } if now >= *deadline => {
+                    NeedState::Calling {
+                        deadline, replied, ..
+                    } if now >= *deadline || self.all_replied(i, replied.len()) => {
                         self.close_call(i, now, out)
                     }
                     NeedState::Waiting { retry_at } if now >= *retry_at => {

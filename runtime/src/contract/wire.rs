@@ -486,10 +486,12 @@ pub enum DropReason {
     Preempted,
     /// Encoding failed on the sending side.
     EncodeFailed,
+    /// The envelope's sender is not the module that published it (transport check).
+    Spoofed,
 }
 
 impl DropReason {
-    const ALL: [DropReason; 13] = [
+    const ALL: [DropReason; 14] = [
         DropReason::Truncated,
         DropReason::Oversized,
         DropReason::BadMagic,
@@ -503,6 +505,7 @@ impl DropReason {
         DropReason::NoContract,
         DropReason::Preempted,
         DropReason::EncodeFailed,
+        DropReason::Spoofed,
     ];
 
     /// The drop reason counting a decode/encode error.

@@ -374,3 +374,58 @@ fn shipped_example_file_is_valid() {
     let names: Vec<&str> = plan.modules.iter().map(|m| m.name.as_str()).collect();
     assert_eq!(names, ["rm", "lidar", "slam"]);
 }
+
+#[test]
+fn module_config_table_clock_and_checkpoint_dir() {
+    let p = plan(
+        r#"
+system = "s"
+clock = "sim"
+checkpoint_dir = "state"
+
+[[module]]
+name = "a"
+command = ["sleep", "1"]
+
+[module.config]
+period_ms = 5
+output = "test/count"
+nested = { x = 1.5 }
+
+[[module]]
+name = "b"
+command = ["sleep", "1"]
+"#,
+    );
+    assert!(p.sim_clock);
+    assert_eq!(p.checkpoint_dir, Some(PathBuf::from("/etc/hng/state")));
+    let cfg: toml::Table = toml::from_str(&p.modules[0].config).expect("config is TOML");
+    assert_eq!(cfg.get("period_ms").and_then(|v| v.as_integer()), Some(5));
+    assert_eq!(
+        cfg.get("nested")
+            .and_then(|v| v.get("x"))
+            .and_then(|v| v.as_float()),
+        Some(1.5)
+    );
+    assert_eq!(p.modules[1].config, "");
+    assert!(!plan("system = \"s\"\n[[module]]\nname = \"a\"\ncommand = [\"sleep\"]\n").sim_clock);
+}
+
+#[test]
+fn bad_clock_and_config_type() {
+    let kind = one_error(
+        "system = \"s\"\nclock = \"fast\"\n[[module]]\nname = \"a\"\ncommand = [\"sleep\"]\n",
+        2,
+        Some("clock"),
+    );
+    assert!(
+        matches!(kind, LaunchErrorKind::InvalidValue(ref m) if m.contains("sim")),
+        "{kind:?}"
+    );
+    let kind = one_error(
+        "system = \"s\"\n[[module]]\nname = \"a\"\ncommand = [\"sleep\"]\nconfig = 3\n",
+        5,
+        Some("module[0].config"),
+    );
+    assert!(matches!(kind, LaunchErrorKind::WrongType(_)), "{kind:?}");
+}

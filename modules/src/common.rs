@@ -1,0 +1,266 @@
+//! Helpers shared by the navigation modules: command sources arbitrated by priority, poses,
+//! angles, checkpoint encoding.
+
+use std::time::Duration;
+
+use hng_runtime::contract::{CommandArbiter, ModuleId, Priority, Verdict};
+use hng_runtime::msg::{Pose2D, Twist};
+use serde::{Deserialize, Serialize};
+
+/// One client that may command a driver: the channel it publishes on and the priority of its
+/// contract (paper 5.5: smaller is more important, `1.1` beats `2.1` beats `2.2.1.1`).
+#[derive(Debug, Clone, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct CommandSource {
+    /// Channel of `Twist` commands.
+    pub channel: String,
+    /// Dotted priority, e.g. `"1.1"`.
+    pub priority: String,
+}
+
+impl CommandSource {
+    /// A source.
+    pub fn new(channel: &str, priority: &str) -> CommandSource {
+        CommandSource {
+            channel: channel.into(),
+            priority: priority.into(),
+        }
+    }
+}
+
+/// Why a configuration is unusable.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    /// A field has an unusable value.
+    #[error("field `{field}`: {msg}")]
+    Field {
+        /// The field, with its path (`sources[1].priority`).
+        field: String,
+        /// What is wrong.
+        msg: String,
+    },
+}
+
+/// Builds a field error.
+pub fn field_error(field: impl Into<String>, msg: impl Into<String>) -> ConfigError {
+    ConfigError::Field {
+        field: field.into(),
+        msg: msg.into(),
+    }
+}
+
+/// Checks that `v` is finite and > 0.
+pub fn positive(field: &str, v: f64) -> Result<f64, ConfigError> {
+    if v.is_finite() && v > 0.0 {
+        Ok(v)
+    } else {
+        Err(field_error(
+            field,
+            format!("must be finite and > 0, got {v}"),
+        ))
+    }
+}
+
+/// A duration from seconds, checked finite and > 0.
+pub fn seconds(field: &str, v: f64) -> Result<Duration, ConfigError> {
+    positive(field, v).map(Duration::from_secs_f64)
+}
+
+/// Which of several command sources is obeyed: the live source with the most important
+/// priority; a source is live while its last command is younger than the freshness timeout
+/// (like ROS `twist_mux`). Built on the runtime's [`CommandArbiter`], keyed here by the
+/// source's index in the configured list.
+///
+/// CONTRACTS: when the SDK's contracts land, the holders come from the driver's client
+/// contracts instead of the configuration: call [`CommandMux::sync`] with
+/// `(ModuleId, Priority)` of every client contract (keyed by the client's module id, i.e.
+/// `Header::source` of its commands) in `on_provider_changed`/`on_activation`, and key
+/// [`CommandMux::on_command`] by `Header::source`.
+#[derive(Debug, Clone)]
+pub struct CommandMux {
+    arbiter: CommandArbiter,
+    active: Option<ModuleId>,
+}
+
+/// What a driver does after a command arrived or time passed.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum MuxAction {
+    /// Send this command.
+    Send(Twist),
+    /// Nothing to send.
+    Nothing,
+}
+
+impl CommandMux {
+    /// A mux over `sources`, in the order of their indices.
+    pub fn new(sources: &[CommandSource], freshness: Duration) -> Result<CommandMux, ConfigError> {
+        let mut arbiter = CommandArbiter::new(freshness);
+        for (i, s) in sources.iter().enumerate() {
+            let p: Priority = s
+                .priority
+                .parse()
+                .map_err(|e| field_error(format!("sources[{i}].priority"), format!("{e}")))?;
+            if s.channel.is_empty() {
+                return Err(field_error(format!("sources[{i}].channel"), "is empty"));
+            }
+            arbiter.offer(ModuleId(i as u32), p, Duration::ZERO);
+        }
+        Ok(CommandMux {
+            arbiter,
+            active: None,
+        })
+    }
+
+    /// Replaces the holders (contract mode).
+    pub fn sync<I: IntoIterator<Item = (ModuleId, Priority)>>(&mut self, holders: I) {
+        self.arbiter.sync(holders);
+    }
+
+    /// A command from source `source` arrived at `now`: `Send` it if the source has control.
+    /// Non-finite commands are refused (a stop is sent instead if the source had control).
+    pub fn on_command(&mut self, source: u32, cmd: &Twist, now: Duration) -> MuxAction {
+        let id = ModuleId(source);
+        match self.arbiter.on_command(id, now) {
+            Verdict::Accept => {
+                self.active = Some(id);
+                if cmd.linear_x.is_finite() && cmd.linear_y.is_finite() && cmd.angular_z.is_finite()
+                {
+                    MuxAction::Send(*cmd)
+                } else {
+                    MuxAction::Send(Twist::default())
+                }
+            }
+            Verdict::Ignore(_) => MuxAction::Nothing,
+        }
+    }
+
+    /// Time passed: if the source in control went silent and nobody took over, send one stop.
+    pub fn on_tick(&mut self, now: Duration) -> MuxAction {
+        let live = self.arbiter.active(now);
+        if self.active.is_some() && live.is_none() {
+            self.active = None;
+            return MuxAction::Send(Twist::default());
+        }
+        MuxAction::Nothing
+    }
+
+    /// The source in control at `now`.
+    pub fn active(&self, now: Duration) -> Option<u32> {
+        self.arbiter.active(now).map(|m| m.0)
+    }
+
+    /// Commands ignored so far (preempted or from no contract holder).
+    pub fn ignored(&self) -> u64 {
+        self.arbiter.drops().total()
+    }
+}
+
+/// Wraps an angle to (-π, π].
+pub fn wrap_angle(a: f64) -> f64 {
+    let mut a = a % std::f64::consts::TAU;
+    if a > std::f64::consts::PI {
+        a -= std::f64::consts::TAU;
+    } else if a <= -std::f64::consts::PI {
+        a += std::f64::consts::TAU;
+    }
+    a
+}
+
+/// `a ⊕ b`: `b` (expressed in `a`'s frame) composed onto `a`.
+pub fn compose(a: &Pose2D, b: &Pose2D) -> Pose2D {
+    let (s, c) = a.theta.sin_cos();
+    Pose2D {
+        x: a.x + c * b.x - s * b.y,
+        y: a.y + s * b.x + c * b.y,
+        theta: wrap_angle(a.theta + b.theta),
+    }
+}
+
+/// `a⁻¹ ⊕ b`: `b` expressed in `a`'s frame.
+pub fn relative(a: &Pose2D, b: &Pose2D) -> Pose2D {
+    let (s, c) = a.theta.sin_cos();
+    let (dx, dy) = (b.x - a.x, b.y - a.y);
+    Pose2D {
+        x: c * dx + s * dy,
+        y: -s * dx + c * dy,
+        theta: wrap_angle(b.theta - a.theta),
+    }
+}
+
+/// Encodes a checkpoint.
+pub fn encode_state<T: Serialize>(state: &T) -> Option<Vec<u8>> {
+    postcard::to_allocvec(state).ok()
+}
+
+/// Decodes a checkpoint.
+pub fn decode_state<'a, T: Deserialize<'a>>(bytes: &'a [u8]) -> Result<T, postcard::Error> {
+    postcard::from_bytes(bytes)
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+
+    fn t(v: f64) -> Twist {
+        Twist {
+            linear_x: v,
+            ..Default::default()
+        }
+    }
+
+    fn ms(v: u64) -> Duration {
+        Duration::from_millis(v)
+    }
+
+    #[test]
+    fn mux_obeys_the_most_important_live_source_and_stops_when_it_goes_silent() {
+        let sources = [
+            CommandSource::new("security/cmd_vel", "1.1"),
+            CommandSource::new("teleop/cmd_vel", "2.1"),
+            CommandSource::new("servo/cmd_vel", "2.2.1.1"),
+        ];
+        let mut m = CommandMux::new(&sources, ms(300)).unwrap();
+        assert_eq!(m.on_command(2, &t(0.5), ms(0)), MuxAction::Send(t(0.5)));
+        assert_eq!(m.on_command(1, &t(0.2), ms(10)), MuxAction::Send(t(0.2)));
+        assert_eq!(m.on_command(2, &t(0.5), ms(20)), MuxAction::Nothing);
+        assert_eq!(m.on_command(0, &t(0.0), ms(30)), MuxAction::Send(t(0.0)));
+        assert_eq!(m.active(ms(30)), Some(0));
+        // Security silent: teleop (still live at 320? its last command was at 10) has gone
+        // stale too; servo commanded at 20 and is stale at 400.
+        assert_eq!(m.on_tick(ms(200)), MuxAction::Nothing);
+        assert_eq!(m.on_tick(ms(400)), MuxAction::Send(Twist::default()));
+        assert_eq!(m.on_tick(ms(500)), MuxAction::Nothing, "one stop only");
+        assert_eq!(m.on_command(2, &t(0.4), ms(600)), MuxAction::Send(t(0.4)));
+        assert!(m.ignored() >= 1);
+    }
+
+    #[test]
+    fn mux_turns_non_finite_commands_into_a_stop_and_rejects_bad_priorities() {
+        let mut m = CommandMux::new(&[CommandSource::new("a", "1")], ms(100)).unwrap();
+        assert_eq!(
+            m.on_command(0, &t(f64::NAN), ms(0)),
+            MuxAction::Send(Twist::default())
+        );
+        let e = CommandMux::new(&[CommandSource::new("a", "1.x")], ms(100)).unwrap_err();
+        assert!(e.to_string().contains("sources[0].priority"), "{e}");
+    }
+
+    #[test]
+    fn poses_compose_and_invert() {
+        let a = Pose2D {
+            x: 1.0,
+            y: 2.0,
+            theta: 0.5,
+        };
+        let b = Pose2D {
+            x: -0.3,
+            y: 0.7,
+            theta: -1.2,
+        };
+        let r = relative(&a, &compose(&a, &b));
+        assert!((r.x - b.x).abs() < 1e-12 && (r.y - b.y).abs() < 1e-12);
+        assert!((r.theta - b.theta).abs() < 1e-12);
+        assert!((wrap_angle(3.0 * std::f64::consts::PI) - std::f64::consts::PI).abs() < 1e-12);
+    }
+}

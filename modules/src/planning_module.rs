@@ -1,0 +1,663 @@
+//! Planning: reach goal (Table 1: provides "Reach goal", needs "Reach waypoint", "Mapping" and
+//! a position; data in: goal, map, position; data out: waypoints).
+//!
+//! [`PlanningCore`] (pure logic) keeps the map inflated by the robot radius plus a clearance,
+//! plans with the exact 8-connected A* ([`GridPlanner`]: no corner cutting, diagonal √2) from
+//! the robot to the current goal, shortens the grid path by line of sight, and then, at every
+//! pose, publishes one [`Waypoint`]: the point `lookahead_m` ahead of the robot's projection on
+//! the path (the pure-pursuit carrot the Servo-controller steers to; `is_final` once it is the
+//! goal itself). It replans when the goal or the map changes, or when the robot strays more
+//! than `deviation_m` from the path.
+//!
+//! Goals outside the map, inside obstacles (after inflation, beyond the goal's tolerance) or
+//! unreachable are refused: a [`GoalStatus`] `Refused`, an error in the log that says why,
+//! Q = -1, and no waypoint (the servo then stops commanding and Security holds the robot).
+//!
+//! Quality Q: 1 while following a plan; 0 while waiting for a map, a pose or a goal; -1 when
+//! the goal is refused.
+
+use hng_runtime::channel::InputId;
+use hng_runtime::msg::{FrameId, Goal, GridInfo, Header, Pose2D, PoseWithCovariance, Waypoint};
+use hng_runtime::{Context, Module, ModuleResult, Publisher, SliceSubscriber, Subscriber};
+use serde::{Deserialize, Serialize};
+
+use crate::common::{decode_state, encode_state, positive};
+use crate::maps::grid_from_msg;
+use crate::msgs::{GoalState, GoalStatus};
+use crate::planning::{
+    GridPlanner, InflationConfig, OccupancyGrid, PlannerConfig, inflate, simplify,
+};
+
+/// Parameters of the planner.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PlanningParams {
+    /// Robot radius, m (default 0.2).
+    pub robot_radius: f64,
+    /// Clearance kept to obstacles on top of the radius, m (default 0.1).
+    pub clearance: f64,
+    /// Distance of the carrot ahead of the robot on the path, m (default 0.6).
+    pub lookahead_m: f64,
+    /// Replan when the robot is farther than this from the path, m (default 0.5).
+    pub deviation_m: f64,
+    /// Speed suggested in waypoints, m/s (default 0.5).
+    pub speed: f64,
+    /// Plan through unknown cells (exploring with a SLAM map; default false).
+    pub unknown_is_free: bool,
+}
+
+impl Default for PlanningParams {
+    fn default() -> Self {
+        PlanningParams {
+            robot_radius: 0.2,
+            clearance: 0.1,
+            lookahead_m: 0.6,
+            deviation_m: 0.5,
+            speed: 0.5,
+            unknown_is_free: false,
+        }
+    }
+}
+
+/// What one update of the planner produced.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct PlanStep {
+    /// The waypoint to publish.
+    pub waypoint: Option<Waypoint>,
+    /// The goal's status to publish.
+    pub status: Option<GoalStatus>,
+    /// Why the goal was just refused (once per goal).
+    pub refused: Option<String>,
+    /// True if a new path was computed.
+    pub replanned: bool,
+}
+
+#[derive(Debug, Clone)]
+struct PathState {
+    points: Vec<[f64; 2]>,
+    cum: Vec<f64>,
+    seg: usize,
+}
+
+impl PathState {
+    fn new(points: Vec<[f64; 2]>) -> PathState {
+        let mut cum = vec![0.0];
+        for w in points.windows(2) {
+            let l = (w[1][0] - w[0][0]).hypot(w[1][1] - w[0][1]);
+            cum.push(cum.last().copied().unwrap_or(0.0) + l);
+        }
+        PathState {
+            points,
+            cum,
+            seg: 0,
+        }
+    }
+
+    fn total(&self) -> f64 {
+        self.cum.last().copied().unwrap_or(0.0)
+    }
+
+    /// Projects `p` on the path from the current segment on; returns (arc length, distance).
+    fn project(&mut self, p: [f64; 2]) -> (f64, f64) {
+        let n = self.points.len();
+        if n < 2 {
+            let q = self.points.first().copied().unwrap_or(p);
+            return (0.0, (q[0] - p[0]).hypot(q[1] - p[1]));
+        }
+        let mut best = (f64::INFINITY, self.seg, 0.0);
+        for i in self.seg..n - 1 {
+            let (a, b) = (self.points[i], self.points[i + 1]);
+            let (dx, dy) = (b[0] - a[0], b[1] - a[1]);
+            let l2 = dx * dx + dy * dy;
+            let t = if l2 > 0.0 {
+                (((p[0] - a[0]) * dx + (p[1] - a[1]) * dy) / l2).clamp(0.0, 1.0)
+            } else {
+                0.0
+            };
+            let d = (a[0] + t * dx - p[0]).hypot(a[1] + t * dy - p[1]);
+            if d < best.0 {
+                best = (d, i, t);
+            }
+        }
+        self.seg = best.1;
+        let seg_len = self.cum[best.1 + 1] - self.cum[best.1];
+        (self.cum[best.1] + best.2 * seg_len, best.0)
+    }
+
+    /// The point at arc length `s` (clamped) and the heading of its segment.
+    fn at(&self, s: f64) -> ([f64; 2], f64) {
+        let n = self.points.len();
+        if n < 2 {
+            return (self.points.first().copied().unwrap_or([0.0, 0.0]), 0.0);
+        }
+        let s = s.clamp(0.0, self.total());
+        let i = match self.cum.iter().position(|&c| c > s) {
+            Some(k) => k.saturating_sub(1).min(n - 2),
+            None => n - 2,
+        };
+        let (a, b) = (self.points[i], self.points[i + 1]);
+        let l = self.cum[i + 1] - self.cum[i];
+        let t = if l > 0.0 { (s - self.cum[i]) / l } else { 1.0 };
+        let heading = (b[1] - a[1]).atan2(b[0] - a[0]);
+        (
+            [a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])],
+            heading,
+        )
+    }
+}
+
+/// The planner's logic, without I/O.
+#[derive(Debug)]
+pub struct PlanningCore {
+    params: PlanningParams,
+    planner: GridPlanner,
+    grid: Option<OccupancyGrid>,
+    goal: Option<Goal>,
+    refused: Option<u32>,
+    path: Option<PathState>,
+    replan: bool,
+}
+
+/// The cell nearest to `c` (Chebyshev rings up to `max_ring`) that `ok` accepts.
+fn nearest_cell(c: (i64, i64), max_ring: i64, ok: impl Fn(i64, i64) -> bool) -> Option<(i64, i64)> {
+    let mut best: Option<((i64, i64), i64)> = None;
+    for ring in 0..=max_ring {
+        for dx in -ring..=ring {
+            for dy in -ring..=ring {
+                if dx.abs().max(dy.abs()) != ring {
+                    continue;
+                }
+                let (x, y) = (c.0 + dx, c.1 + dy);
+                let d2 = dx * dx + dy * dy;
+                if ok(x, y) && best.is_none_or(|(_, bd)| d2 < bd) {
+                    best = Some(((x, y), d2));
+                }
+            }
+        }
+        if best.is_some() {
+            break;
+        }
+    }
+    best.map(|(c, _)| c)
+}
+
+impl PlanningCore {
+    /// A planner with `params`.
+    pub fn new(params: PlanningParams) -> PlanningCore {
+        PlanningCore {
+            params,
+            planner: GridPlanner::new(PlannerConfig {
+                occupied_threshold: 50,
+                unknown_is_free: params.unknown_is_free,
+            }),
+            grid: None,
+            goal: None,
+            refused: None,
+            path: None,
+            replan: false,
+        }
+    }
+
+    /// The current goal.
+    pub fn goal(&self) -> Option<&Goal> {
+        self.goal.as_ref()
+    }
+
+    /// True if the current goal was refused.
+    pub fn is_refused(&self) -> bool {
+        self.goal.is_some_and(|g| self.refused == Some(g.id))
+    }
+
+    /// True while a path is being followed.
+    pub fn has_path(&self) -> bool {
+        self.path.is_some()
+    }
+
+    /// A new map: it is inflated, and the path replanned at the next pose.
+    pub fn set_map(&mut self, grid: &OccupancyGrid) {
+        let inflated = inflate(
+            grid,
+            &InflationConfig {
+                radius_m: self.params.robot_radius + self.params.clearance,
+                occupied_threshold: 50,
+                inflate_unknown: false,
+            },
+        );
+        self.grid = Some(inflated);
+        self.replan = true;
+        if self.goal.is_some() {
+            self.refused = None; // the new map may make it reachable
+        }
+    }
+
+    /// A goal (id 0 clears it). The same goal again changes nothing.
+    pub fn set_goal(&mut self, goal: Goal) {
+        if goal.id == 0 {
+            self.goal = None;
+            self.path = None;
+            return;
+        }
+        if self
+            .goal
+            .is_some_and(|g| g.id == goal.id && g.pose == goal.pose)
+        {
+            return;
+        }
+        self.goal = Some(goal);
+        self.path = None;
+        self.refused = None;
+        self.replan = true;
+    }
+
+    fn status(&self, goal_id: u32, state: GoalState, distance_m: f64) -> GoalStatus {
+        GoalStatus {
+            header: Header {
+                frame_id: FrameId::MAP,
+                ..Header::default()
+            },
+            goal_id,
+            state: state as u8,
+            distance_m,
+        }
+    }
+
+    fn plan(&mut self, pose: &Pose2D, goal: &Goal) -> Result<PathState, String> {
+        let Some(grid) = &self.grid else {
+            return Err("no map".into());
+        };
+        let cfg = *self.planner.config();
+        let (gx, gy) = (goal.pose.x, goal.pose.y);
+        let o = grid.origin();
+        let (w, h, res) = (grid.width(), grid.height(), grid.resolution());
+        if !(gx.is_finite() && gy.is_finite()) {
+            return Err(format!("goal {} has a non-finite position", goal.id));
+        }
+        let gcell = grid.world_to_cell(gx, gy);
+        if grid.index(gcell.0, gcell.1).is_none() {
+            return Err(format!(
+                "goal {} at ({gx:.2}, {gy:.2}) is outside the map (x {:.2}..{:.2}, y {:.2}..{:.2})",
+                goal.id,
+                o[0],
+                o[0] + f64::from(w) * res,
+                o[1],
+                o[1] + f64::from(h) * res
+            ));
+        }
+        let free = |x: i64, y: i64| grid.get(x, y).is_some_and(|v| cfg.passable(v));
+        let tol_cells = (goal.tolerance_m.max(0.0) / res).floor() as i64;
+        let goal_cell = nearest_cell(gcell, tol_cells, free).ok_or_else(|| {
+            format!(
+                "goal {} at ({gx:.2}, {gy:.2}) is inside an obstacle or closer than {:.2} m to one",
+                goal.id,
+                self.params.robot_radius + self.params.clearance
+            )
+        })?;
+        let scell = grid.world_to_cell(pose.x, pose.y);
+        // The robot may stand inside the inflation band (it is allowed closer than the
+        // clearance): start from the nearest free cell.
+        let reach = ((self.params.robot_radius + self.params.clearance) / res).ceil() as i64 + 2;
+        let start_cell = nearest_cell(scell, reach, free).ok_or_else(|| {
+            format!(
+                "the robot at ({:.2}, {:.2}) is inside an obstacle or outside the map",
+                pose.x, pose.y
+            )
+        })?;
+        let gp = self
+            .planner
+            .plan_cells(grid, start_cell, goal_cell)
+            .map_err(|e| format!("goal {} at ({gx:.2}, {gy:.2}) is unreachable: {e}", goal.id))?;
+        let mut points = simplify(grid, &cfg, &gp);
+        if let Some(first) = points.first_mut() {
+            *first = [pose.x, pose.y];
+        }
+        if let Some(last) = points.last_mut()
+            && goal_cell == gcell
+        {
+            *last = [gx, gy];
+        }
+        if points.len() == 1 {
+            points.push(points[0]);
+        }
+        Ok(PathState::new(points))
+    }
+
+    /// The robot is at `pose`: (re)plan if needed and give the waypoint to follow.
+    pub fn update(&mut self, pose: &Pose2D) -> PlanStep {
+        let mut out = PlanStep::default();
+        let Some(goal) = self.goal else {
+            return out;
+        };
+        if self.refused == Some(goal.id) || self.grid.is_none() {
+            return out;
+        }
+        let p = [pose.x, pose.y];
+        let deviated = self.path.as_mut().is_some_and(|path| {
+            let (_, d) = path.project(p);
+            d > self.params.deviation_m
+        });
+        if self.path.is_none() || self.replan || deviated {
+            self.replan = false;
+            match self.plan(pose, &goal) {
+                Ok(path) => {
+                    self.path = Some(path);
+                    out.replanned = true;
+                }
+                Err(why) => {
+                    self.path = None;
+                    self.refused = Some(goal.id);
+                    out.status = Some(self.status(goal.id, GoalState::Refused, -1.0));
+                    out.refused = Some(why);
+                    return out;
+                }
+            }
+        }
+        let Some(path) = self.path.as_mut() else {
+            return out;
+        };
+        let (s, _) = path.project(p);
+        let total = path.total();
+        let target = s + self.params.lookahead_m;
+        let is_final = target >= total;
+        let (point, heading) = path.at(target);
+        let theta = if is_final && goal.use_theta != 0 {
+            goal.pose.theta
+        } else {
+            heading
+        };
+        out.waypoint = Some(Waypoint {
+            header: Header {
+                frame_id: FrameId::MAP,
+                ..Header::default()
+            },
+            goal_id: goal.id,
+            index: path.seg as u32,
+            pose: Pose2D {
+                x: point[0],
+                y: point[1],
+                theta,
+            },
+            speed: self.params.speed,
+            is_final: u8::from(is_final),
+        });
+        out.status = Some(self.status(goal.id, GoalState::Active, (total - s).max(0.0)));
+        out
+    }
+}
+
+/// Configuration of `hng module planning`.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PlanningModuleConfig {
+    /// Map input (default `maps/map`).
+    pub map: String,
+    /// Position input (default `slam/pose`).
+    pub pose: String,
+    /// Goal input (default `manager/goal`).
+    pub goal: String,
+    /// Waypoints out (default `planning/waypoint`).
+    pub waypoint_out: String,
+    /// Goal status out (default `planning/status`).
+    pub status_out: String,
+    /// Planner parameters.
+    pub params: PlanningParams,
+}
+
+impl Default for PlanningModuleConfig {
+    fn default() -> Self {
+        PlanningModuleConfig {
+            map: "maps/map".into(),
+            pose: "slam/pose".into(),
+            goal: "manager/goal".into(),
+            waypoint_out: "planning/waypoint".into(),
+            status_out: "planning/status".into(),
+            params: PlanningParams::default(),
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, Default, Serialize, Deserialize, PartialEq)]
+struct PlanningState {
+    goal_id: u32,
+    goal: Pose2D,
+    tolerance_m: f64,
+    use_theta: u8,
+    plans: u64,
+    refusals: u64,
+}
+
+/// The Planning module.
+pub struct PlanningModule {
+    core: PlanningCore,
+    map: SliceSubscriber<GridInfo>,
+    pose: Subscriber<PoseWithCovariance>,
+    goal: Subscriber<Goal>,
+    waypoint_out: Publisher<Waypoint>,
+    status_out: Publisher<GoalStatus>,
+    last_pose: Option<Pose2D>,
+    state: PlanningState,
+}
+
+impl std::fmt::Debug for PlanningModule {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("PlanningModule")
+            .field("state", &self.state)
+            .finish_non_exhaustive()
+    }
+}
+
+impl PlanningModule {
+    fn step(&mut self, ctx: &mut Context) -> ModuleResult {
+        let Some(pose) = self.last_pose else {
+            return Ok(());
+        };
+        let out = self.core.update(&pose);
+        if out.replanned {
+            self.state.plans += 1;
+        }
+        if let Some(why) = &out.refused {
+            self.state.refusals += 1;
+            tracing::error!(module = ctx.name(), "goal refused: {why}");
+        }
+        if let Some(w) = out.waypoint {
+            self.waypoint_out.publish(w)?;
+        }
+        if let Some(s) = out.status {
+            self.status_out.publish(s)?;
+        }
+        let q = if self.core.is_refused() {
+            -1.0
+        } else if self.core.has_path() {
+            1.0
+        } else {
+            0.0
+        };
+        ctx.set_quality(true, q);
+        Ok(())
+    }
+}
+
+impl Module for PlanningModule {
+    type Config = PlanningModuleConfig;
+
+    fn configure(ctx: &mut Context, cfg: PlanningModuleConfig) -> ModuleResult<Self> {
+        let p = &cfg.params;
+        positive("params.robot_radius", p.robot_radius)?;
+        positive("params.lookahead_m", p.lookahead_m)?;
+        positive("params.deviation_m", p.deviation_m)?;
+        positive("params.speed", p.speed)?;
+        if !(p.clearance.is_finite() && p.clearance >= 0.0) {
+            return Err(crate::common::field_error("params.clearance", "must be >= 0").into());
+        }
+        // CONTRACTS: `ctx.provide("Reach goal")`; `ctx.need("Reach waypoint")` (its channel
+        // becomes `waypoint_out`), `ctx.need("Mapping")` (→ `map`), `ctx.need("Localization")`
+        // (→ `pose`).
+        Ok(PlanningModule {
+            core: PlanningCore::new(cfg.params),
+            map: ctx.subscribe_slice(&cfg.map, None)?,
+            pose: ctx.subscribe(&cfg.pose, None)?,
+            goal: ctx.subscribe(&cfg.goal, None)?,
+            waypoint_out: ctx.publisher(&cfg.waypoint_out)?,
+            status_out: ctx.publisher(&cfg.status_out)?,
+            last_pose: None,
+            state: PlanningState::default(),
+        })
+    }
+
+    fn on_input(&mut self, ctx: &mut Context, input: InputId) -> ModuleResult {
+        if input == self.map.id() {
+            let mut latest = None;
+            while let Some(m) = self.map.receive()? {
+                latest = Some(grid_from_msg(m.header(), m.data()));
+            }
+            match latest {
+                Some(Ok(g)) => self.core.set_map(&g),
+                Some(Err(e)) => tracing::warn!(module = ctx.name(), "map ignored: {e}"),
+                None => {}
+            }
+        } else if input == self.goal.id() {
+            while let Some(g) = self.goal.receive()? {
+                self.core.set_goal(*g);
+                self.state.goal_id = g.id;
+                self.state.goal = g.pose;
+                self.state.tolerance_m = g.tolerance_m;
+                self.state.use_theta = g.use_theta;
+            }
+        } else if input == self.pose.id() {
+            while let Some(p) = self.pose.receive()? {
+                self.last_pose = Some(p.pose);
+            }
+        }
+        self.step(ctx)
+    }
+
+    fn checkpoint(&self) -> Option<Vec<u8>> {
+        encode_state(&self.state)
+    }
+
+    fn restore(&mut self, state: &[u8]) -> ModuleResult {
+        let s: PlanningState = decode_state(state)?;
+        if s.goal_id != 0 {
+            self.core.set_goal(Goal {
+                id: s.goal_id,
+                pose: s.goal,
+                tolerance_m: s.tolerance_m,
+                use_theta: s.use_theta,
+                ..Default::default()
+            });
+        }
+        self.state = s;
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+pub(crate) mod tests {
+    use super::*;
+    use crate::planning::{FREE, OCCUPIED};
+
+    /// 10 x 6 m room at 0.1 m, with a wall at x = 5 from y = 0 to y = 4 (a gap above).
+    pub(crate) fn room() -> OccupancyGrid {
+        let mut g = OccupancyGrid::new(100, 60, 0.1, [0.0, 0.0], FREE).unwrap();
+        for x in 0..100 {
+            g.set(x, 0, OCCUPIED);
+            g.set(x, 59, OCCUPIED);
+        }
+        for y in 0..60 {
+            g.set(0, y, OCCUPIED);
+            g.set(99, y, OCCUPIED);
+        }
+        for y in 0..40 {
+            g.set(50, y, OCCUPIED);
+        }
+        g
+    }
+
+    fn goal(id: u32, x: f64, y: f64) -> Goal {
+        Goal {
+            id,
+            pose: Pose2D { x, y, theta: 0.0 },
+            tolerance_m: 0.2,
+            ..Default::default()
+        }
+    }
+
+    fn at(x: f64, y: f64) -> Pose2D {
+        Pose2D { x, y, theta: 0.0 }
+    }
+
+    #[test]
+    fn plans_around_the_wall_and_gives_a_carrot_ahead() {
+        let mut p = PlanningCore::new(PlanningParams::default());
+        p.set_map(&room());
+        p.set_goal(goal(1, 8.0, 1.0));
+        let s = p.update(&at(2.0, 1.0));
+        assert!(s.replanned && s.refused.is_none(), "{s:?}");
+        let w = s.waypoint.unwrap();
+        assert_eq!(w.goal_id, 1);
+        assert_eq!(w.is_final, 0);
+        let d = (w.pose.x - 2.0).hypot(w.pose.y - 1.0);
+        assert!((d - 0.6).abs() < 0.05, "carrot at the lookahead: {d}");
+        let st = s.status.unwrap();
+        assert_eq!(st.goal_state(), GoalState::Active);
+        assert!(
+            st.distance_m > 8.0,
+            "detour through the gap: {}",
+            st.distance_m
+        );
+        // Near the goal the carrot is the goal itself.
+        let s = p.update(&at(7.8, 1.1));
+        assert!(!s.replanned || s.waypoint.is_some());
+        let w = s.waypoint.unwrap();
+        assert_eq!(w.is_final, 1);
+        assert_eq!((w.pose.x, w.pose.y), (8.0, 1.0));
+    }
+
+    #[test]
+    fn replans_when_the_robot_strays_or_the_map_changes() {
+        let mut p = PlanningCore::new(PlanningParams::default());
+        p.set_map(&room());
+        p.set_goal(goal(1, 8.0, 1.0));
+        assert!(p.update(&at(2.0, 1.0)).replanned);
+        assert!(!p.update(&at(2.1, 1.0)).replanned);
+        assert!(p.update(&at(2.0, 3.0)).replanned, "1.9 m off the path");
+        p.set_map(&room());
+        assert!(p.update(&at(2.0, 3.0)).replanned);
+    }
+
+    #[test]
+    fn planner_refuses_out_of_map_inside_obstacle_and_unreachable_goals() {
+        let mut p = PlanningCore::new(PlanningParams::default());
+        p.set_map(&room());
+        p.set_goal(goal(1, 12.0, 1.0));
+        let s = p.update(&at(2.0, 1.0));
+        let why = s.refused.unwrap();
+        assert!(why.contains("outside the map"), "{why}");
+        assert_eq!(s.status.unwrap().goal_state(), GoalState::Refused);
+        assert!(s.waypoint.is_none());
+        assert!(p.is_refused());
+        assert_eq!(p.update(&at(2.0, 1.0)), PlanStep::default(), "refused once");
+
+        p.set_goal(goal(2, 5.0, 2.0));
+        let why = p.update(&at(2.0, 1.0)).refused.unwrap();
+        assert!(why.contains("inside an obstacle"), "{why}");
+
+        let mut closed = room();
+        for y in 40..60 {
+            closed.set(50, y, OCCUPIED);
+        }
+        p.set_map(&closed);
+        p.set_goal(goal(3, 8.0, 1.0));
+        let why = p.update(&at(2.0, 1.0)).refused.unwrap();
+        assert!(why.contains("unreachable"), "{why}");
+    }
+
+    #[test]
+    fn a_robot_inside_the_inflation_band_still_gets_a_path() {
+        let mut p = PlanningCore::new(PlanningParams::default());
+        p.set_map(&room());
+        p.set_goal(goal(1, 3.0, 3.0));
+        let s = p.update(&at(0.25, 0.25)); // 0.15 m from both walls
+        assert!(s.refused.is_none() && s.waypoint.is_some(), "{s:?}");
+    }
+}

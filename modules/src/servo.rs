@@ -1,0 +1,443 @@
+//! Servo-controller: reach waypoint (Table 1: provides "Reach waypoint", needs "Robot control"
+//! and "Localization"; data in: waypoint, position; data out: commands).
+//!
+//! Pure pursuit ([`ServoCore`]): the waypoint from Planning is the carrot on the path; the
+//! robot follows the arc through it, curvature `κ = 2·sin(α)/L` (`α` the carrot's bearing, `L`
+//! its distance), at `max_speed` (or the waypoint's suggested speed if lower), turning in place
+//! first when the carrot is more than `rotate_in_place_rad` off the heading. Near a final
+//! waypoint the speed falls linearly over `slow_radius_m` (to at least `min_speed`); within
+//! `goal_tolerance_m` of it the goal is reached: a stop, a [`GoalStatus`] `Reached`, and
+//! silence until the next goal (so the client above regains the robot).
+//!
+//! Quality Q: `1 − |α|/π` while following (1 on the path, lower when far off heading); 0 with
+//! no waypoint; -1 (aptitude 0) without a recent position.
+
+use std::time::Duration;
+
+use hng_runtime::channel::InputId;
+use hng_runtime::msg::{FrameId, Header, Pose2D, PoseWithCovariance, Twist, Waypoint};
+use hng_runtime::{Context, Module, ModuleResult, Publisher, Subscriber, TimerId};
+use serde::{Deserialize, Serialize};
+
+use crate::common::{decode_state, encode_state, positive, relative, seconds};
+use crate::msgs::{GoalState, GoalStatus};
+
+/// Parameters of the controller.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ServoParams {
+    /// Cruise speed, m/s (default 0.6).
+    pub max_speed: f64,
+    /// Turn rate limit, rad/s (default 1.5).
+    pub max_angular: f64,
+    /// Distance to the final waypoint at which the goal counts as reached, m (default 0.15).
+    pub goal_tolerance_m: f64,
+    /// Distance to the final waypoint over which the robot slows down, m (default 0.8).
+    pub slow_radius_m: f64,
+    /// Slowest approach speed, m/s (default 0.08).
+    pub min_speed: f64,
+    /// Turn in place when the carrot is farther off the heading than this, rad (default 1.0).
+    pub rotate_in_place_rad: f64,
+    /// Turn rate per radian of heading error when turning in place, 1/s (default 2.0).
+    pub heading_gain: f64,
+}
+
+impl Default for ServoParams {
+    fn default() -> Self {
+        ServoParams {
+            max_speed: 0.6,
+            max_angular: 1.5,
+            goal_tolerance_m: 0.15,
+            slow_radius_m: 0.8,
+            min_speed: 0.08,
+            rotate_in_place_rad: 1.0,
+            heading_gain: 2.0,
+        }
+    }
+}
+
+/// One control decision.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ServoOutput {
+    /// The command (`None`: say nothing, the goal is already reached).
+    pub cmd: Option<Twist>,
+    /// True the first time the goal is reached.
+    pub reached: bool,
+    /// Distance to the waypoint, m.
+    pub distance_m: f64,
+    /// Bearing of the waypoint from the heading, rad.
+    pub bearing: f64,
+}
+
+/// Pure-pursuit logic, without I/O.
+#[derive(Debug, Clone)]
+pub struct ServoCore {
+    params: ServoParams,
+    reached: Option<u32>,
+}
+
+fn twist(v: f64, w: f64) -> Twist {
+    Twist {
+        linear_x: v,
+        angular_z: w,
+        ..Default::default()
+    }
+}
+
+impl ServoCore {
+    /// A controller with `params`.
+    pub fn new(params: ServoParams) -> ServoCore {
+        ServoCore {
+            params,
+            reached: None,
+        }
+    }
+
+    /// The last goal reached.
+    pub fn reached(&self) -> Option<u32> {
+        self.reached
+    }
+
+    /// The command that takes the robot at `pose` towards `wp`.
+    pub fn command(&mut self, pose: &Pose2D, wp: &Waypoint) -> ServoOutput {
+        let p = &self.params;
+        let rel = relative(pose, &wp.pose);
+        let dist = rel.x.hypot(rel.y);
+        let bearing = rel.y.atan2(rel.x);
+        let mut out = ServoOutput {
+            cmd: None,
+            reached: false,
+            distance_m: dist,
+            bearing,
+        };
+        if self.reached == Some(wp.goal_id) {
+            return out;
+        }
+        if wp.is_final != 0 && dist <= p.goal_tolerance_m {
+            self.reached = Some(wp.goal_id);
+            out.cmd = Some(Twist::default());
+            out.reached = true;
+            return out;
+        }
+        if bearing.abs() > p.rotate_in_place_rad {
+            let w = (p.heading_gain * bearing).clamp(-p.max_angular, p.max_angular);
+            out.cmd = Some(twist(0.0, w));
+            return out;
+        }
+        let mut v = p.max_speed;
+        if wp.speed > 0.0 {
+            v = v.min(wp.speed);
+        }
+        if wp.is_final != 0 {
+            v = v.min((p.max_speed * dist / p.slow_radius_m).max(p.min_speed));
+        }
+        let k = if dist > 1e-9 {
+            2.0 * bearing.sin() / dist
+        } else {
+            0.0
+        };
+        let mut w = k * v;
+        if w.abs() > p.max_angular {
+            v = p.max_angular / k.abs();
+            w = p.max_angular * w.signum();
+        }
+        out.cmd = Some(twist(v, w));
+        out
+    }
+}
+
+/// Configuration of `hng module servo`.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ServoModuleConfig {
+    /// Waypoint input (default `planning/waypoint`).
+    pub waypoint: String,
+    /// Position input (default `slam/pose`).
+    pub pose: String,
+    /// Commands out (default `servo/cmd_vel`).
+    pub cmd_out: String,
+    /// Goal status out (default `servo/status`).
+    pub status_out: String,
+    /// A waypoint older than this is not followed, s (default 1.0).
+    pub waypoint_timeout_s: f64,
+    /// A position older than this is not trusted, s (default 0.5).
+    pub pose_timeout_s: f64,
+    /// Controller parameters.
+    pub params: ServoParams,
+}
+
+impl Default for ServoModuleConfig {
+    fn default() -> Self {
+        ServoModuleConfig {
+            waypoint: "planning/waypoint".into(),
+            pose: "slam/pose".into(),
+            cmd_out: "servo/cmd_vel".into(),
+            status_out: "servo/status".into(),
+            waypoint_timeout_s: 1.0,
+            pose_timeout_s: 0.5,
+            params: ServoParams::default(),
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, Default, Serialize, Deserialize, PartialEq)]
+struct ServoState {
+    reached_goal: Option<u32>,
+    goals_reached: u64,
+}
+
+/// The Servo-controller module.
+pub struct ServoModule {
+    core: ServoCore,
+    waypoint: Subscriber<Waypoint>,
+    pose: Subscriber<PoseWithCovariance>,
+    cmd_out: Publisher<Twist>,
+    status_out: Publisher<GoalStatus>,
+    last_wp: Option<(Waypoint, Duration)>,
+    last_pose: Option<(Pose2D, Duration)>,
+    wp_timeout: Duration,
+    pose_timeout: Duration,
+    state: ServoState,
+}
+
+impl std::fmt::Debug for ServoModule {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ServoModule")
+            .field("state", &self.state)
+            .finish_non_exhaustive()
+    }
+}
+
+impl ServoModule {
+    fn act(&mut self, ctx: &mut Context) -> ModuleResult {
+        let now = ctx.now();
+        let pose = self
+            .last_pose
+            .filter(|(_, t)| now.saturating_sub(*t) <= self.pose_timeout);
+        let wp = self
+            .last_wp
+            .filter(|(_, t)| now.saturating_sub(*t) <= self.wp_timeout);
+        let (Some((pose, _)), Some((wp, _))) = (pose, wp) else {
+            // Nothing to follow or no position: say nothing; the robot's other clients (or
+            // Security's hold) take over once our last command is stale.
+            let q = if pose.is_none() { -1.0 } else { 0.0 };
+            ctx.set_quality(pose.is_some(), q);
+            return Ok(());
+        };
+        let out = self.core.command(&pose, &wp);
+        if let Some(cmd) = out.cmd {
+            self.cmd_out.publish(cmd)?;
+        }
+        if out.reached {
+            self.state.reached_goal = Some(wp.goal_id);
+            self.state.goals_reached += 1;
+            tracing::info!(module = ctx.name(), goal = wp.goal_id, "goal reached");
+            self.status_out.publish(GoalStatus {
+                header: Header {
+                    frame_id: FrameId::MAP,
+                    ..Header::default()
+                },
+                goal_id: wp.goal_id,
+                state: GoalState::Reached as u8,
+                distance_m: out.distance_m,
+            })?;
+        }
+        ctx.set_quality(
+            true,
+            (1.0 - out.bearing.abs() / std::f64::consts::PI) as f32,
+        );
+        Ok(())
+    }
+}
+
+impl Module for ServoModule {
+    type Config = ServoModuleConfig;
+
+    fn configure(ctx: &mut Context, cfg: ServoModuleConfig) -> ModuleResult<Self> {
+        let p = &cfg.params;
+        positive("params.max_speed", p.max_speed)?;
+        positive("params.max_angular", p.max_angular)?;
+        positive("params.goal_tolerance_m", p.goal_tolerance_m)?;
+        positive("params.slow_radius_m", p.slow_radius_m)?;
+        positive("params.rotate_in_place_rad", p.rotate_in_place_rad)?;
+        positive("params.heading_gain", p.heading_gain)?;
+        let wp_timeout = seconds("waypoint_timeout_s", cfg.waypoint_timeout_s)?;
+        let pose_timeout = seconds("pose_timeout_s", cfg.pose_timeout_s)?;
+        // CONTRACTS: `ctx.provide("Reach waypoint")`; `ctx.need("Robot control")` (→ `cmd_out`)
+        // and `ctx.need("Localization")` (→ `pose`).
+        ctx.add_timer(Duration::from_millis(100));
+        ctx.set_quality(false, -1.0);
+        Ok(ServoModule {
+            core: ServoCore::new(cfg.params),
+            waypoint: ctx.subscribe(&cfg.waypoint, None)?,
+            pose: ctx.subscribe(&cfg.pose, None)?,
+            cmd_out: ctx.publisher(&cfg.cmd_out)?,
+            status_out: ctx.publisher(&cfg.status_out)?,
+            last_wp: None,
+            last_pose: None,
+            wp_timeout,
+            pose_timeout,
+            state: ServoState::default(),
+        })
+    }
+
+    fn on_input(&mut self, ctx: &mut Context, input: InputId) -> ModuleResult {
+        let now = ctx.now();
+        if input == self.waypoint.id() {
+            while let Some(w) = self.waypoint.receive()? {
+                self.last_wp = Some((*w, now));
+            }
+            Ok(())
+        } else if input == self.pose.id() {
+            while let Some(p) = self.pose.receive()? {
+                self.last_pose = Some((p.pose, now));
+            }
+            self.act(ctx)
+        } else {
+            Ok(())
+        }
+    }
+
+    fn on_tick(&mut self, ctx: &mut Context, _timer: TimerId) -> ModuleResult {
+        // Re-evaluate freshness when inputs stop (quality; nothing is sent on stale data).
+        let now = ctx.now();
+        if self
+            .last_pose
+            .is_none_or(|(_, t)| now.saturating_sub(t) > self.pose_timeout)
+        {
+            ctx.set_quality(false, -1.0);
+        }
+        Ok(())
+    }
+
+    fn checkpoint(&self) -> Option<Vec<u8>> {
+        encode_state(&self.state)
+    }
+
+    fn restore(&mut self, state: &[u8]) -> ModuleResult {
+        self.state = decode_state(state)?;
+        self.core.reached = self.state.reached_goal;
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+    use crate::planning_module::{PlanningCore, PlanningParams};
+
+    fn wp(x: f64, y: f64, is_final: bool) -> Waypoint {
+        Waypoint {
+            goal_id: 7,
+            pose: Pose2D { x, y, theta: 0.0 },
+            is_final: u8::from(is_final),
+            ..Default::default()
+        }
+    }
+
+    /// Unicycle integration with the base's acceleration limits.
+    fn drive(pose: &mut Pose2D, vel: &mut (f64, f64), cmd: &Twist, dt: f64) {
+        vel.0 += (cmd.linear_x - vel.0).clamp(-2.0 * dt, 2.0 * dt);
+        vel.1 += (cmd.angular_z - vel.1).clamp(-6.0 * dt, 6.0 * dt);
+        pose.x += vel.0 * pose.theta.cos() * dt;
+        pose.y += vel.0 * pose.theta.sin() * dt;
+        pose.theta = crate::common::wrap_angle(pose.theta + vel.1 * dt);
+    }
+
+    #[test]
+    fn pure_pursuit_converges_on_a_goal_from_any_heading() {
+        for theta in [0.0, 1.0, -2.0, 3.0] {
+            let mut core = ServoCore::new(ServoParams::default());
+            let mut pose = Pose2D {
+                x: 0.0,
+                y: 0.0,
+                theta,
+            };
+            let mut vel = (0.0, 0.0);
+            let goal = wp(3.0, 2.0, true);
+            let mut reached = false;
+            for _ in 0..3000 {
+                let out = core.command(&pose, &goal);
+                if out.reached {
+                    reached = true;
+                    break;
+                }
+                drive(&mut pose, &mut vel, &out.cmd.unwrap(), 0.01);
+            }
+            assert!(reached, "start heading {theta}: ended at {pose:?}");
+            assert!((pose.x - 3.0).hypot(pose.y - 2.0) <= 0.15 + 1e-9);
+            assert_eq!(core.command(&pose, &goal).cmd, None, "silent once reached");
+        }
+    }
+
+    #[test]
+    fn servo_slows_near_the_goal_and_respects_the_turn_limit() {
+        let mut core = ServoCore::new(ServoParams::default());
+        let start = Pose2D::default();
+        let far = core.command(&start, &wp(5.0, 0.0, true)).cmd.unwrap();
+        let near = core.command(&start, &wp(0.4, 0.0, true)).cmd.unwrap();
+        assert_eq!(far.linear_x, 0.6);
+        assert!(
+            near.linear_x < far.linear_x && near.linear_x >= 0.08,
+            "{near:?}"
+        );
+        let side = core.command(&start, &wp(0.5, 0.4, false)).cmd.unwrap();
+        assert!(
+            side.angular_z <= 1.5 + 1e-12 && side.angular_z > 0.0,
+            "{side:?}"
+        );
+        let behind = core.command(&start, &wp(-1.0, 0.1, false)).cmd.unwrap();
+        assert_eq!(behind.linear_x, 0.0, "turns in place first");
+    }
+
+    #[test]
+    fn planning_and_pure_pursuit_together_reach_a_goal_behind_a_wall() {
+        let grid = crate::planning_module::tests::room();
+        let mut planner = PlanningCore::new(PlanningParams::default());
+        planner.set_map(&grid);
+        planner.set_goal(hng_runtime::msg::Goal {
+            id: 1,
+            pose: Pose2D {
+                x: 8.0,
+                y: 1.0,
+                theta: 0.0,
+            },
+            tolerance_m: 0.2,
+            ..Default::default()
+        });
+        let mut servo = ServoCore::new(ServoParams::default());
+        let mut pose = Pose2D {
+            x: 2.0,
+            y: 1.0,
+            theta: 0.0,
+        };
+        let mut vel = (0.0, 0.0);
+        let mut min_clear = f64::INFINITY;
+        let mut reached = false;
+        for step in 0..6000 {
+            let plan = planner.update(&pose);
+            let Some(w) = plan.waypoint else {
+                panic!("no waypoint at step {step}: {plan:?}");
+            };
+            let out = servo.command(&pose, &w);
+            if out.reached {
+                reached = true;
+                break;
+            }
+            drive(&mut pose, &mut vel, &out.cmd.unwrap(), 0.01);
+            // Clearance to the wall x = 5, y < 4 (cells 50, 0..40 at 0.1 m: x 5.0..5.1).
+            let dx = if pose.x < 5.0 {
+                5.0 - pose.x
+            } else if pose.x > 5.1 {
+                pose.x - 5.1
+            } else {
+                0.0
+            };
+            let dy = (pose.y - 4.0).max(0.0);
+            min_clear = min_clear.min(dx.hypot(dy) - 0.2);
+        }
+        assert!(reached, "ended at {pose:?}");
+        assert!(min_clear > 0.0, "the robot touched the wall: {min_clear}");
+    }
+}

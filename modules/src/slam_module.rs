@@ -1,0 +1,406 @@
+//! SLAM: localization and mapping from lidar and odometry (Table 1: provides "Localization"
+//! and "Mapping", needs "Odometry" and "LIDAR data"; data out: position, map).
+//!
+//! [`SlamTracker`] (pure logic) runs the [`SlamFrontEnd`] (correlative scan matching with
+//! PL-ICP refinement against a sliding local map, log-odds occupancy mapping; see
+//! [`crate::slam`]) on every scan, with the odometry motion since the previous scan as the
+//! prior. Between scans the pose is the last matched pose plus the odometry since, so the
+//! position is published at the odometry rate (50 Hz in the simulator) rather than the scan
+//! rate. The beam geometry comes from the first scan. The map frame is fixed by
+//! `initial_pose` (the robot's start in the world, for the map to line up with a known map).
+//!
+//! Quality Q: the front end's match quality (`2·score − 1`, see [`crate::slam::PoseEstimate`]),
+//! smoothed over a few scans; -1 (aptitude 0) when scans or odometry stop.
+//!
+//! Checkpoint: the pose and the number of scans; after a restart the pose continues from
+//! there (motion during the downtime is not seen) and the local map is rebuilt from the next
+//! scans.
+
+use std::time::Duration;
+
+use hng_runtime::channel::InputId;
+use hng_runtime::msg::{
+    FrameId, GridInfo, Header, LaserScan, Odometry, Pose2D, PoseWithCovariance,
+};
+use hng_runtime::{Context, Module, ModuleResult, Publisher, SlicePublisher, Subscriber, TimerId};
+use nalgebra::{Isometry2, Vector2};
+use serde::{Deserialize, Serialize};
+
+use crate::common::{compose, decode_state, encode_state, relative, seconds};
+use crate::maps::msg_from_grid;
+use crate::slam::{EstimateSource, LaserConfig, SlamConfig, SlamFrontEnd};
+
+fn iso(p: &Pose2D) -> Isometry2<f64> {
+    Isometry2::new(Vector2::new(p.x, p.y), p.theta)
+}
+
+fn pose(i: &Isometry2<f64>) -> Pose2D {
+    Pose2D {
+        x: i.translation.x,
+        y: i.translation.y,
+        theta: i.rotation.angle(),
+    }
+}
+
+/// The SLAM logic, without I/O.
+#[derive(Debug)]
+pub struct SlamTracker {
+    cfg: SlamConfig,
+    fe: Option<SlamFrontEnd>,
+    /// Pose at the last scan, map frame.
+    pose_at_scan: Pose2D,
+    /// Odometry at the last scan.
+    odom_at_scan: Option<Pose2D>,
+    /// Latest odometry.
+    odom: Option<Pose2D>,
+    covariance: [f64; 9],
+    quality: f64,
+    scans: u64,
+}
+
+/// The result of one scan.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ScanResult {
+    /// Pose, map frame.
+    pub pose: Pose2D,
+    /// Quality of this match in [-1, 1].
+    pub quality: f64,
+    /// Smoothed quality.
+    pub smoothed_quality: f64,
+    /// True if matched (not the odometry prior).
+    pub matched: bool,
+}
+
+impl SlamTracker {
+    /// A tracker whose map frame puts the robot at `initial` now.
+    pub fn new(cfg: SlamConfig, initial: Pose2D) -> SlamTracker {
+        SlamTracker {
+            cfg,
+            fe: None,
+            pose_at_scan: initial,
+            odom_at_scan: None,
+            odom: None,
+            covariance: [0.0; 9],
+            quality: 0.0,
+            scans: 0,
+        }
+    }
+
+    /// Odometry arrived.
+    pub fn on_odometry(&mut self, odom: Pose2D) {
+        if self.odom_at_scan.is_none() {
+            self.odom_at_scan = Some(odom);
+        }
+        self.odom = Some(odom);
+    }
+
+    /// The current pose: the last scan's pose plus the odometry since.
+    pub fn pose(&self) -> Pose2D {
+        match (self.odom_at_scan, self.odom) {
+            (Some(a), Some(b)) => compose(&self.pose_at_scan, &relative(&a, &b)),
+            _ => self.pose_at_scan,
+        }
+    }
+
+    /// Covariance of the last estimate.
+    pub fn covariance(&self) -> [f64; 9] {
+        self.covariance
+    }
+
+    /// Smoothed quality.
+    pub fn quality(&self) -> f64 {
+        self.quality
+    }
+
+    /// A scan arrived (beam geometry of the scan; the first one fixes the front end's).
+    pub fn on_scan(&mut self, scan: &LaserScan) -> Option<ScanResult> {
+        let odom = self.odom?;
+        let delta = match self.odom_at_scan {
+            Some(a) => relative(&a, &odom),
+            None => Pose2D::default(),
+        };
+        let start = self.pose();
+        let fe = self.fe.get_or_insert_with(|| {
+            let mut cfg = self.cfg;
+            cfg.laser = LaserConfig {
+                angle_min: f64::from(scan.angle_min),
+                angle_increment: f64::from(scan.angle_increment),
+                range_min: f64::from(scan.range_min),
+                range_max: f64::from(scan.range_max),
+            };
+            SlamFrontEnd::new(cfg, iso(&self.pose_at_scan))
+        });
+        let _ = start;
+        let est = fe.process(&iso(&delta), scan.ranges());
+        self.pose_at_scan = pose(&est.pose);
+        self.odom_at_scan = Some(odom);
+        let c = est.covariance;
+        self.covariance = [
+            c[(0, 0)],
+            c[(0, 1)],
+            c[(0, 2)],
+            c[(1, 0)],
+            c[(1, 1)],
+            c[(1, 2)],
+            c[(2, 0)],
+            c[(2, 1)],
+            c[(2, 2)],
+        ];
+        self.scans += 1;
+        let matched = est.source == EstimateSource::Matched;
+        // Exponential smoothing: one poor scan does not make a poor localizer.
+        self.quality = if self.scans == 1 {
+            est.quality
+        } else {
+            0.7 * self.quality + 0.3 * est.quality
+        };
+        Some(ScanResult {
+            pose: self.pose_at_scan,
+            quality: est.quality,
+            smoothed_quality: self.quality,
+            matched,
+        })
+    }
+
+    /// The map built so far.
+    pub fn map(&self) -> Option<crate::planning::OccupancyGrid> {
+        self.fe.as_ref().and_then(|f| f.map().to_occupancy_grid())
+    }
+
+    /// Scans processed.
+    pub fn scans(&self) -> u64 {
+        self.scans
+    }
+}
+
+/// Configuration of `hng module slam`.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SlamModuleConfig {
+    /// Lidar input (default `laser/scan`).
+    pub scan: String,
+    /// Odometry input (default `robot/odom`).
+    pub odom: String,
+    /// Position out (default `slam/pose`).
+    pub pose_out: String,
+    /// Map out (default `slam/map`; empty: not published).
+    pub map_out: String,
+    /// Map publication period, s (default 2).
+    pub map_period_s: f64,
+    /// The robot's pose in the map frame at start (default the origin).
+    pub initial_pose: Pose2D,
+    /// Input silence that makes the module inapt, s (default 0.5).
+    pub input_timeout_s: f64,
+    /// Map cell size, m (default 0.05).
+    pub resolution: f64,
+}
+
+impl Default for SlamModuleConfig {
+    fn default() -> Self {
+        SlamModuleConfig {
+            scan: "laser/scan".into(),
+            odom: "robot/odom".into(),
+            pose_out: "slam/pose".into(),
+            map_out: "slam/map".into(),
+            map_period_s: 2.0,
+            initial_pose: Pose2D::default(),
+            input_timeout_s: 0.5,
+            resolution: 0.05,
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, Default, Serialize, Deserialize, PartialEq)]
+struct SlamState {
+    pose: Pose2D,
+    scans: u64,
+}
+
+/// The SLAM module.
+pub struct SlamModule {
+    tracker: SlamTracker,
+    scan: Subscriber<LaserScan>,
+    odom: Subscriber<Odometry>,
+    pose_out: Publisher<PoseWithCovariance>,
+    map_out: Option<SlicePublisher<GridInfo>>,
+    restored_scans: u64,
+}
+
+impl std::fmt::Debug for SlamModule {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SlamModule")
+            .field("scans", &self.tracker.scans())
+            .finish_non_exhaustive()
+    }
+}
+
+impl SlamModule {
+    fn publish_pose(&mut self) -> ModuleResult {
+        self.pose_out.publish(PoseWithCovariance {
+            header: Header {
+                frame_id: FrameId::MAP,
+                ..Header::default()
+            },
+            pose: self.tracker.pose(),
+            covariance: self.tracker.covariance(),
+        })?;
+        Ok(())
+    }
+}
+
+impl Module for SlamModule {
+    type Config = SlamModuleConfig;
+
+    fn configure(ctx: &mut Context, cfg: SlamModuleConfig) -> ModuleResult<Self> {
+        let timeout = seconds("input_timeout_s", cfg.input_timeout_s)?;
+        crate::common::positive("resolution", cfg.resolution)?;
+        let mut scfg = SlamConfig::default();
+        scfg.mapper.resolution = cfg.resolution;
+        let map_out = if cfg.map_out.is_empty() {
+            None
+        } else {
+            ctx.add_timer(
+                seconds("map_period_s", cfg.map_period_s)?.max(Duration::from_millis(100)),
+            );
+            Some(ctx.slice_publisher::<GridInfo>(&cfg.map_out, 1 << 16)?)
+        };
+        // CONTRACTS: `ctx.provide("Localization")` (→ `pose_out`) and `ctx.provide("Mapping")`
+        // (→ `map_out`); `ctx.need("Odometry")` (→ `odom`) and `ctx.need("LIDAR data")`
+        // (→ `scan`).
+        ctx.set_quality(false, 0.0);
+        Ok(SlamModule {
+            tracker: SlamTracker::new(scfg, cfg.initial_pose),
+            scan: ctx.subscribe(&cfg.scan, Some(timeout))?,
+            odom: ctx.subscribe(&cfg.odom, Some(timeout))?,
+            pose_out: ctx.publisher(&cfg.pose_out)?,
+            map_out,
+            restored_scans: 0,
+        })
+    }
+
+    fn on_input(&mut self, ctx: &mut Context, input: InputId) -> ModuleResult {
+        if input == self.odom.id() {
+            let mut got = false;
+            while let Some(o) = self.odom.receive()? {
+                self.tracker.on_odometry(o.pose);
+                got = true;
+            }
+            if got {
+                self.publish_pose()?;
+            }
+        } else if input == self.scan.id() {
+            let mut latest = None;
+            while let Some(s) = self.scan.receive()? {
+                latest = Some(*s);
+            }
+            if let Some(s) = latest
+                && let Some(r) = self.tracker.on_scan(&s)
+            {
+                if !r.matched {
+                    tracing::debug!(module = ctx.name(), q = r.quality, "scan not matched");
+                }
+                ctx.set_quality(true, r.smoothed_quality as f32);
+                self.publish_pose()?;
+            }
+        }
+        Ok(())
+    }
+
+    fn on_tick(&mut self, _ctx: &mut Context, _timer: TimerId) -> ModuleResult {
+        if let (Some(out), Some(grid)) = (&self.map_out, self.tracker.map()) {
+            out.publish_copy(msg_from_grid(&grid), grid.data())?;
+        }
+        Ok(())
+    }
+
+    fn on_deadline_missed(&mut self, ctx: &mut Context, input: InputId) -> ModuleResult {
+        let what = if input == self.scan.id() {
+            "lidar"
+        } else {
+            "odometry"
+        };
+        tracing::warn!(module = ctx.name(), "no {what}: cannot localize");
+        ctx.set_quality(false, -1.0);
+        Ok(())
+    }
+
+    fn checkpoint(&self) -> Option<Vec<u8>> {
+        encode_state(&SlamState {
+            pose: self.tracker.pose(),
+            scans: self.restored_scans + self.tracker.scans(),
+        })
+    }
+
+    fn restore(&mut self, state: &[u8]) -> ModuleResult {
+        let s: SlamState = decode_state(state)?;
+        self.tracker = SlamTracker::new(self.tracker.cfg, s.pose);
+        self.restored_scans = s.scans;
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::f64::consts::PI;
+
+    /// A 360° scan from `p` inside the axis-aligned box [0, 8] x [0, 5].
+    fn box_scan(p: &Pose2D) -> LaserScan {
+        let mut s = LaserScan {
+            angle_min: -PI as f32,
+            angle_increment: (PI / 180.0) as f32,
+            range_min: 0.05,
+            range_max: 10.0,
+            count: 360,
+            ..Default::default()
+        };
+        for i in 0..360 {
+            let a = p.theta - PI + i as f64 * PI / 180.0;
+            let (c, sn) = (a.cos(), a.sin());
+            let mut r = f64::INFINITY;
+            for (d, wall) in [(c, 8.0 - p.x), (-c, p.x), (sn, 5.0 - p.y), (-sn, p.y)] {
+                if d > 1e-9 {
+                    r = r.min(wall / d);
+                }
+            }
+            s.ranges[i] = if r < 10.0 { r as f32 } else { f32::INFINITY };
+        }
+        s
+    }
+
+    #[test]
+    fn tracker_follows_a_robot_with_biased_odometry() {
+        let start = Pose2D {
+            x: 2.0,
+            y: 2.0,
+            theta: 0.0,
+        };
+        let mut t = SlamTracker::new(SlamConfig::default(), start);
+        let mut truth = start;
+        let mut odom = Pose2D::default();
+        t.on_odometry(odom);
+        for k in 0..40 {
+            // Truth: 5 cm forward and a slow turn per scan; odometry says 10 % more.
+            let step = Pose2D {
+                x: 0.05,
+                y: 0.0,
+                theta: 0.01,
+            };
+            truth = compose(&truth, &step);
+            odom = compose(&odom, &Pose2D { x: 0.055, ..step });
+            t.on_odometry(odom);
+            let r = t.on_scan(&box_scan(&truth)).expect("odometry is known");
+            if k > 2 {
+                assert!(r.matched, "scan {k}");
+            }
+        }
+        let p = t.pose();
+        let err = (p.x - truth.x).hypot(p.y - truth.y);
+        assert!(
+            err < 0.05,
+            "SLAM {p:?} vs truth {truth:?}: {err} m (odometry drift 0.1 m)"
+        );
+        assert!(t.quality() > 0.5, "Q {}", t.quality());
+        assert!(t.map().is_some());
+    }
+}

@@ -1,0 +1,1308 @@
+//! The resource manager's state, without I/O on channels: fed with reports, contract
+//! tables and the supervisor's status, it samples the modules (procfs, cgroups) once per
+//! period and returns what to publish. [`crate::module::RmModule`] wires it to iceoryx2.
+//!
+//! Per period ([`ResourceManager::tick`]):
+//! 1. one sampling pass over every known module ([`Sampler`]), and a machine-wide sample
+//!    ([`SystemSampler`]);
+//! 2. the software check of the limits the kernel does not enforce
+//!    ([`SoftwareEnforcer`]): a module over its CPU or memory limit yields an
+//!    [`OverLimitCommand`] for the supervisor (once per process and
+//!    [`RmConfig::over_limit_repeat_ms`]);
+//! 3. C_R(t) and the degraded mode ([`RmCore`]) from the free resources, the
+//!    wait-for-resources flags and the largest report delay, over the priorities of the
+//!    active contracts of the CONTRACTS tables;
+//! 4. R of every module (normalised: cores / online cores, bytes / total memory, message
+//!    rate / [`RmConfig::comm_budget_msgs_per_s`]) and R_eff (eq. 4) over the contract
+//!    graph of the tables (R_eff = R while no table is published).
+
+use std::collections::{BTreeMap, HashMap, HashSet};
+use std::time::{Duration, Instant};
+
+use hng_runtime::contract::Priority;
+use hng_runtime::msg::{ModuleReport, ModuleState, module_id};
+use hng_runtime::system::{
+    ContractRole, ContractTable, EffectiveCosts, MAX_MODULES, MAX_PRIORITY_DEPTH, ModuleCost,
+    ResourceCosts,
+};
+use serde::Deserialize;
+use serde_json::{Value, json};
+
+use crate::cgroup::{CgroupRun, CgroupSupport, ModuleCgroup};
+use crate::cost::{
+    CostConfig, ModuleNode, ReportDelays, ResourceObservation, ResourceVec, WaitingFor,
+    effective_costs,
+};
+use crate::degraded::{DegradedConfig, RmCore, ServeBar};
+use crate::error::{Result, RmError};
+use crate::limits::{ResourceLimits, SoftwareEnforcer, SoftwareEnforcerConfig};
+use crate::sampler::{
+    CpuSource, Liveness, ModuleSample, ModuleTarget, Sampler, SamplerConfig, SystemSample,
+    SystemSampler, process_starttime,
+};
+
+/// A byte count in the configuration: an integer, or a string such as `"512MiB"`,
+/// `"64M"`, `"1GB"` (K/M/G/T and KiB/MiB/GiB/TiB are powers of 1024, kB/MB/GB/TB of
+/// 1000).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(try_from = "ByteText")]
+pub struct Bytes(pub u64);
+
+#[derive(Deserialize)]
+#[serde(untagged)]
+enum ByteText {
+    N(u64),
+    S(String),
+}
+
+impl TryFrom<ByteText> for Bytes {
+    type Error = String;
+    fn try_from(v: ByteText) -> std::result::Result<Self, String> {
+        match v {
+            ByteText::N(n) => Ok(Bytes(n)),
+            ByteText::S(s) => parse_bytes(&s).map(Bytes),
+        }
+    }
+}
+
+/// Parses `"512MiB"`, `"64M"`, `"1GB"`, `"4096"`.
+pub fn parse_bytes(s: &str) -> std::result::Result<u64, String> {
+    let t = s.trim();
+    let split = t
+        .find(|c: char| !(c.is_ascii_digit() || c == '.'))
+        .unwrap_or(t.len());
+    let (num, unit) = t.split_at(split);
+    let n: f64 = num
+        .parse()
+        .map_err(|_| format!("{s:?} is not a byte count (e.g. 4096, \"64MiB\", \"1GB\")"))?;
+    let k: f64 = match unit.trim() {
+        "" | "B" => 1.0,
+        "K" | "KiB" => 1024.0,
+        "M" | "MiB" => 1024.0 * 1024.0,
+        "G" | "GiB" => 1024.0 * 1024.0 * 1024.0,
+        "T" | "TiB" => 1024.0f64.powi(4),
+        "kB" | "KB" => 1e3,
+        "MB" => 1e6,
+        "GB" => 1e9,
+        "TB" => 1e12,
+        u => {
+            return Err(format!(
+                "unknown unit {u:?} in {s:?} (K, M, G, T, KiB, MB, ...)"
+            ));
+        }
+    };
+    let v = n * k;
+    if !(v.is_finite() && v >= 0.0 && v < u64::MAX as f64) {
+        return Err(format!("{s:?} is out of range"));
+    }
+    Ok(v.round() as u64)
+}
+
+/// Limits of one module in the RM configuration.
+#[derive(Debug, Clone, Default, PartialEq, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct LimitConfig {
+    /// CPU in % of one core (100 = one core).
+    pub cpu_percent: Option<f64>,
+    /// Memory (PSS when known, else RSS).
+    pub memory_max: Option<Bytes>,
+}
+
+impl LimitConfig {
+    fn to_limits(&self) -> ResourceLimits {
+        ResourceLimits {
+            cpu_percent: self.cpu_percent.filter(|c| c.is_finite() && *c > 0.0),
+            memory_bytes: self.memory_max.map(|b| b.0),
+            ..Default::default()
+        }
+    }
+}
+
+/// The RM's configuration (the `config` table of its launch-file entry). Every field has
+/// a default; see each.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RmConfig {
+    /// Sampling and publishing rate, Hz (default 10).
+    pub rate_hz: f64,
+    /// Refresh PSS every this many passes (default 50; 0 = RSS only).
+    pub pss_every: u32,
+    /// CPU is scarce under this free fraction of the machine (default 0.10).
+    pub cpu_free_threshold: f64,
+    /// Memory is scarce under this free fraction (default 0.10).
+    pub memory_free_threshold: f64,
+    /// Communication is scarce when a report took longer than this, ms (default 20).
+    pub comm_delay_threshold_ms: f64,
+    /// Lowest cost (default 1).
+    pub cost_min: f64,
+    /// Highest cost (default 16).
+    pub cost_max: f64,
+    /// Raise factor per period while scarce (default 2).
+    pub cost_raise_factor: f64,
+    /// Decay factor per period otherwise (default 0.8).
+    pub cost_lower_factor: f64,
+    /// Periods under pressure at maximal cost before degraded mode (default 3).
+    pub degraded_enter_after: u32,
+    /// Periods still under pressure before cutting the next level (default 3).
+    pub degraded_step_after: u32,
+    /// Calm periods before restoring one level (default 10).
+    pub degraded_recover_after: u32,
+    /// Whether the most important work may be stopped too (default false).
+    pub allow_full_stop: bool,
+    /// Time constant of the CPU average the software CPU limit is checked on, ms
+    /// (default 2000).
+    pub cpu_window_ms: u64,
+    /// Message rate (in + out, per s) that counts as one whole "communication
+    /// resource" in R (default 10000).
+    pub comm_budget_msgs_per_s: f64,
+    /// A module whose process is gone and that has not reported for this long is
+    /// forgotten, ms (default 5000).
+    pub forget_after_ms: u64,
+    /// A contract table older than this is ignored, ms (default 3000).
+    pub table_timeout_ms: u64,
+    /// An over-limit command for the same process is repeated after this long if the
+    /// module keeps running (no supervisor acted), ms (default 2000).
+    pub over_limit_repeat_ms: u64,
+    /// Attach to the run's cgroups named by `HNG_CGROUP_RUN` (default true): CPU from
+    /// the cgroup counters, caps read back from the kernel.
+    pub cgroups: bool,
+    /// Limits per module, checked in software where the kernel does not enforce them;
+    /// they override the caps the supervisor's status lists.
+    pub limits: BTreeMap<String, LimitConfig>,
+}
+
+impl Default for RmConfig {
+    fn default() -> Self {
+        let c = CostConfig::default();
+        let d = DegradedConfig::default();
+        RmConfig {
+            rate_hz: 10.0,
+            pss_every: SamplerConfig::default().pss_every,
+            cpu_free_threshold: c.cpu_free_threshold,
+            memory_free_threshold: c.memory_free_threshold,
+            comm_delay_threshold_ms: c.comm_delay_threshold.as_secs_f64() * 1e3,
+            cost_min: c.min,
+            cost_max: c.max,
+            cost_raise_factor: c.raise_factor,
+            cost_lower_factor: c.lower_factor,
+            degraded_enter_after: d.enter_after,
+            degraded_step_after: d.step_after,
+            degraded_recover_after: d.recover_after,
+            allow_full_stop: d.allow_full_stop,
+            cpu_window_ms: 2000,
+            comm_budget_msgs_per_s: 10_000.0,
+            forget_after_ms: 5000,
+            table_timeout_ms: 3000,
+            over_limit_repeat_ms: 2000,
+            cgroups: true,
+            limits: BTreeMap::new(),
+        }
+    }
+}
+
+impl RmConfig {
+    fn cost_config(&self) -> Result<CostConfig> {
+        if !(self.comm_delay_threshold_ms.is_finite() && self.comm_delay_threshold_ms >= 0.0) {
+            return Err(RmError::Config(format!(
+                "comm_delay_threshold_ms must be >= 0, got {}",
+                self.comm_delay_threshold_ms
+            )));
+        }
+        Ok(CostConfig {
+            min: self.cost_min,
+            max: self.cost_max,
+            raise_factor: self.cost_raise_factor,
+            lower_factor: self.cost_lower_factor,
+            cpu_free_threshold: self.cpu_free_threshold,
+            memory_free_threshold: self.memory_free_threshold,
+            comm_delay_threshold: Duration::from_secs_f64(self.comm_delay_threshold_ms / 1e3),
+        })
+    }
+
+    /// The sampling period.
+    #[must_use]
+    pub fn period(&self) -> Duration {
+        Duration::try_from_secs_f64(1.0 / self.rate_hz).unwrap_or(Duration::from_millis(100))
+    }
+}
+
+/// A request to the supervisor: kill and restart `module` with exit cause "over limit".
+#[derive(Debug, Clone, PartialEq)]
+pub struct OverLimitCommand {
+    /// The module.
+    pub module: String,
+    /// Its pid when measured.
+    pub pid: i32,
+    /// Which limit, e.g. "memory 80.0 MiB > 64.0 MiB".
+    pub reason: String,
+}
+
+/// What one period produced: the messages to publish.
+#[derive(Debug, Clone)]
+pub struct TickOutput {
+    /// C_R(t) and the degraded-mode bar.
+    pub costs: ResourceCosts,
+    /// R and R_eff of every module.
+    pub effective: EffectiveCosts,
+    /// The RM_STATUS document.
+    pub status: Value,
+    /// Modules to stop over their limit.
+    pub over_limit: Vec<OverLimitCommand>,
+}
+
+/// How a cap is enforced, for the status.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Enforced {
+    Kernel,
+    Software,
+}
+
+impl Enforced {
+    fn as_str(self) -> &'static str {
+        match self {
+            Enforced::Kernel => "kernel",
+            Enforced::Software => "software",
+        }
+    }
+}
+
+#[derive(Debug)]
+struct Tracked {
+    id: u32,
+    /// The process being sampled (reported pid, verified).
+    pid: Option<i32>,
+    /// The last pid refused (so a stale pid is not re-checked on every report).
+    refused_pid: Option<u32>,
+    last_report: Option<Instant>,
+    state: Option<ModuleState>,
+    quality: f32,
+    waiting: bool,
+    report_period: Duration,
+    msgs: Option<(Instant, u64)>,
+    msg_rate: f64,
+    gone_since: Option<Instant>,
+    requested: ResourceLimits,
+    kernel: ResourceLimits,
+    cpu_enforced: Option<Enforced>,
+    mem_enforced: Option<Enforced>,
+    cgroup: Option<ModuleCgroup>,
+    last_over: Option<(i32, Instant, String)>,
+    restarts: Option<u64>,
+    supervisor_state: Option<String>,
+}
+
+impl Tracked {
+    fn new(name: &str) -> Self {
+        Tracked {
+            id: module_id(name),
+            pid: None,
+            refused_pid: None,
+            last_report: None,
+            state: None,
+            quality: 0.0,
+            waiting: false,
+            report_period: Duration::from_millis(100),
+            msgs: None,
+            msg_rate: 0.0,
+            gone_since: None,
+            requested: ResourceLimits::default(),
+            kernel: ResourceLimits::default(),
+            cpu_enforced: None,
+            mem_enforced: None,
+            cgroup: None,
+            last_over: None,
+            restarts: None,
+            supervisor_state: None,
+        }
+    }
+}
+
+#[derive(Debug, Clone)]
+struct Table {
+    at: Instant,
+    table: ContractTable,
+}
+
+/// The resource manager (see the module documentation).
+#[derive(Debug)]
+pub struct ResourceManager {
+    config: RmConfig,
+    sampler: Sampler,
+    system: SystemSampler,
+    last_system: Option<SystemSample>,
+    enforcer: SoftwareEnforcer,
+    core: RmCore<Priority>,
+    delays: ReportDelays,
+    last_delay: Option<Duration>,
+    waiting_reports: u64,
+    modules: BTreeMap<String, Tracked>,
+    tables: HashMap<u32, Table>,
+    cgroup_run: Option<CgroupRun>,
+    cgroup_note: String,
+    warned: HashSet<String>,
+    ns_per_tick: u64,
+    supervisor_limits: BTreeMap<String, ResourceLimits>,
+    passes: u64,
+}
+
+/// Delays above this are not measured on the monotonic clock (simulated time).
+const MAX_PLAUSIBLE_DELAY: Duration = Duration::from_secs(10);
+
+impl ResourceManager {
+    /// A manager with `config`; `cgroup_run` is the run to attach to (`HNG_CGROUP_RUN`),
+    /// if any. Fails only on an invalid configuration or without /proc.
+    pub fn new(config: RmConfig, cgroup_run: Option<&str>) -> Result<Self> {
+        let sampler = Sampler::new(SamplerConfig {
+            rate_hz: config.rate_hz,
+            pss_every: config.pss_every,
+            ..SamplerConfig::default()
+        })?;
+        let core = RmCore::new(
+            config.cost_config()?,
+            DegradedConfig {
+                enter_after: config.degraded_enter_after,
+                step_after: config.degraded_step_after,
+                recover_after: config.degraded_recover_after,
+                allow_full_stop: config.allow_full_stop,
+            },
+        )?;
+        if !(config.comm_budget_msgs_per_s.is_finite() && config.comm_budget_msgs_per_s > 0.0) {
+            return Err(RmError::Config(format!(
+                "comm_budget_msgs_per_s must be > 0, got {}",
+                config.comm_budget_msgs_per_s
+            )));
+        }
+        let (run, note) = match cgroup_run.filter(|_| config.cgroups) {
+            None => (
+                None,
+                "no cgroup run (HNG_CGROUP_RUN unset): measuring from /proc, limits in software"
+                    .to_owned(),
+            ),
+            Some(name) => {
+                let support = CgroupSupport::detect();
+                match CgroupRun::open(&support, name) {
+                    Ok(run) => {
+                        let version = match support.version() {
+                            Some(crate::cgroup::CgroupVersion::V1) => "v1",
+                            Some(crate::cgroup::CgroupVersion::V2) => "v2",
+                            None => "none",
+                        };
+                        let note = format!("cgroup {version}, run {name}");
+                        (Some(run), note)
+                    }
+                    Err(e) => {
+                        tracing::warn!(
+                            "cannot attach to the cgroups of run {name}: {e}; measuring from /proc, limits in software"
+                        );
+                        (None, format!("cannot attach to run {name}: {e}"))
+                    }
+                }
+            }
+        };
+        let tps = procfs::ticks_per_second().max(1);
+        Ok(ResourceManager {
+            enforcer: SoftwareEnforcer::new(SoftwareEnforcerConfig {
+                cpu_window: Duration::from_millis(config.cpu_window_ms.max(1)),
+            }),
+            config,
+            sampler,
+            system: SystemSampler::new()?,
+            last_system: None,
+            core,
+            delays: ReportDelays::default(),
+            last_delay: None,
+            waiting_reports: 0,
+            modules: BTreeMap::new(),
+            tables: HashMap::new(),
+            cgroup_run: run,
+            cgroup_note: note,
+            warned: HashSet::new(),
+            ns_per_tick: 1_000_000_000 / tps,
+            supervisor_limits: BTreeMap::new(),
+            passes: 0,
+        })
+    }
+
+    /// The configuration.
+    #[must_use]
+    pub fn config(&self) -> &RmConfig {
+        &self.config
+    }
+
+    fn warn_once(&mut self, key: String, msg: impl FnOnce() -> String) {
+        if self.warned.insert(key) {
+            tracing::warn!("{}", msg());
+        }
+    }
+
+    /// One module report, received at `received_ns` (CLOCK_MONOTONIC) and `now`.
+    pub fn on_report(&mut self, r: &ModuleReport, received_ns: u64, now: Instant) {
+        let name = r.name();
+        if name.is_empty() || name == "?" {
+            self.warn_once("bad-report-name".into(), || {
+                "ignoring a report without a valid module name".into()
+            });
+            return;
+        }
+        let delay = Duration::from_nanos(received_ns.saturating_sub(r.header.stamp_ns));
+        let plausible = delay <= MAX_PLAUSIBLE_DELAY && r.header.stamp_ns <= received_ns;
+        if plausible {
+            self.delays.record(r.header.stamp_ns, received_ns);
+        }
+        if r.waiting_for_resources != 0 {
+            self.waiting_reports += 1;
+        }
+        let name = name.to_owned();
+        let t = self
+            .modules
+            .entry(name.clone())
+            .or_insert_with(|| Tracked::new(&name));
+        t.last_report = Some(now);
+        t.state = ModuleState::from_u8(r.state);
+        t.quality = r.quality;
+        t.waiting = r.waiting_for_resources != 0;
+        if r.period_ns > 0 {
+            t.report_period = Duration::from_nanos(r.period_ns);
+        }
+        let msgs = r.msgs_in.saturating_add(r.msgs_out);
+        if let Some((at, prev)) = t.msgs {
+            let dt = now.saturating_duration_since(at).as_secs_f64();
+            if dt >= 0.05 {
+                t.msg_rate = msgs.saturating_sub(prev) as f64 / dt;
+                t.msgs = Some((now, msgs));
+            }
+        } else {
+            t.msgs = Some((now, msgs));
+        }
+        let Ok(pid) = i32::try_from(r.pid) else {
+            return;
+        };
+        if pid <= 0 || t.pid == Some(pid) || t.refused_pid == Some(r.pid) {
+            return;
+        }
+        // A new process for this module: check that the pid still is the sender (born
+        // before the report was sent), then sample it.
+        let stamp = plausible.then_some(r.header.stamp_ns);
+        self.adopt(&name, pid, stamp, now);
+    }
+
+    /// Starts sampling `pid` as module `name`, if it is a live process born before
+    /// `sent_ns` (monotonic; `None` = unknown, not checked).
+    fn adopt(&mut self, name: &str, pid: i32, sent_ns: Option<u64>, now: Instant) {
+        let starttime = match process_starttime(pid) {
+            Ok(s) => s,
+            Err(e) => {
+                tracing::debug!(module = name, pid, "not sampled: {e}");
+                if let Some(t) = self.modules.get_mut(name) {
+                    t.refused_pid = u32::try_from(pid).ok();
+                }
+                return;
+            }
+        };
+        if let Some(sent) = sent_ns {
+            let start_mono = starttime
+                .saturating_mul(self.ns_per_tick)
+                .saturating_sub(boottime_minus_monotonic_ns());
+            // One tick of rounding either way.
+            if start_mono > sent.saturating_add(2 * self.ns_per_tick) {
+                tracing::warn!(
+                    module = name,
+                    pid,
+                    "pid {pid} belongs to a process started after the module's report: pid reused, not sampled"
+                );
+                if let Some(t) = self.modules.get_mut(name) {
+                    t.refused_pid = u32::try_from(pid).ok();
+                }
+                return;
+            }
+        }
+        self.sampler.remove(name);
+        self.enforcer.remove(name);
+        let cgroup = self.module_cgroup(name, pid);
+        let counter = cgroup.as_ref().and_then(ModuleCgroup::cpu_counter);
+        let target = ModuleTarget::new(name, pid)
+            .with_starttime(starttime)
+            .with_cgroup_cpu(counter);
+        if let Err(e) = self.sampler.add(target) {
+            tracing::debug!(module = name, pid, "not sampled: {e}");
+            if let Some(t) = self.modules.get_mut(name) {
+                t.refused_pid = u32::try_from(pid).ok();
+            }
+            return;
+        }
+        let kernel = cgroup
+            .as_ref()
+            .map(ModuleCgroup::kernel_caps)
+            .unwrap_or_default();
+        let requested = self.requested_limits(name);
+        let Some(t) = self.modules.get_mut(name) else {
+            return;
+        };
+        t.pid = Some(pid);
+        t.refused_pid = None;
+        t.gone_since = None;
+        t.cgroup = cgroup;
+        t.kernel = kernel;
+        tracing::info!(module = name, pid, "sampling");
+        let _ = now;
+        self.apply_limits(name, requested);
+    }
+
+    /// The module's cgroup in the attached run, if the process is in it.
+    fn module_cgroup(&mut self, name: &str, pid: i32) -> Option<ModuleCgroup> {
+        let run = self.cgroup_run.as_ref()?;
+        match run.existing_module(name) {
+            Ok(Some(cg)) => match cg.pids() {
+                Ok(pids) if pids.contains(&pid) => Some(cg),
+                _ => None,
+            },
+            Ok(None) => None,
+            Err(e) => {
+                let msg = format!("module {name}: {e}");
+                self.warn_once(format!("cg-{name}"), || msg);
+                None
+            }
+        }
+    }
+
+    fn requested_limits(&self, name: &str) -> ResourceLimits {
+        match self.config.limits.get(name) {
+            Some(l) => l.to_limits(),
+            None => self
+                .supervisor_limits
+                .get(name)
+                .cloned()
+                .unwrap_or_default(),
+        }
+    }
+
+    /// Splits the requested limits into what the kernel enforces (its caps read back
+    /// from the module's cgroup are at most the request) and what the software check
+    /// must enforce.
+    fn apply_limits(&mut self, name: &str, requested: ResourceLimits) {
+        let Some(t) = self.modules.get_mut(name) else {
+            return;
+        };
+        let kernel_cpu = matches!((requested.cpu_percent, t.kernel.cpu_percent),
+            (Some(r), Some(k)) if k <= r * 1.001);
+        let kernel_mem = matches!((requested.memory_bytes, t.kernel.memory_bytes),
+            (Some(r), Some(k)) if k <= r);
+        t.cpu_enforced = requested.cpu_percent.map(|_| {
+            if kernel_cpu {
+                Enforced::Kernel
+            } else {
+                Enforced::Software
+            }
+        });
+        t.mem_enforced = requested.memory_bytes.map(|_| {
+            if kernel_mem {
+                Enforced::Kernel
+            } else {
+                Enforced::Software
+            }
+        });
+        let software = ResourceLimits {
+            cpu_percent: requested.cpu_percent.filter(|_| !kernel_cpu),
+            memory_bytes: requested.memory_bytes.filter(|_| !kernel_mem),
+            ..Default::default()
+        };
+        t.requested = requested;
+        if software.cpu_percent.is_some() || software.memory_bytes.is_some() {
+            self.enforcer.set_limits(name, software);
+        } else {
+            self.enforcer.remove(name);
+        }
+    }
+
+    /// One contract table from the CONTRACTS channel.
+    pub fn on_contract_table(&mut self, table: &ContractTable, now: Instant) {
+        if table.module_id == 0 && table.module().is_empty() {
+            self.warn_once("bad-table".into(), || {
+                "ignoring a contract table without module id or name".into()
+            });
+            return;
+        }
+        // Peers name each other by module id (the node id, a hash of the name).
+        let id = if table.module_id != 0 {
+            table.module_id
+        } else {
+            module_id(table.module())
+        };
+        self.tables.insert(
+            id,
+            Table {
+                at: now,
+                table: *table,
+            },
+        );
+    }
+
+    /// The supervisor's status document (SUPERVISOR_STATUS): learns module names, pids,
+    /// restarts and caps. Unknown shapes are ignored (one warning).
+    pub fn on_supervisor_status(&mut self, doc: &[u8], now: Instant) {
+        let v: Value = match serde_json::from_slice(doc) {
+            Ok(v) => v,
+            Err(e) => {
+                self.warn_once("bad-sup-status".into(), || {
+                    format!("ignoring a supervisor status that is not JSON: {e}")
+                });
+                return;
+            }
+        };
+        let list = v
+            .get("modules")
+            .and_then(Value::as_array)
+            .or_else(|| v.as_array());
+        let Some(list) = list else {
+            return;
+        };
+        let mut changed = Vec::new();
+        for m in list {
+            let Some(name) = m.get("name").and_then(Value::as_str) else {
+                continue;
+            };
+            if name.is_empty() || name.len() > 200 {
+                continue;
+            }
+            let caps = ["caps", "resources", "limits"]
+                .iter()
+                .find_map(|k| m.get(*k))
+                .unwrap_or(&Value::Null);
+            let cpu = caps
+                .get("cpu_percent")
+                .and_then(Value::as_f64)
+                .or_else(|| {
+                    caps.get("cpu_quota")
+                        .and_then(Value::as_f64)
+                        .map(|q| q * 100.0)
+                })
+                .filter(|c| c.is_finite() && *c > 0.0);
+            let mem = caps
+                .get("memory_max")
+                .or_else(|| caps.get("memory_bytes"))
+                .and_then(Value::as_u64);
+            let limits = ResourceLimits {
+                cpu_percent: cpu,
+                memory_bytes: mem,
+                ..Default::default()
+            };
+            if self.supervisor_limits.get(name) != Some(&limits) {
+                self.supervisor_limits.insert(name.to_owned(), limits);
+                changed.push(name.to_owned());
+            }
+            let t = self
+                .modules
+                .entry(name.to_owned())
+                .or_insert_with(|| Tracked::new(name));
+            t.restarts = m.get("restarts").and_then(Value::as_u64);
+            t.supervisor_state = m.get("state").and_then(Value::as_str).map(str::to_owned);
+            let pid = m
+                .get("pid")
+                .and_then(Value::as_i64)
+                .and_then(|p| i32::try_from(p).ok());
+            if let Some(pid) = pid
+                && t.pid.is_none()
+                && t.refused_pid != u32::try_from(pid).ok()
+            {
+                // Not reported yet: sample the supervisor's pid (checked by start time
+                // from now on).
+                let name = name.to_owned();
+                self.adopt(&name, pid, None, now);
+            }
+        }
+        for name in changed {
+            if self.modules.get(&name).is_some_and(|t| t.pid.is_some()) {
+                let req = self.requested_limits(&name);
+                self.apply_limits(&name, req);
+            }
+        }
+    }
+
+    /// One period: sample, check limits, update costs and the degraded mode, compute
+    /// R and R_eff. `stamp_ns`: now on CLOCK_MONOTONIC (for the status).
+    pub fn tick(&mut self, now: Instant) -> TickOutput {
+        self.passes += 1;
+        let samples: Vec<ModuleSample> = self.sampler.sample(now).to_vec();
+        let mut over_limit = Vec::new();
+        let repeat = Duration::from_millis(self.config.over_limit_repeat_ms);
+        for s in &samples {
+            match s.liveness {
+                Liveness::Alive => {}
+                Liveness::Exited | Liveness::PidReused => {
+                    self.sampler.remove(&s.name);
+                    self.enforcer.remove(&s.name);
+                    if let Some(t) = self.modules.get_mut(&s.name) {
+                        t.pid = None;
+                        t.gone_since = Some(now);
+                        t.cgroup = None;
+                    }
+                    continue;
+                }
+                Liveness::ReadError(_) => continue,
+            }
+            let Some(v) = self.enforcer.check(s) else {
+                continue;
+            };
+            let Some(t) = self.modules.get_mut(&s.name) else {
+                continue;
+            };
+            let reason = short_reason(&v);
+            let due = match &t.last_over {
+                Some((pid, at, _)) => *pid != s.pid || now.saturating_duration_since(*at) >= repeat,
+                None => true,
+            };
+            if due {
+                tracing::warn!(module = %s.name, pid = s.pid, "{v}: asking the supervisor to restart it");
+                t.last_over = Some((s.pid, now, reason.clone()));
+                over_limit.push(OverLimitCommand {
+                    module: s.name.clone(),
+                    pid: s.pid,
+                    reason,
+                });
+            }
+        }
+        // Forget modules gone for long.
+        let forget = Duration::from_millis(self.config.forget_after_ms);
+        self.modules.retain(|_, t| {
+            let silent = t
+                .last_report
+                .is_none_or(|r| now.saturating_duration_since(r) >= forget);
+            !(t.pid.is_none()
+                && t.gone_since
+                    .is_some_and(|g| now.saturating_duration_since(g) >= forget)
+                && silent)
+        });
+        let table_timeout = Duration::from_millis(self.config.table_timeout_ms);
+        self.tables
+            .retain(|_, t| now.saturating_duration_since(t.at) < table_timeout);
+
+        // C_R(t) and degraded mode.
+        let system = match self.system.sample() {
+            Ok(s) => Some(s),
+            Err(e) => {
+                let msg = format!("machine-wide sample failed: {e}");
+                self.warn_once("system-sample".into(), || msg);
+                None
+            }
+        };
+        if system.is_some() {
+            self.last_system = system;
+        }
+        // A module waits for resources until a report says otherwise: its latest report
+        // counts while fresh (three report periods, at least 300 ms), whatever the rates
+        // of the reports and of the RM.
+        let waiting_now = self.waiting_reports > 0
+            || self.modules.values().any(|t| {
+                t.waiting
+                    && t.last_report.is_some_and(|r| {
+                        now.saturating_duration_since(r)
+                            <= (t.report_period * 3).max(Duration::from_millis(300))
+                    })
+            });
+        let waiting = if waiting_now {
+            WaitingFor::CPU_AND_MEMORY
+        } else {
+            WaitingFor::NONE
+        };
+        let waiting_reports = std::mem::take(&mut self.waiting_reports);
+        let max_delay = self.delays.take_max();
+        if max_delay.is_some() {
+            self.last_delay = max_delay;
+        }
+        let obs = match &system {
+            Some(s) => ResourceObservation::from_system(s, waiting, max_delay),
+            None => ResourceObservation {
+                waiting_for: waiting,
+                max_report_delay: max_delay,
+                ..Default::default()
+            },
+        };
+        let active = self.active_priorities();
+        let decision = self.core.update(&obs, &active);
+        if decision.change != crate::degraded::BarChange::Unchanged {
+            tracing::info!(
+                bar = %bar_text(&decision.bar),
+                change = ?decision.change,
+                "degraded mode"
+            );
+        }
+
+        // R and R_eff.
+        let (cpus, mem_total) = self
+            .last_system
+            .map_or((1, 0), |s| (s.cpus, s.mem_total_bytes));
+        let mut own: BTreeMap<u32, (String, ResourceVec)> = BTreeMap::new();
+        for (name, t) in &self.modules {
+            let r = match self.sampler.get(name) {
+                Some(s) if t.pid.is_some() => ResourceVec::from_usage(
+                    s.cpu_percent.unwrap_or(0.0),
+                    cpus,
+                    s.memory_bytes(),
+                    mem_total,
+                    t.msg_rate / self.config.comm_budget_msgs_per_s,
+                ),
+                _ => ResourceVec::ZERO,
+            };
+            own.insert(t.id, (name.clone(), r));
+        }
+        let eff = self.effective(&own);
+
+        let mut costs = ResourceCosts {
+            cpu: decision.costs.cpu,
+            mem: decision.costs.memory,
+            comm: decision.costs.comm,
+            degraded: u8::from(decision.bar.is_degraded()),
+            ..Default::default()
+        };
+        match &decision.bar {
+            ServeBar::All => {}
+            ServeBar::Nothing => costs.serve_nothing = 1,
+            ServeBar::AtMost(p) => {
+                let parts = p.parts();
+                let n = parts.len().min(MAX_PRIORITY_DEPTH);
+                costs.min_priority[..n].copy_from_slice(&parts[..n]);
+                costs.min_priority_len = n as u8;
+            }
+        }
+        let mut effective = EffectiveCosts::default();
+        for (i, (id, (_, r))) in own.iter().take(MAX_MODULES).enumerate() {
+            let e = eff.get(id).copied().unwrap_or(*r);
+            effective.modules[i] = ModuleCost {
+                module_id: *id,
+                own: [r.cpu, r.memory, r.comm],
+                effective: [e.cpu, e.memory, e.comm],
+            };
+            effective.count = (i + 1) as u32;
+        }
+        if own.len() > MAX_MODULES {
+            let n = own.len();
+            self.warn_once("too-many".into(), || {
+                format!(
+                    "{n} modules: only the first {MAX_MODULES} fit in the effective-cost message"
+                )
+            });
+        }
+
+        let status = self.status_json(&own, &eff, &decision, &obs, waiting_reports, &active);
+        TickOutput {
+            costs,
+            effective,
+            status,
+            over_limit,
+        }
+    }
+
+    /// Priorities of the active contracts of the fresh tables. Malformed priorities are
+    /// skipped (one warning).
+    fn active_priorities(&mut self) -> Vec<Priority> {
+        let mut out = Vec::new();
+        let mut bad = None;
+        for t in self.tables.values() {
+            if t.table.active == 0 {
+                continue;
+            }
+            for e in t.table.entries() {
+                if e.priority().is_empty() {
+                    continue;
+                }
+                match Priority::new(e.priority()) {
+                    Ok(p) => out.push(p),
+                    Err(err) => bad = Some(format!("module {}: {err}", t.table.module())),
+                }
+            }
+        }
+        if let Some(msg) = bad {
+            self.warn_once("bad-priority".into(), || {
+                format!("ignoring a contract with an invalid priority ({msg})")
+            });
+        }
+        out
+    }
+
+    /// R_eff by eq. (4) over the contract graph of the tables; R_eff = R for modules not
+    /// in it and when the graph is unusable (a cycle: one warning).
+    fn effective(
+        &mut self,
+        own: &BTreeMap<u32, (String, ResourceVec)>,
+    ) -> HashMap<u32, ResourceVec> {
+        if self.tables.is_empty() {
+            return HashMap::new();
+        }
+        let mut nodes: BTreeMap<u32, ModuleNode<u32>> = BTreeMap::new();
+        let node = |id: u32, own: &BTreeMap<u32, (String, ResourceVec)>| ModuleNode {
+            id,
+            own: own.get(&id).map_or(ResourceVec::ZERO, |(_, r)| *r),
+            providers: Vec::new(),
+            queries_answered: 0,
+        };
+        for (&id, t) in &self.tables {
+            for e in t.table.entries() {
+                match e.role() {
+                    Some(ContractRole::Client) => {
+                        nodes
+                            .entry(id)
+                            .or_insert_with(|| node(id, own))
+                            .providers
+                            .push(e.peer);
+                        nodes.entry(e.peer).or_insert_with(|| node(e.peer, own));
+                    }
+                    Some(ContractRole::Provider) => {
+                        let n = nodes.entry(id).or_insert_with(|| node(id, own));
+                        n.queries_answered = n.queries_answered.saturating_add(1);
+                    }
+                    None => {}
+                }
+            }
+        }
+        let list: Vec<ModuleNode<u32>> = nodes.into_values().collect();
+        match effective_costs(&list) {
+            Ok(m) => m,
+            Err(e) => {
+                let msg = e.to_string();
+                self.warn_once(format!("eq4-{msg}"), || {
+                    format!("effective costs: {msg}; using R_eff = R")
+                });
+                HashMap::new()
+            }
+        }
+    }
+
+    fn status_json(
+        &self,
+        own: &BTreeMap<u32, (String, ResourceVec)>,
+        eff: &HashMap<u32, ResourceVec>,
+        decision: &crate::degraded::RmDecision<Priority>,
+        obs: &ResourceObservation,
+        waiting_reports: u64,
+        active: &[Priority],
+    ) -> Value {
+        let mut modules = Vec::with_capacity(self.modules.len());
+        for (name, t) in &self.modules {
+            let s = self.sampler.get(name).filter(|_| t.pid.is_some());
+            let r = own.get(&t.id).map_or(ResourceVec::ZERO, |(_, r)| *r);
+            let e = eff.get(&t.id).copied().unwrap_or(r);
+            let cap = |requested: Option<f64>, kernel: Option<f64>, enf: Option<Enforced>| {
+                json!({
+                    "limit": requested,
+                    "kernel": kernel,
+                    "enforced": enf.map(Enforced::as_str),
+                })
+            };
+            modules.push(json!({
+                "name": name,
+                "id": t.id,
+                "pid": t.pid,
+                "alive": s.is_some_and(|s| s.liveness == Liveness::Alive),
+                "state": t.state.map(state_text),
+                "supervisor_state": t.supervisor_state,
+                "restarts": t.restarts,
+                "quality": t.quality,
+                "waiting_for_resources": t.waiting,
+                "cpu_percent": s.and_then(|s| s.cpu_percent),
+                "cpu_source": s.map(|s| match s.cpu_source {
+                    CpuSource::ProcStat => "proc",
+                    CpuSource::Cgroup => "cgroup",
+                }),
+                "rss_bytes": s.map(|s| s.rss_bytes),
+                "pss_bytes": s.and_then(|s| s.pss_bytes),
+                "memory_bytes": s.map(ModuleSample::memory_bytes),
+                "minor_faults": s.map(|s| s.minor_faults),
+                "major_faults": s.map(|s| s.major_faults),
+                "major_faults_per_s": s.and_then(|s| s.major_faults_per_s),
+                "msgs_per_s": t.msg_rate,
+                "cgroup": t.cgroup.is_some(),
+                "caps": {
+                    "cpu_percent": cap(t.requested.cpu_percent, t.kernel.cpu_percent, t.cpu_enforced),
+                    "memory_bytes": cap(t.requested.memory_bytes.map(|b| b as f64), t.kernel.memory_bytes.map(|b| b as f64), t.mem_enforced),
+                    "pids": t.kernel.pids,
+                },
+                "over_limit": t.last_over.as_ref().map(|(_, _, r)| r),
+                "R": [r.cpu, r.memory, r.comm],
+                "R_eff": [e.cpu, e.memory, e.comm],
+            }));
+        }
+        let sys = self.last_system;
+        let u = &decision.cost_update;
+        json!({
+            "rate_hz": self.config.rate_hz,
+            "passes": self.passes,
+            "cgroups": self.cgroup_note,
+            "cpus": sys.map(|s| s.cpus),
+            "cpu_free": obs.cpu_free,
+            "memory_free": obs.memory_free,
+            "mem_available_bytes": sys.map(|s| s.mem_available_bytes),
+            "mem_total_bytes": sys.map(|s| s.mem_total_bytes),
+            "max_report_delay_ms": self.last_delay.map(|d| d.as_secs_f64() * 1e3),
+            "waiting_reports": waiting_reports,
+            "costs": {"cpu": u.costs.cpu, "memory": u.costs.memory, "comm": u.costs.comm},
+            "scarce": {"cpu": u.scarce.cpu, "memory": u.scarce.memory, "comm": u.scarce.comm},
+            "degraded": decision.bar.is_degraded(),
+            "serve_nothing": matches!(decision.bar, ServeBar::Nothing),
+            "min_priority": match &decision.bar {
+                ServeBar::AtMost(p) => Some(p.to_string()),
+                _ => None,
+            },
+            "active_contracts": active.len(),
+            "contract_tables": self.tables.len(),
+            "modules": modules,
+        })
+    }
+}
+
+fn state_text(s: ModuleState) -> &'static str {
+    match s {
+        ModuleState::Configured => "configured",
+        ModuleState::Running => "running",
+        ModuleState::Idle => "idle",
+        ModuleState::Stopping => "stopping",
+    }
+}
+
+/// The degraded-mode bar as text: "all", "nothing" or the minimum priority.
+#[must_use]
+pub fn bar_text(bar: &ServeBar<Priority>) -> String {
+    match bar {
+        ServeBar::All => "all".into(),
+        ServeBar::Nothing => "nothing".into(),
+        ServeBar::AtMost(p) => p.to_string(),
+    }
+}
+
+/// A reason that fits the supervisor command's 64 bytes: "memory 80.0 MiB > 64.0 MiB",
+/// "cpu 93% > 20%".
+fn short_reason(v: &crate::limits::OverLimit) -> String {
+    match v.resource {
+        crate::limits::LimitedResource::Memory => format!(
+            "memory {:.1} MiB > {:.1} MiB",
+            v.measured / 1048576.0,
+            v.limit / 1048576.0
+        ),
+        crate::limits::LimitedResource::Cpu => {
+            format!("cpu {:.0}% > {:.0}%", v.measured, v.limit)
+        }
+    }
+}
+
+/// CLOCK_BOOTTIME − CLOCK_MONOTONIC (time spent suspended), ns: process start times in
+/// /proc count from boot including suspend, report stamps do not.
+fn boottime_minus_monotonic_ns() -> u64 {
+    let get = |id| {
+        nix::time::clock_gettime(id).map_or(0u64, |t| {
+            u64::try_from(t.tv_sec())
+                .unwrap_or(0)
+                .saturating_mul(1_000_000_000)
+                .saturating_add(u64::try_from(t.tv_nsec()).unwrap_or(0))
+        })
+    };
+    let mono = get(nix::time::ClockId::CLOCK_MONOTONIC);
+    let boot = get(nix::time::ClockId::CLOCK_BOOTTIME);
+    boot.saturating_sub(mono)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use hng_runtime::system::ContractEntry;
+
+    fn report(name: &str, pid: u32, stamp_ns: u64, waiting: bool) -> ModuleReport {
+        let mut r = ModuleReport {
+            pid,
+            state: ModuleState::Running as u8,
+            waiting_for_resources: u8::from(waiting),
+            ..Default::default()
+        };
+        r.header.stamp_ns = stamp_ns;
+        r.set_name(name);
+        r
+    }
+
+    fn table(name: &str, entries: &[(ContractRole, &str, &[u16])]) -> ContractTable {
+        let mut t = ContractTable {
+            module_id: module_id(name),
+            active: 1,
+            ..Default::default()
+        };
+        t.set_module(name);
+        for (i, (role, peer, prio)) in entries.iter().enumerate() {
+            let mut e = ContractEntry {
+                role: *role as u8,
+                peer: module_id(peer),
+                priority_len: prio.len() as u8,
+                ..Default::default()
+            };
+            e.priority[..prio.len()].copy_from_slice(prio);
+            e.set_service("svc");
+            t.entries[i] = e;
+        }
+        t.count = entries.len() as u32;
+        t
+    }
+
+    #[test]
+    fn parses_byte_counts() {
+        assert_eq!(parse_bytes("4096"), Ok(4096));
+        assert_eq!(parse_bytes("64MiB"), Ok(64 << 20));
+        assert_eq!(parse_bytes("64M"), Ok(64 << 20));
+        assert_eq!(parse_bytes("1GB"), Ok(1_000_000_000));
+        assert!(parse_bytes("12 parsecs").is_err());
+        assert!(parse_bytes("").is_err());
+        let c: RmConfig = toml::from_str(
+            "rate_hz = 20\n[limits.hog]\nmemory_max = \"64MiB\"\ncpu_percent = 50\n",
+        )
+        .expect("valid config");
+        assert_eq!(c.limits["hog"].memory_max, Some(Bytes(64 << 20)));
+        assert!(
+            toml::from_str::<RmConfig>("rate = 20").is_err(),
+            "unknown field"
+        );
+    }
+
+    #[test]
+    fn bad_config_is_an_error_not_a_crash() {
+        let bad = RmConfig {
+            rate_hz: 0.0,
+            ..Default::default()
+        };
+        assert!(ResourceManager::new(bad, None).is_err());
+        let bad = RmConfig {
+            cost_raise_factor: 0.5,
+            ..Default::default()
+        };
+        assert!(ResourceManager::new(bad, None).is_err());
+    }
+
+    /// Reports teach the RM the modules and their pids; garbage is ignored; R_eff
+    /// follows eq. (4) over the published tables.
+    #[test]
+    fn learns_modules_from_reports_and_computes_eq4_from_tables() {
+        let mut rm = ResourceManager::new(RmConfig::default(), None).expect("rm");
+        let me = std::process::id();
+        let now = Instant::now();
+        let sent = hng_runtime::clock::monotonic_ns();
+        for name in ["client", "provider"] {
+            rm.on_report(&report(name, me, sent, false), sent + 1000, now);
+        }
+        // Garbage: a pid that does not exist, a name-less report, a stamp in the future.
+        rm.on_report(&report("ghost", i32::MAX as u32, sent, false), sent, now);
+        rm.on_report(&report("", me, sent, false), sent, now);
+        rm.on_report(
+            &report("future", me, sent + 1_000_000_000, false),
+            sent,
+            now,
+        );
+        // client uses provider; provider serves two queries.
+        rm.on_contract_table(
+            &table("client", &[(ContractRole::Client, "provider", &[1])]),
+            now,
+        );
+        rm.on_contract_table(
+            &table(
+                "provider",
+                &[
+                    (ContractRole::Provider, "client", &[1]),
+                    (ContractRole::Provider, "other", &[2]),
+                ],
+            ),
+            now,
+        );
+        let _ = rm.tick(Instant::now());
+        std::thread::sleep(Duration::from_millis(30));
+        let out = rm.tick(Instant::now());
+        let get = |name: &str| {
+            *out.effective
+                .of(module_id(name))
+                .unwrap_or_else(|| panic!("{name} in effective costs"))
+        };
+        let (c, p) = (get("client"), get("provider"));
+        for k in 0..3 {
+            let want = c.own[k] + p.effective[k] / 2.0;
+            assert!((c.effective[k] - want).abs() < 1e-12, "{c:?} {p:?}");
+            assert_eq!(p.effective[k], p.own[k]);
+        }
+        let mods = out.status["modules"].as_array().expect("modules");
+        let names: Vec<&str> = mods.iter().filter_map(|m| m["name"].as_str()).collect();
+        assert!(
+            names.contains(&"client") && names.contains(&"ghost"),
+            "{names:?}"
+        );
+        let ghost = mods.iter().find(|m| m["name"] == "ghost").expect("ghost");
+        assert!(
+            ghost["pid"].is_null(),
+            "a pid that does not exist is not sampled"
+        );
+        assert_eq!(out.status["active_contracts"], 3);
+    }
+
+    #[test]
+    fn waiting_reports_raise_costs_and_degraded_mode_cuts_least_important() {
+        let cfg = RmConfig {
+            // Only the wait-for-resources reports count (the machine running the test
+            // may well be busy).
+            cpu_free_threshold: 0.0,
+            memory_free_threshold: 0.0,
+            degraded_enter_after: 1,
+            degraded_step_after: 1,
+            degraded_recover_after: 1,
+            ..Default::default()
+        };
+        let mut rm = ResourceManager::new(cfg, None).expect("rm");
+        let now = Instant::now();
+        rm.on_contract_table(
+            &table(
+                "p",
+                &[
+                    (ContractRole::Provider, "m", &[1]),
+                    (ContractRole::Provider, "m", &[2]),
+                    (ContractRole::Provider, "m", &[3]),
+                ],
+            ),
+            now,
+        );
+        let mut bars = Vec::new();
+        for _ in 0..8 {
+            let sent = hng_runtime::clock::monotonic_ns();
+            rm.on_report(&report("w", 0, sent, true), sent, now);
+            let out = rm.tick(now);
+            bars.push(out.costs.min_priority().map(<[u16]>::to_vec));
+        }
+        let first_cut = bars.iter().flatten().next().cloned();
+        assert_eq!(first_cut, Some(vec![2]), "{bars:?}");
+        assert_eq!(bars.last().cloned().flatten(), Some(vec![1]), "{bars:?}");
+        // Calm: the module reports that it no longer waits; back to normal.
+        let mut last = None;
+        for _ in 0..5 {
+            let sent = hng_runtime::clock::monotonic_ns();
+            rm.on_report(&report("w", 0, sent, false), sent, now);
+            last = Some(rm.tick(now));
+        }
+        let last = last.expect("ticks");
+        assert_eq!(last.costs.degraded, 0);
+        assert!(last.costs.cpu < 16.0);
+    }
+
+    #[test]
+    fn bad_supervisor_status_and_priorities_do_not_crash() {
+        let mut rm = ResourceManager::new(RmConfig::default(), None).expect("rm");
+        let now = Instant::now();
+        rm.on_supervisor_status(b"not json", now);
+        rm.on_supervisor_status(b"{\"modules\": 3}", now);
+        rm.on_supervisor_status(
+            br#"{"modules":[{"name":"a","pid":-5,"caps":{"cpu_quota":0.2,"memory_max":1000}},{"nope":1}]}"#,
+            now,
+        );
+        let mut t = table("a", &[(ContractRole::Provider, "b", &[1])]);
+        t.entries[0].priority[0] = 0; // invalid: components start at 1
+        rm.on_contract_table(&t, now);
+        let mut cyc = table("x", &[(ContractRole::Client, "y", &[1])]);
+        cyc.count = 1;
+        rm.on_contract_table(&cyc, now);
+        rm.on_contract_table(&table("y", &[(ContractRole::Client, "x", &[1])]), now);
+        let out = rm.tick(now);
+        assert_eq!(out.status["active_contracts"], 2);
+        assert!(
+            out.status["modules"]
+                .as_array()
+                .is_some_and(|m| m.iter().any(|m| m["name"] == "a"))
+        );
+    }
+}

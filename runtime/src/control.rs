@@ -1,0 +1,814 @@
+//! The contract control plane: the transport-free [`crate::contract`] logic carried over
+//! iceoryx2 between module processes, and the SDK pieces built on it.
+//!
+//! A module that declares services or needs in [`crate::Module::configure`]
+//! ([`crate::Context::provide`], [`crate::Context::need`], [`crate::Context::manager`]) gets a
+//! [`ContractAgent`] that the executor runs for it:
+//!
+//! | channel | payload | subscribers | publishers |
+//! |---|---|---|---|
+//! | [`inbox_channel`] `hng/ctl/m<id>` | encoded [`Envelope`]s addressed to module `id` | that module | its peers |
+//! | [`service_channel`] `hng/ctl/svc/<service>` | queries to every provider of a service | the providers | the clients |
+//! | [`crate::system::SUPERVISOR_EVENTS`] | [`ModuleEvent`] | every contract module | the supervisor |
+//! | [`crate::system::RM_COSTS`], [`crate::system::RM_EFFECTIVE_COSTS`] | `C_R`, degraded mode, `R_eff` | every contract module | the RM |
+//! | [`crate::system::CONTRACTS`] | the module's [`ContractTable`] | RM, `hng contracts` | every contract module |
+//!
+//! Messages are [`contract::encode`]d bytes (at most [`MAX_MESSAGE_LEN`]) in a slice channel
+//! with the [`ControlInfo`] header. What cannot be decoded (truncated, oversized, malformed,
+//! wrong magic or version, out-of-range fields) or whose envelope names another sender than
+//! the module that published it is dropped and counted, never acted upon; the counts appear in
+//! the module's [`ContractTable`] (`control_drops`).
+
+use std::collections::HashMap;
+use std::fmt::Write as _;
+use std::time::Duration;
+
+use iceoryx2::prelude::{PortFactory as _, ServiceName, ZeroCopySend};
+use serde::Serialize;
+
+use crate::channel::{
+    InputId, Node, Publisher, Sample, SlicePublisher, SliceSubscriber, Subscriber,
+};
+use crate::contract::{
+    self, AgentConfig, AgentEvent, CommandArbiter, ContractAgent, Destination, DropCounters,
+    DropReason, MAX_MESSAGE_LEN, ModuleId, NeedSpec, Outgoing, Priority, ResourceVec, ServiceOffer,
+    Timing, Verdict,
+};
+use crate::error::Error;
+use crate::msg::{Header, Message, SliceMessage};
+use crate::qos::ChannelKind;
+use crate::system::{
+    CONTRACTS, ContractEntry, ContractRole, ContractTable, EffectiveCosts, EventKind, ModuleEvent,
+    RM_COSTS, RM_EFFECTIVE_COSTS, ResourceCosts, SUPERVISOR_EVENTS,
+};
+use crate::wait::Waiter;
+
+/// Root of the control channels.
+pub const CONTROL_ROOT: &str = "hng/ctl";
+
+/// The inbox of module `id`: every message addressed to it ([`Destination::Module`]).
+pub fn inbox_channel(id: ModuleId) -> String {
+    format!("{CONTROL_ROOT}/m{}", id.0)
+}
+
+/// The query channel of `service` ([`Destination::Providers`]). Bytes other than ASCII
+/// letters, digits, `-`, `_` and `.` are written `%XX`, so every service name maps to a
+/// distinct, valid channel name (`Robot control` → `hng/ctl/svc/Robot%20control`).
+pub fn service_channel(service: &str) -> String {
+    let mut s = format!("{CONTROL_ROOT}/svc/");
+    for b in service.bytes() {
+        if b.is_ascii_alphanumeric() || b"-_.".contains(&b) {
+            s.push(char::from(b));
+        } else {
+            let _ = write!(s, "%{b:02X}");
+        }
+    }
+    s
+}
+
+/// The user header of control messages; the payload is one encoded [`contract::Envelope`].
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize)]
+#[type_name("hng/ControlInfo/v1")]
+pub struct ControlInfo {
+    /// Header; `source` identifies the publishing module (checked against the envelope).
+    pub header: Header,
+}
+
+impl SliceMessage for ControlInfo {
+    type Elem = u8;
+    const KIND: ChannelKind = ChannelKind::Contract;
+    fn header(&self) -> &Header {
+        &self.header
+    }
+    fn header_mut(&mut self) -> &mut Header {
+        &mut self.header
+    }
+}
+
+/// The provider serving one of the module's needs, and where its data comes from.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ProviderInfo {
+    /// The provider (its messages carry `header.source == module.0`).
+    pub module: ModuleId,
+    /// The data channel the provider named in its proposal.
+    pub channel: String,
+}
+
+/// What a module declared in `configure` (collected by the [`crate::Context`]).
+#[derive(Debug, Clone, Default)]
+pub(crate) struct ContractSpec {
+    pub(crate) manager: Option<Vec<String>>,
+    pub(crate) provides: Vec<ServiceOffer>,
+    pub(crate) needs: Vec<NeedSpec>,
+    pub(crate) timing: Option<Timing>,
+    pub(crate) hysteresis: Option<f64>,
+    pub(crate) tau: Option<Duration>,
+    pub(crate) drives: Vec<(String, Duration)>,
+}
+
+impl ContractSpec {
+    pub(crate) fn declared(&self) -> bool {
+        self.manager.is_some() || !self.provides.is_empty() || !self.needs.is_empty()
+    }
+}
+
+/// What the executor tells the module after a contract change.
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) enum PlaneEvent {
+    Activation(bool),
+    Provider(u16, Option<ProviderInfo>),
+    ContractsChanged,
+}
+
+/// How often the executor ticks the agent: a fifth of the reply window, within 1..=10 ms.
+fn tick_period(t: &Timing) -> Duration {
+    (t.reply_window / 5).clamp(Duration::from_millis(1), Duration::from_millis(10))
+}
+
+/// Period of the [`ContractTable`] publication (also published on every change).
+pub const TABLE_PERIOD: Duration = Duration::from_millis(200);
+
+/// Freshness of a driver's commands when [`crate::Context::drive`] was not called.
+pub const DEFAULT_COMMAND_FRESHNESS: Duration = Duration::from_millis(300);
+
+struct ServiceOut {
+    publisher: SlicePublisher<ControlInfo>,
+    factory: iceoryx2::service::port_factory::publish_subscribe::PortFactory<
+        crate::channel::Service,
+        [u8],
+        ControlInfo,
+    >,
+}
+
+/// The running contract machinery of one module (owned by its [`crate::Context`]).
+pub(crate) struct ControlPlane {
+    agent: ContractAgent,
+    name: String,
+    inbox: SliceSubscriber<ControlInfo>,
+    queries: Vec<SliceSubscriber<ControlInfo>>,
+    events: Subscriber<ModuleEvent>,
+    costs: Subscriber<ResourceCosts>,
+    effective: Subscriber<EffectiveCosts>,
+    table: Publisher<ContractTable>,
+    to_modules: HashMap<ModuleId, SlicePublisher<ControlInfo>>,
+    to_services: HashMap<String, ServiceOut>,
+    drops: DropCounters,
+    send_failures: u64,
+    arbiters: Vec<(String, CommandArbiter)>,
+    commands_accepted: u64,
+    inputs: Vec<InputId>,
+    tick: Duration,
+    next_tick: Duration,
+    next_table: Duration,
+    r_eff: ResourceVec,
+    cost: ResourceVec,
+    pending: Vec<PlaneEvent>,
+    changed: bool,
+}
+
+impl std::fmt::Debug for ControlPlane {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ControlPlane")
+            .field("module", &self.name)
+            .field("agent", &self.agent.id())
+            .finish_non_exhaustive()
+    }
+}
+
+impl ControlPlane {
+    /// Builds the agent from `spec` and opens the control channels.
+    pub(crate) fn new(
+        node: &Node,
+        waiter: &mut Waiter,
+        spec: &ContractSpec,
+    ) -> Result<Self, Error> {
+        let id = ModuleId(node.id());
+        let mut cfg = match &spec.manager {
+            Some(objectives) => {
+                let o: Vec<&str> = objectives.iter().map(String::as_str).collect();
+                AgentConfig::manager(id, &o)
+            }
+            None => AgentConfig::new(id),
+        };
+        cfg.provides.extend(spec.provides.iter().cloned());
+        cfg.needs.extend(spec.needs.iter().cloned());
+        if let Some(t) = spec.timing {
+            cfg.timing = t;
+        }
+        if let Some(h) = spec.hysteresis {
+            cfg.hysteresis = h;
+        }
+        if let Some(tau) = spec.tau {
+            cfg.tau = tau;
+        }
+        let tick = tick_period(&cfg.timing);
+        let agent = ContractAgent::new(cfg).map_err(|e| Error::Config(e.to_string()))?;
+
+        let inbox = node.slice_subscriber::<ControlInfo>(&inbox_channel(id))?;
+        waiter.attach(&inbox)?;
+        let mut inputs = vec![inbox.id()];
+        let mut queries = Vec::new();
+        for offer in &agent.config().provides {
+            let q = node.slice_subscriber::<ControlInfo>(&service_channel(&offer.service))?;
+            waiter.attach(&q)?;
+            inputs.push(q.id());
+            queries.push(q);
+        }
+        let events = node.subscriber::<ModuleEvent>(SUPERVISOR_EVENTS)?;
+        waiter.attach(&events)?;
+        inputs.push(events.id());
+        let costs = node.subscriber::<ResourceCosts>(RM_COSTS)?;
+        waiter.attach(&costs)?;
+        inputs.push(costs.id());
+        let effective = node.subscriber::<EffectiveCosts>(RM_EFFECTIVE_COSTS)?;
+        waiter.attach(&effective)?;
+        inputs.push(effective.id());
+        let table = node.publisher::<ContractTable>(CONTRACTS)?;
+        // Open the query channels of the needs now: the first call then costs no set-up.
+        let mut to_services = HashMap::new();
+        for n in &agent.config().needs {
+            if !to_services.contains_key(&n.service) {
+                to_services.insert(n.service.clone(), open_service_out(node, &n.service)?);
+            }
+        }
+        let arbiters = spec
+            .drives
+            .iter()
+            .map(|(s, f)| (s.clone(), CommandArbiter::new(*f)))
+            .collect();
+        let mut plane = ControlPlane {
+            agent,
+            name: node.name().to_string(),
+            inbox,
+            queries,
+            events,
+            costs,
+            effective,
+            table,
+            to_modules: HashMap::new(),
+            to_services,
+            drops: DropCounters::default(),
+            send_failures: 0,
+            arbiters,
+            commands_accepted: 0,
+            inputs,
+            tick,
+            next_tick: Duration::ZERO,
+            next_table: Duration::ZERO,
+            r_eff: ResourceVec::default(),
+            cost: ResourceVec::default(),
+            pending: Vec::new(),
+            changed: true,
+        };
+        plane.discover_peers(node);
+        Ok(plane)
+    }
+
+    pub(crate) fn agent(&self) -> &ContractAgent {
+        &self.agent
+    }
+
+    pub(crate) fn agent_mut(&mut self) -> &mut ContractAgent {
+        &mut self.agent
+    }
+
+    /// True for the plane's own inputs (the module's `on_input` never sees them).
+    pub(crate) fn owns(&self, input: InputId) -> bool {
+        self.inputs.contains(&input)
+    }
+
+    /// When the plane wants to run next (clock time).
+    pub(crate) fn next_wake(&self) -> Duration {
+        self.next_tick.min(self.next_table)
+    }
+
+    /// Transport-level drops (decode failures, spoofed senders).
+    pub(crate) fn drops(&self) -> &DropCounters {
+        &self.drops
+    }
+
+    /// Takes the events for the module's callbacks.
+    pub(crate) fn take_events(&mut self) -> Vec<PlaneEvent> {
+        std::mem::take(&mut self.pending)
+    }
+
+    /// Reads every control input, feeds the agent, ticks it when due, sends what it says and
+    /// publishes the contract table when due or changed.
+    pub(crate) fn poll(&mut self, node: &Node, aptitude: bool, quality: f64, now: Duration) {
+        self.agent.set_aptitude(aptitude);
+        self.agent.set_quality(quality);
+        let mut out = Vec::new();
+        self.read_system(now, &mut out);
+        self.read_control(now, &mut out);
+        if now >= self.next_tick {
+            self.next_tick = now + self.tick;
+            out.extend(self.agent.tick(now));
+        }
+        self.dispatch(node, out, now);
+        if self.changed || now >= self.next_table {
+            self.changed = false;
+            self.next_table = now + TABLE_PERIOD;
+            self.publish_table(now);
+        }
+    }
+
+    fn read_system(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
+        loop {
+            match self.events.receive() {
+                Ok(Some(e)) => {
+                    if matches!(
+                        e.kind(),
+                        Some(EventKind::Died | EventKind::Deactivated | EventKind::Stopped)
+                    ) && e.module_id != self.agent.id().0
+                    {
+                        out.extend(self.agent.module_died(ModuleId(e.module_id), now));
+                    }
+                }
+                Ok(None) => break,
+                Err(e) => {
+                    tracing::debug!(module = %self.name, "supervisor events: {e}");
+                    break;
+                }
+            }
+        }
+        let mut costs: Option<Sample<ResourceCosts>> = None;
+        while let Ok(Some(c)) = self.costs.receive() {
+            costs = Some(c);
+        }
+        if let Some(c) = costs {
+            self.cost = ResourceVec::new(c.cpu, c.mem, c.comm);
+            self.agent.set_resources(self.r_eff, self.cost);
+            let min = if c.degraded != 0 {
+                c.min_priority().and_then(|p| Priority::new(p).ok())
+            } else {
+                None
+            };
+            self.agent.set_min_priority(min);
+            self.agent.set_lacking_resources(c.serve_nothing != 0);
+        }
+        let mut eff: Option<Sample<EffectiveCosts>> = None;
+        while let Ok(Some(c)) = self.effective.receive() {
+            eff = Some(c);
+        }
+        if let Some(c) = eff
+            && let Some(m) = c.of(self.agent.id().0)
+        {
+            self.r_eff = ResourceVec::new(m.effective[0], m.effective[1], m.effective[2]);
+            self.agent.set_resources(self.r_eff, self.cost);
+        }
+    }
+
+    fn read_control(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
+        let mut batch = Vec::new();
+        let subs = std::iter::once(&self.inbox).chain(self.queries.iter());
+        for sub in subs {
+            loop {
+                let sample = match sub.receive() {
+                    Ok(Some(s)) => s,
+                    Ok(None) => break,
+                    Err(e) => {
+                        tracing::debug!(module = %self.name, "control input: {e}");
+                        break;
+                    }
+                };
+                match contract::decode(sample.data()) {
+                    Ok(env) if env.from.0 != sample.header().header.source => {
+                        self.drops.record(DropReason::Spoofed);
+                    }
+                    Ok(env) => {
+                        tracing::trace!(module = %self.name, from = %env.from, msg = ?env.body, "contract receive");
+                        batch.push(env);
+                    }
+                    Err(e) => {
+                        tracing::debug!(module = %self.name, "control message dropped: {e}");
+                        self.drops.record_error(&e);
+                    }
+                }
+            }
+        }
+        if !batch.is_empty() {
+            out.extend(self.agent.handle_all(&batch, now));
+        }
+    }
+
+    /// Opens publishers to the inboxes of the modules already running when this one starts,
+    /// so the first message to them does not pay for opening a channel (a few ms, more on a
+    /// loaded machine) on the protocol's critical path. Done once: listing the services reads
+    /// every service's description, too costly to repeat periodically in every module; peers
+    /// that start later are opened on first use.
+    fn discover_peers(&mut self, node: &Node) {
+        let prefix = format!("{CONTROL_ROOT}/m");
+        let own = inbox_channel(self.agent.id());
+        let mut found = Vec::new();
+        let _ = <crate::channel::Service as iceoryx2::service::Service>::list(
+            node.iceoryx_config(),
+            |d| {
+                let name = d.static_details.name().to_string();
+                if let Some(id) = name.strip_prefix(&prefix)
+                    && name != own
+                    && let Ok(id) = id.parse::<u32>()
+                {
+                    found.push(ModuleId(id));
+                }
+                iceoryx2::prelude::CallbackProgression::Continue
+            },
+        );
+        for id in found {
+            if self.to_modules.contains_key(&id) {
+                continue;
+            }
+            match node.slice_publisher::<ControlInfo>(&inbox_channel(id), MAX_MESSAGE_LEN) {
+                Ok(p) => {
+                    self.to_modules.insert(id, p);
+                }
+                Err(e) => tracing::debug!(module = %self.name, "peer {id}: {e}"),
+            }
+        }
+    }
+
+    fn dispatch(&mut self, node: &Node, mut out: Vec<Outgoing>, now: Duration) {
+        // A reply may make more messages due (e.g. a call closing once all providers
+        // answered); bounded rounds keep a misbehaving peer from looping us.
+        for _ in 0..4 {
+            if out.is_empty() {
+                break;
+            }
+            for o in out.drain(..) {
+                self.send(node, &o);
+            }
+            self.collect_events();
+            out = self.agent.tick(now);
+        }
+        for o in out {
+            self.send(node, &o);
+        }
+        self.collect_events();
+    }
+
+    fn send(&mut self, node: &Node, o: &Outgoing) {
+        tracing::trace!(module = %self.name, to = ?o.to, msg = ?o.envelope.body, "contract send");
+        let bytes = match contract::encode(&o.envelope) {
+            Ok(b) => b,
+            Err(e) => {
+                tracing::warn!(module = %self.name, "contract message not sent: {e}");
+                self.drops.record_error(&e);
+                return;
+            }
+        };
+        let result = match &o.to {
+            Destination::Module(id) => {
+                if !self.to_modules.contains_key(id) {
+                    match node.slice_publisher::<ControlInfo>(&inbox_channel(*id), MAX_MESSAGE_LEN)
+                    {
+                        Ok(p) => {
+                            self.to_modules.insert(*id, p);
+                        }
+                        Err(e) => {
+                            self.send_failed(&e);
+                            return;
+                        }
+                    }
+                }
+                match self.to_modules.get(id) {
+                    Some(p) => p.publish_copy(ControlInfo::default(), &bytes),
+                    None => return,
+                }
+            }
+            Destination::Providers(service) => {
+                if !self.to_services.contains_key(service) {
+                    match open_service_out(node, service) {
+                        Ok(s) => {
+                            self.to_services.insert(service.clone(), s);
+                        }
+                        Err(e) => {
+                            self.send_failed(&e);
+                            return;
+                        }
+                    }
+                }
+                match self.to_services.get(service) {
+                    Some(s) => {
+                        // Early close: the subscribers of the query channel are the
+                        // providers (this module excluded).
+                        let mut n = s.factory.dynamic_config().number_of_subscribers();
+                        if self
+                            .agent
+                            .config()
+                            .provides
+                            .iter()
+                            .any(|p| &p.service == service)
+                        {
+                            n = n.saturating_sub(1);
+                        }
+                        self.agent.set_provider_count(service, n);
+                        s.publisher.publish_copy(ControlInfo::default(), &bytes)
+                    }
+                    None => return,
+                }
+            }
+        };
+        if let Err(e) = result {
+            self.send_failed(&e);
+        }
+    }
+
+    fn send_failed(&mut self, e: &Error) {
+        self.send_failures += 1;
+        tracing::warn!(module = %self.name, "contract message not sent: {e}");
+    }
+
+    fn collect_events(&mut self) {
+        let events = self.agent.drain_events();
+        if events.is_empty() {
+            return;
+        }
+        self.changed = true;
+        // A loss followed by a selection for the same need is one change of provider.
+        for (k, ev) in events.iter().enumerate() {
+            match ev {
+                AgentEvent::Activated { .. } => self.pending.push(PlaneEvent::Activation(true)),
+                AgentEvent::Deactivated => self.pending.push(PlaneEvent::Activation(false)),
+                AgentEvent::ProviderSelected {
+                    need,
+                    provider,
+                    channel,
+                } => self.pending.push(PlaneEvent::Provider(
+                    *need,
+                    Some(ProviderInfo {
+                        module: *provider,
+                        channel: channel.clone(),
+                    }),
+                )),
+                AgentEvent::ProviderLost { need, .. } => {
+                    let reselected = events[k + 1..].iter().any(
+                        |e| matches!(e, AgentEvent::ProviderSelected { need: n, .. } if n == need),
+                    );
+                    if !reselected {
+                        self.pending.push(PlaneEvent::Provider(*need, None));
+                    }
+                }
+                _ => {}
+            }
+        }
+        self.pending.push(PlaneEvent::ContractsChanged);
+    }
+
+    /// The module is stopping: end every contract now and say so in the table.
+    pub(crate) fn shutdown(&mut self, node: &Node, now: Duration) {
+        let out = self.agent.shutdown(now);
+        for o in &out {
+            self.send(node, o);
+        }
+        let _ = self.agent.drain_events();
+        self.publish_table(now);
+    }
+
+    /// A driver's verdict on a command whose header is `header`, for service `service`.
+    pub(crate) fn command_verdict(
+        &mut self,
+        service: &str,
+        header: &Header,
+        now: Duration,
+    ) -> Verdict {
+        let holders: Vec<(ModuleId, Priority)> = self
+            .agent
+            .client_contracts()
+            .filter(|c| c.service == service)
+            .map(|c| (c.client, c.priority))
+            .collect();
+        let idx = match self.arbiters.iter().position(|(s, _)| s == service) {
+            Some(i) => i,
+            None => {
+                self.arbiters.push((
+                    service.to_string(),
+                    CommandArbiter::new(DEFAULT_COMMAND_FRESHNESS),
+                ));
+                self.arbiters.len() - 1
+            }
+        };
+        let arbiter = &mut self.arbiters[idx].1;
+        arbiter.sync(holders);
+        let v = arbiter.on_command(ModuleId(header.source), now);
+        if v == Verdict::Accept {
+            self.commands_accepted += 1;
+        }
+        v
+    }
+
+    /// Driver drops summed over the module's arbiters.
+    pub(crate) fn command_drops(&self) -> DropCounters {
+        let mut d = DropCounters::default();
+        for (_, a) in &self.arbiters {
+            d.merge(a.drops());
+        }
+        d
+    }
+
+    fn publish_table(&mut self, now: Duration) {
+        let mut t = ContractTable {
+            module_id: self.agent.id().0,
+            active: u8::from(self.agent.is_active()),
+            value: self.agent.value(now).map_or(f32::NAN, |v| v as f32),
+            ..Default::default()
+        };
+        t.set_module(&self.name);
+        if let Some(p) = self.agent.priority() {
+            t.set_priority(p.parts());
+        }
+        let own_value = t.value;
+        for c in self.agent.provider_contracts() {
+            let mut e = ContractEntry {
+                role: ContractRole::Client as u8,
+                peer: c.provider.0,
+                value: c.value as f32,
+                need: c.need,
+                ..Default::default()
+            };
+            if let Some(spec) = self.agent.needs().find(|n| n.rank == c.need) {
+                e.set_service(&spec.service);
+            }
+            e.set_channel(c.channel);
+            e.set_priority(c.priority.parts());
+            t.push(e);
+        }
+        for c in self.agent.client_contracts() {
+            let mut e = ContractEntry {
+                role: ContractRole::Provider as u8,
+                peer: c.client.0,
+                value: own_value,
+                need: c.need,
+                ..Default::default()
+            };
+            e.set_service(c.service);
+            if let Some(o) = self
+                .agent
+                .config()
+                .provides
+                .iter()
+                .find(|o| o.service == c.service)
+            {
+                e.set_channel(&o.channel_for(self.agent.id()));
+            }
+            e.set_priority(c.priority.parts());
+            t.push(e);
+        }
+        t.control_drops = self.drops.total() + self.send_failures;
+        t.protocol_drops = self.agent.drops().total();
+        let cd = self.command_drops();
+        t.commands_accepted = self.commands_accepted;
+        t.commands_preempted = cd.get(DropReason::Preempted);
+        t.commands_no_contract = cd.get(DropReason::NoContract);
+        if let Err(e) = self.table.publish(t) {
+            tracing::debug!(module = %self.name, "contract table: {e}");
+        }
+    }
+}
+
+fn open_service_out(node: &Node, service: &str) -> Result<ServiceOut, Error> {
+    let channel = service_channel(service);
+    let publisher = node.slice_publisher::<ControlInfo>(&channel, MAX_MESSAGE_LEN)?;
+    let name = ServiceName::new(&channel).map_err(|e| Error::InvalidChannelName {
+        channel: channel.clone(),
+        reason: format!("{e:?}"),
+    })?;
+    let factory = node
+        .iceoryx()
+        .service_builder(&name)
+        .publish_subscribe::<[u8]>()
+        .user_header::<ControlInfo>()
+        .open()
+        .map_err(|e| Error::Channel {
+            channel: channel.clone(),
+            op: "open",
+            detail: format!("{e:?}"),
+        })?;
+    Ok(ServiceOut { publisher, factory })
+}
+
+/// A consumer's input from whichever provider currently serves one of its needs.
+///
+/// Call [`ProviderInput::follow`] from [`crate::Module::on_provider_changed`]: it unsubscribes
+/// from the old provider's channel and subscribes to the new one's. [`ProviderInput::receive`]
+/// returns only samples published by the selected provider (by `header.source`), so two
+/// providers sharing a channel never mix.
+#[derive(Debug)]
+pub struct ProviderInput<T: Message> {
+    sub: Option<Subscriber<T>>,
+    provider: Option<ProviderInfo>,
+    deadline: Option<Duration>,
+    foreign: u64,
+}
+
+impl<T: Message> Default for ProviderInput<T> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl<T: Message> ProviderInput<T> {
+    /// An input following no provider yet.
+    pub fn new() -> Self {
+        ProviderInput {
+            sub: None,
+            provider: None,
+            deadline: None,
+            foreign: 0,
+        }
+    }
+
+    /// Watches the input with a deadline ([`crate::Module::on_deadline_missed`]).
+    #[must_use]
+    pub fn with_deadline(mut self, deadline: Duration) -> Self {
+        self.deadline = Some(deadline);
+        self
+    }
+
+    /// Follows `provider` (or none): (re)subscribes to its data channel when it changed.
+    ///
+    /// # Errors
+    /// The channel cannot be opened (e.g. its type is not `T`: [`Error::TypeMismatch`]).
+    pub fn follow(
+        &mut self,
+        ctx: &mut crate::Context,
+        provider: Option<&ProviderInfo>,
+    ) -> Result<(), Error> {
+        let same_channel = match (&self.provider, provider) {
+            (Some(a), Some(b)) => a.channel == b.channel && self.sub.is_some(),
+            _ => false,
+        };
+        self.provider = provider.cloned();
+        if same_channel {
+            return Ok(());
+        }
+        if let Some(old) = self.sub.take() {
+            ctx.unsubscribe(old.id())?;
+        }
+        if let Some(p) = provider
+            && !p.channel.is_empty()
+        {
+            self.sub = Some(ctx.subscribe::<T>(&p.channel, self.deadline)?);
+        }
+        Ok(())
+    }
+
+    /// The provider followed.
+    pub fn provider(&self) -> Option<&ProviderInfo> {
+        self.provider.as_ref()
+    }
+
+    /// True when `input` is this input's subscriber.
+    pub fn is(&self, input: InputId) -> bool {
+        self.sub.as_ref().is_some_and(|s| s.id() == input)
+    }
+
+    /// The next sample from the selected provider; samples of other publishers on the same
+    /// channel are skipped (and counted, [`ProviderInput::foreign`]).
+    ///
+    /// # Errors
+    /// The channel failed.
+    pub fn receive(&mut self) -> Result<Option<Sample<T>>, Error> {
+        let (Some(sub), Some(p)) = (&self.sub, &self.provider) else {
+            return Ok(None);
+        };
+        while let Some(s) = sub.receive()? {
+            if s.header().source == p.module.0 {
+                return Ok(Some(s));
+            }
+            self.foreign += 1;
+        }
+        Ok(None)
+    }
+
+    /// Samples skipped because another module published them.
+    pub fn foreign(&self) -> u64 {
+        self.foreign
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn control_channel_names_are_distinct_and_valid() {
+        assert_eq!(inbox_channel(ModuleId(7)), "hng/ctl/m7");
+        assert_eq!(
+            service_channel("Robot control"),
+            "hng/ctl/svc/Robot%20control"
+        );
+        assert_ne!(service_channel("a b"), service_channel("a_b"));
+        assert_ne!(service_channel("a/b"), service_channel("a%2Fb"));
+        for s in ["LIDAR data", "Localization", "é/ü %"] {
+            assert!(ServiceName::new(&service_channel(s)).is_ok(), "{s}");
+        }
+    }
+
+    #[test]
+    fn control_tick_period_is_bounded() {
+        let mut t = Timing::default();
+        assert_eq!(tick_period(&t), Duration::from_millis(10));
+        t.reply_window = Duration::from_millis(2);
+        assert_eq!(tick_period(&t), Duration::from_millis(1));
+    }
+}

@@ -1,0 +1,253 @@
+//! `hng bench loop`: latency of the control loop across processes.
+//!
+//! Case `lidar_to_command`: this process publishes a lidar scan; the Security module (its own
+//! process, `hng module security`) decides a safe command from it and the desired command of
+//! a client; the Robot module (`hng module robot`) obeys Security (its most important client)
+//! and forwards the command to its output channel, which this process subscribes to. Measured:
+//! from just before the scan is published to the receipt of the forwarded command, i.e. two
+//! process hops and both modules' work. Scans alternate between a wall far ahead (command
+//! passed through) and a wall close ahead (command slowed), and every answer is checked to be
+//! the one for its scan.
+
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context as _, Result, bail};
+use clap::Args;
+use hng_runtime::msg::{LaserScan, Twist};
+use hng_runtime::shm;
+use hng_runtime::stats::{BenchRow, Percentiles};
+use hng_runtime::wait::{WaitMode, Waiter};
+use hng_runtime::{Node, NodeOptions};
+
+/// Arguments of `hng bench loop`.
+#[derive(Debug, Clone, Args)]
+pub struct LoopArgs {
+    /// Loops measured (fewer if --max-seconds runs out first).
+    #[arg(long, default_value_t = 10_000)]
+    pub samples: usize,
+    /// Time limit, seconds.
+    #[arg(long, default_value_t = 5.0)]
+    pub max_seconds: f64,
+    /// Wait mode of all three processes: `blocking`, `blocking:<µs spin>` or `spin`.
+    #[arg(long, default_value = "blocking")]
+    pub wait: String,
+    /// One JSON object per case.
+    #[arg(long)]
+    pub json: bool,
+}
+
+const SCAN: &str = "bench/scan";
+const TELEOP: &str = "bench/teleop";
+const SECURITY: &str = "bench/security_cmd";
+const OUT: &str = "bench/robot_cmd";
+const DESIRED_V: f64 = 1.0;
+
+/// A 360-beam scan of a wall perpendicular to the heading at `wall` metres.
+fn wall_scan(wall: f64) -> LaserScan {
+    let mut s = LaserScan {
+        angle_min: -std::f32::consts::PI,
+        angle_increment: std::f32::consts::PI / 180.0,
+        range_min: 0.05,
+        range_max: 10.0,
+        scan_time: 0.1,
+        count: 360,
+        ..Default::default()
+    };
+    for (i, r) in s.ranges.iter_mut().take(360).enumerate() {
+        let a = -std::f64::consts::PI + i as f64 * std::f64::consts::PI / 180.0;
+        *r = if a.cos() > 1e-6 && wall / a.cos() < 10.0 {
+            (wall / a.cos()) as f32
+        } else {
+            f32::INFINITY
+        };
+    }
+    s
+}
+
+/// The module processes of the loop; killed and cleaned up on drop.
+struct Modules {
+    children: Vec<Child>,
+    prefix: String,
+}
+
+impl Modules {
+    fn spawn(&mut self, name: &str, config: &str, wait: &str) -> Result<()> {
+        let exe = std::env::current_exe().context("locating the hng executable")?;
+        let child = Command::new(exe)
+            .args(["module", name])
+            .env("HNG_PREFIX", &self.prefix)
+            .env("HNG_MODULE_NAME", format!("bench-{name}"))
+            .env("HNG_MODULE_CONFIG", config)
+            .env("HNG_WAIT", wait)
+            .env("HNG_CLOCK", "wall")
+            .env_remove("HNG_CHECKPOINT_DIR")
+            .env(
+                "HNG_LOG",
+                std::env::var("HNG_LOG").unwrap_or_else(|_| "warn".into()),
+            )
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .spawn()
+            .with_context(|| format!("starting `hng module {name}`"))?;
+        self.children.push(child);
+        Ok(())
+    }
+
+    fn check_alive(&mut self) -> Result<()> {
+        for c in &mut self.children {
+            if let Some(status) = c.try_wait()? {
+                bail!("a module of the loop exited early: {status}");
+            }
+        }
+        Ok(())
+    }
+}
+
+impl Drop for Modules {
+    fn drop(&mut self) {
+        for c in &self.children {
+            let _ = nix::sys::signal::kill(
+                nix::unistd::Pid::from_raw(c.id() as i32),
+                nix::sys::signal::Signal::SIGTERM,
+            );
+        }
+        for c in &mut self.children {
+            let deadline = Instant::now() + Duration::from_secs(5);
+            loop {
+                match c.try_wait() {
+                    Ok(Some(_)) => break,
+                    Ok(None) if Instant::now() < deadline => {
+                        // Waiting for a process to exit: poll its status every millisecond.
+                        std::thread::sleep(Duration::from_millis(1));
+                    }
+                    _ => {
+                        let _ = c.kill();
+                        let _ = c.wait();
+                        break;
+                    }
+                }
+            }
+        }
+        shm::remove_prefix_files(&self.prefix);
+    }
+}
+
+/// Runs the `lidar_to_command` case; returns its row.
+pub fn lidar_to_command(a: &LoopArgs) -> Result<BenchRow> {
+    let mode = WaitMode::parse(&a.wait).context("--wait")?;
+    let prefix = shm::unique_prefix("loop");
+    let mut modules = Modules {
+        children: Vec::new(),
+        prefix: prefix.clone(),
+    };
+    let node = Node::new(NodeOptions::new("bench-loop").prefix(&prefix))?;
+    let scan_pub = node.publisher::<LaserScan>(SCAN)?;
+    let teleop = node.publisher::<Twist>(TELEOP)?;
+    let out = node.subscriber::<Twist>(OUT)?;
+    let mut waiter = Waiter::new(mode)?;
+    waiter.attach(&out)?;
+
+    // Freshness and timeouts far beyond the run: the loop is measured, not the fail-safes.
+    let forever = 1.0e6;
+    modules.spawn(
+        "security",
+        &format!(
+            "scan = \"{SCAN}\"\ncmd_out = \"{SECURITY}\"\nfreshness_s = {forever}\n\
+             scan_timeout_s = {forever}\n\
+             sources = [{{ channel = \"{TELEOP}\", priority = \"2.1\" }}]\n"
+        ),
+        &a.wait,
+    )?;
+    modules.spawn(
+        "robot",
+        &format!(
+            "cmd_out = \"{OUT}\"\nodom_in = \"bench/odom\"\nodom_out = \"bench/odom_out\"\n\
+             odom_timeout_s = {forever}\nfreshness_s = {forever}\n\
+             sources = [{{ channel = \"{SECURITY}\", priority = \"1.1\" }}]\n"
+        ),
+        &a.wait,
+    )?;
+
+    let far = wall_scan(5.0);
+    let near = wall_scan(0.6);
+    let desired = Twist {
+        linear_x: DESIRED_V,
+        ..Default::default()
+    };
+    // Warm-up: the modules subscribe when they start; repeat until a command comes through
+    // the whole loop.
+    let start = Instant::now();
+    loop {
+        modules.check_alive()?;
+        if start.elapsed() > Duration::from_secs(20) {
+            bail!("no command came through the loop within 20 s");
+        }
+        teleop.publish(desired)?;
+        scan_pub.publish(far)?;
+        waiter.wait(Some(Duration::from_millis(20)))?;
+        if out.receive()?.is_some() {
+            break;
+        }
+    }
+    // Let the start-up traffic settle, then drain it.
+    let settle = Instant::now();
+    while settle.elapsed() < Duration::from_millis(200) {
+        waiter.wait(Some(Duration::from_millis(20)))?;
+        while out.receive()?.is_some() {}
+    }
+
+    let mut samples = Vec::with_capacity(a.samples);
+    let limit = Duration::from_secs_f64(a.max_seconds.max(0.1));
+    let begin = Instant::now();
+    let mut limited = 0u64;
+    for i in 0..a.samples {
+        if begin.elapsed() > limit {
+            break;
+        }
+        let is_near = i % 2 == 1;
+        let scan = if is_near { &near } else { &far };
+        let t0 = Instant::now();
+        scan_pub.publish(*scan)?;
+        let cmd = loop {
+            if let Some(c) = out.receive()? {
+                break *c;
+            }
+            let left = Duration::from_secs(5).saturating_sub(t0.elapsed());
+            if left.is_zero() {
+                modules.check_alive()?;
+                bail!("no command for scan {i} within 5 s");
+            }
+            waiter.wait(Some(left))?;
+        };
+        let dt = t0.elapsed();
+        let slowed = cmd.linear_x < DESIRED_V - 1e-9;
+        if slowed != is_near {
+            bail!(
+                "loop {i}: command {} m/s does not answer a {} wall",
+                cmd.linear_x,
+                if is_near { "near" } else { "far" }
+            );
+        }
+        limited += u64::from(slowed);
+        samples.push(dt.as_nanos() as u64);
+    }
+    let p = Percentiles::of(&mut samples);
+    let mean_ns = if samples.is_empty() {
+        0
+    } else {
+        samples.iter().sum::<u64>() / samples.len() as u64
+    };
+    Ok(BenchRow::new("loop", "lidar_to_command", p)
+        .with("mean_ns", mean_ns)
+        .with("wait", a.wait.clone())
+        .with("processes", 3)
+        .with("hops", 2)
+        .with("limited_commands", limited))
+}
+
+pub fn run(a: &LoopArgs) -> Result<()> {
+    let row = lidar_to_command(a)?;
+    super::print_rows(&[row], a.json);
+    Ok(())
+}

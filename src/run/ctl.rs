@@ -1,0 +1,194 @@
+//! `hng ps`, `hng kill`, `hng restart`, `hng start`, `hng stop`: talk to the supervisor of a
+//! running system through its status document and command channel.
+
+use std::str::FromStr;
+use std::time::Duration;
+
+use anyhow::{Context as _, Result, bail};
+use hng_runtime::system::{CommandOp, SUPERVISOR_COMMAND, SupervisorCommand};
+use hng_watchdog::Signal;
+
+use super::status::{StatusDoc, StatusReader};
+
+/// How long a tool waits for the supervisor's status (it is published at least twice a second).
+const ANSWER_TIMEOUT: Duration = Duration::from_secs(3);
+
+/// `hng ps [--json]`.
+pub fn ps(prefix: &str, json: bool) -> Result<()> {
+    let mut reader = StatusReader::open(prefix, "hng-ps")?;
+    let doc = reader.current(ANSWER_TIMEOUT)?;
+    if json {
+        println!("{}", serde_json::to_string(&doc)?);
+        return Ok(());
+    }
+    println!(
+        "system {} (prefix {}, supervisor pid {}, up {}){}",
+        doc.system,
+        doc.prefix,
+        doc.supervisor_pid,
+        human_ms(doc.uptime_ms),
+        if doc.shutting_down { ", stopping" } else { "" }
+    );
+    println!(
+        "{:<16} {:<12} {:>8} {:>9} {:>8}  LAST EXIT",
+        "MODULE", "STATE", "PID", "UPTIME", "RESTARTS"
+    );
+    for m in &doc.modules {
+        let state = match m.restart_in_ms {
+            Some(t) if m.state == "backing-off" => format!("backing-off ({})", human_ms(t)),
+            _ => m.state.clone(),
+        };
+        println!(
+            "{:<16} {:<12} {:>8} {:>9} {:>8}  {}",
+            format!("{}{}", m.name, if m.manager { "*" } else { "" }),
+            state,
+            m.pid.map_or_else(|| "-".to_owned(), |p| p.to_string()),
+            m.uptime_ms.map_or_else(|| "-".to_owned(), human_ms),
+            m.restarts,
+            m.last_exit_text.as_deref().unwrap_or("-"),
+        );
+    }
+    Ok(())
+}
+
+fn human_ms(ms: f64) -> String {
+    if ms < 1e3 {
+        format!("{ms:.0}ms")
+    } else if ms < 120e3 {
+        format!("{:.1}s", ms / 1e3)
+    } else if ms < 7200e3 {
+        format!("{:.0}m", ms / 60e3)
+    } else {
+        format!("{:.1}h", ms / 3600e3)
+    }
+}
+
+/// Parses a signal given as a name (`KILL`, `SIGKILL`, `segv`) or a number (`9`).
+pub fn parse_signal(s: &str) -> Result<Signal> {
+    let t = s.trim();
+    if let Ok(n) = t.parse::<i32>() {
+        return Signal::try_from(n).map_err(|_| anyhow::anyhow!("{n} is not a signal number"));
+    }
+    let upper = t.to_ascii_uppercase();
+    let name = if upper.starts_with("SIG") {
+        upper
+    } else {
+        format!("SIG{upper}")
+    };
+    Signal::from_str(&name).map_err(|_| {
+        anyhow::anyhow!(
+            "{s:?} is not a signal: give a name such as KILL, TERM, SEGV, STOP or a number"
+        )
+    })
+}
+
+/// Sends one command and waits for the supervisor's acknowledgement; returns the document
+/// that acknowledges it.
+fn command(prefix: &str, cmd: SupervisorCommand, tool: &str) -> Result<StatusDoc> {
+    let mut reader = StatusReader::open(prefix, tool)?;
+    let before = reader.current(ANSWER_TIMEOUT)?;
+    let module = cmd.module();
+    if cmd.op() != Some(CommandOp::Shutdown) && before.module(module).is_none() {
+        bail!(
+            "no module {module:?} in system {:?} (prefix {prefix:?}); its modules: {}",
+            before.system,
+            before.names()
+        );
+    }
+    let publisher = reader
+        .node()
+        .publisher::<SupervisorCommand>(SUPERVISOR_COMMAND)
+        .context("opening the supervisor's command channel")?;
+    publisher.update_connections();
+    publisher
+        .publish(cmd)
+        .context("sending the command to the supervisor")?;
+    let seen = before.commands;
+    let doc = reader
+        .next_where(ANSWER_TIMEOUT, |d| d.commands > seen)
+        .context("the supervisor did not acknowledge the command")?;
+    if let Some(r) = &doc.last_command
+        && let Some(e) = &r.error
+    {
+        bail!("the supervisor refused {} {}: {e}", r.op, r.module);
+    }
+    Ok(doc)
+}
+
+/// `hng kill MODULE [--signal SIG]`.
+pub fn kill(prefix: &str, module: &str, signal: &str) -> Result<()> {
+    let sig = parse_signal(signal)?;
+    let mut cmd = SupervisorCommand::new(CommandOp::Kill, module);
+    cmd.signal = sig as i32;
+    let doc = command(prefix, cmd, "hng-kill")?;
+    let pid = doc.module(module).and_then(|m| m.pid);
+    println!(
+        "sent {} to {module}{}",
+        sig.as_str(),
+        pid.map(|p| format!(" (pid {p})")).unwrap_or_default()
+    );
+    Ok(())
+}
+
+/// `hng restart MODULE`.
+pub fn restart(prefix: &str, module: &str) -> Result<()> {
+    command(
+        prefix,
+        SupervisorCommand::new(CommandOp::Restart, module),
+        "hng-restart",
+    )?;
+    println!("restarting {module}");
+    Ok(())
+}
+
+/// `hng start MODULE`.
+pub fn start(prefix: &str, module: &str) -> Result<()> {
+    command(
+        prefix,
+        SupervisorCommand::new(CommandOp::Start, module),
+        "hng-start",
+    )?;
+    println!("starting {module}");
+    Ok(())
+}
+
+/// `hng stop [MODULE]`: one module, or the whole system.
+pub fn stop(prefix: &str, module: Option<&str>) -> Result<()> {
+    match module {
+        Some(m) => {
+            command(
+                prefix,
+                SupervisorCommand::new(CommandOp::Stop, m),
+                "hng-stop",
+            )?;
+            println!("stopping {m}");
+        }
+        None => {
+            let doc = command(
+                prefix,
+                SupervisorCommand::new(CommandOp::Shutdown, ""),
+                "hng-stop",
+            )?;
+            println!(
+                "stopping system {} (supervisor pid {})",
+                doc.system, doc.supervisor_pid
+            );
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn signals_by_name_or_number() {
+        assert_eq!(parse_signal("KILL").ok(), Some(Signal::SIGKILL));
+        assert_eq!(parse_signal("sigsegv").ok(), Some(Signal::SIGSEGV));
+        assert_eq!(parse_signal("STOP").ok(), Some(Signal::SIGSTOP));
+        assert_eq!(parse_signal("9").ok(), Some(Signal::SIGKILL));
+        assert!(parse_signal("NOPE").is_err());
+        assert!(parse_signal("999").is_err());
+    }
+}

@@ -1,0 +1,134 @@
+//! `hng eval planner|slam`: the real binary on the shared data sets (skipped with a message
+//! when `../shared/data` is absent), and its error messages on bad input.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn data(rel: &str) -> Option<PathBuf> {
+    let p = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared/data")
+        .join(rel);
+    if p.exists() {
+        Some(p)
+    } else {
+        eprintln!("skipped: {} is missing", p.display());
+        None
+    }
+}
+
+fn hng(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_hng"))
+        .args(args)
+        .env("HNG_LOG", "warn")
+        .output()
+        .expect("run hng")
+}
+
+fn json(out: &Output) -> serde_json::Value {
+    assert!(
+        out.status.success(),
+        "hng failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).expect("one JSON object")
+}
+
+fn f(v: &serde_json::Value, k: &str) -> f64 {
+    v[k].as_f64()
+        .unwrap_or_else(|| panic!("field {k} missing in {v}"))
+}
+
+/// A scratch directory removed on drop.
+struct Scratch(PathBuf);
+
+impl Scratch {
+    fn new(tag: &str) -> Scratch {
+        let d = std::env::temp_dir().join(format!("hng-eval-{tag}-{}", std::process::id()));
+        std::fs::create_dir_all(&d).expect("scratch dir");
+        Scratch(d)
+    }
+}
+
+impl Drop for Scratch {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+#[test]
+fn eval_planner_finds_every_optimal_length_on_arena() {
+    let (Some(map), Some(scen)) = (data("movingai/arena.map"), data("movingai/arena.map.scen"))
+    else {
+        return;
+    };
+    let (map, scen) = (map.to_string_lossy(), scen.to_string_lossy());
+    let v = json(&hng(&["eval", "planner", &map, &scen, "--json"]));
+    assert_eq!(v["problems"], 160, "{v}");
+    assert_eq!(v["mismatches"], 0, "{v}");
+    assert!(f(&v, "mean_us") > 0.0);
+    let text = hng(&["eval", "planner", &map, &scen]);
+    let text = String::from_utf8_lossy(&text.stdout);
+    assert!(
+        text.lines()
+            .any(|l| l.starts_with("mismatches") && l.ends_with(" 0")),
+        "{text}"
+    );
+}
+
+#[test]
+fn eval_planner_errors_name_file_line_and_field() {
+    let Some(map) = data("movingai/arena.map") else {
+        return;
+    };
+    let dir = Scratch::new("badscen");
+    let scen = dir.0.join("bad.scen");
+    std::fs::write(
+        &scen,
+        "version 1\n0\tarena.map\t49\t49\t1\t11\t1\t12\t1\n0\tarena.map\t49\t49\t1\tx\t1\t12\t1\n",
+    )
+    .expect("write scen");
+    let out = hng(&[
+        "eval",
+        "planner",
+        &map.to_string_lossy(),
+        &scen.to_string_lossy(),
+        "--json",
+    ]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("bad.scen:3"), "names the line: {err}");
+    assert!(err.contains("field"), "names the field: {err}");
+    let out = hng(&["eval", "slam", "/nonexistent/log.clf", "--json"]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("/nonexistent/log.clf"));
+}
+
+#[test]
+fn eval_slam_on_the_intel_log_matches_scans_and_writes_the_map() {
+    let Some(log) = data("carmen/intel-corrected.log") else {
+        return;
+    };
+    let dir = Scratch::new("slam");
+    let yaml = dir.0.join("intel.yaml");
+    let v = json(&hng(&[
+        "eval",
+        "slam",
+        &log.to_string_lossy(),
+        "--json",
+        "--map",
+        &yaml.to_string_lossy(),
+    ]));
+    assert_eq!(v["scans"], 910, "{v}");
+    // The aim: under 5 cm and 1 degree between consecutive scans.
+    assert!(f(&v, "trans_err_mean_m") < 0.05, "{v}");
+    assert!(f(&v, "rot_err_mean_deg") < 1.0, "{v}");
+    assert!(f(&v, "trans_err_p95_m") >= f(&v, "trans_err_mean_m") * 0.5);
+    assert!(f(&v, "rot_err_p95_deg") > 0.0);
+    let y = std::fs::read_to_string(&yaml).expect("map yaml written");
+    assert!(
+        y.contains("image: intel.pgm") && y.contains("resolution"),
+        "{y}"
+    );
+    let pgm = std::fs::read(dir.0.join("intel.pgm")).expect("map pgm written");
+    assert!(pgm.starts_with(b"P5"));
+}

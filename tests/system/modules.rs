@@ -1,0 +1,213 @@
+//! The HNG v1.0 modules as real processes: Security stops a teleoperated robot before a wall.
+//!
+//! `hng module simulator` (a 4.5 m room, the robot 3.3 m from the east wall facing it) +
+//! `robot` + `laser` + `security`, all on the simulation clock, under a unique prefix. The test
+//! plays a teleoperator pushing full speed (1 m/s) straight at the wall on `teleop/cmd_vel`,
+//! one command per ground-truth sample (the simulated time paces it, no sleeps), and checks on
+//! the ground truth and the simulator's own counters that the robot drove towards the wall,
+//! stopped short of it and never touched it.
+
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use hng_runtime::msg::{PoseWithCovariance, Twist};
+use hng_runtime::wait::{WaitMode, Waiter};
+use hng_runtime::{Node, NodeOptions};
+use hng_simulator::SimStatus;
+
+use crate::common::TestSystem;
+
+const WORLD: &str = r#"
+name = "wall-ahead"
+seed = 11
+dt = 0.01
+
+[robot]
+start = { x = 1.0, y = 1.5, theta = 0.0 }
+radius = 0.2
+max_linear_speed = 1.0
+max_linear_accel = 2.0
+cmd_timeout = 0.5
+
+[[walls]]
+from = [0.0, 0.0]
+to = [4.5, 0.0]
+
+[[walls]]
+from = [4.5, 0.0]
+to = [4.5, 3.0]
+
+[[walls]]
+from = [4.5, 3.0]
+to = [0.0, 3.0]
+
+[[walls]]
+from = [0.0, 3.0]
+to = [0.0, 0.0]
+
+[sensors.gps]
+enabled = false
+
+[sensors.camera]
+enabled = false
+"#;
+
+/// East wall face: wall line x = 4.5 minus half its 5 cm thickness.
+const WALL_FACE_X: f64 = 4.475;
+const RADIUS: f64 = 0.2;
+
+/// Module processes of one test; killed on drop, before the prefix is cleaned.
+struct Procs {
+    children: Vec<Child>,
+    sys: TestSystem,
+    dir: std::path::PathBuf,
+}
+
+impl Procs {
+    fn spawn(&mut self, module: &str, config: &str, sim_clock: bool) {
+        let mut cmd = Command::new(env!("CARGO_BIN_EXE_hng"));
+        cmd.args(["module", module])
+            .env("HNG_PREFIX", &self.sys.prefix)
+            .env("HNG_MODULE_NAME", module)
+            .env("HNG_MODULE_CONFIG", config)
+            .env("HNG_LOG", "warn")
+            .env_remove("HNG_CHECKPOINT_DIR")
+            // Four processes on two shared cores: sleep rather than spin between inputs.
+            .env("HNG_WAIT", "blocking:0")
+            .stdin(Stdio::null());
+        if sim_clock {
+            cmd.env("HNG_CLOCK", "sim");
+        } else {
+            cmd.env_remove("HNG_CLOCK");
+        }
+        self.children
+            .push(cmd.spawn().expect("spawn an hng module"));
+    }
+
+    fn stop_all(&mut self) {
+        for c in &self.children {
+            let _ = nix::sys::signal::kill(
+                nix::unistd::Pid::from_raw(c.id() as i32),
+                nix::sys::signal::Signal::SIGTERM,
+            );
+        }
+        for mut c in self.children.drain(..) {
+            let deadline = Instant::now() + Duration::from_secs(10);
+            loop {
+                match c.try_wait() {
+                    Ok(Some(status)) => {
+                        assert!(status.success(), "a module exited with {status}");
+                        break;
+                    }
+                    Ok(None) if Instant::now() < deadline => {
+                        // Waiting for a process to exit: poll its status every millisecond.
+                        std::thread::sleep(Duration::from_millis(1));
+                    }
+                    _ => {
+                        let _ = c.kill();
+                        let _ = c.wait();
+                        panic!("a module did not stop on SIGTERM");
+                    }
+                }
+            }
+        }
+    }
+}
+
+impl Drop for Procs {
+    fn drop(&mut self) {
+        for c in &mut self.children {
+            let _ = c.kill();
+            let _ = c.wait();
+        }
+        let _ = std::fs::remove_dir_all(&self.dir);
+    }
+}
+
+#[test]
+fn security_stops_a_robot_teleoperated_straight_at_a_wall() {
+    let sys = TestSystem::new("secwall");
+    let dir = std::env::temp_dir().join(format!("{}world", sys.prefix));
+    std::fs::create_dir_all(&dir).expect("world dir");
+    let world = dir.join("wall.toml");
+    std::fs::write(&world, WORLD).expect("write world");
+    let mut p = Procs {
+        children: Vec::new(),
+        sys,
+        dir,
+    };
+    let node = Node::new(NodeOptions::new("teleop").prefix(&p.sys.prefix)).expect("node");
+    let teleop = node.publisher::<Twist>("teleop/cmd_vel").expect("teleop");
+    let truth = node
+        .subscriber::<PoseWithCovariance>("sim/ground_truth")
+        .expect("ground truth");
+    let status = node.subscriber::<SimStatus>("sim/status").expect("status");
+    let mut waiter = Waiter::new(WaitMode::default()).expect("waiter");
+    waiter.attach(&truth).expect("attach");
+
+    p.spawn("robot", "", true);
+    p.spawn("laser", "", true);
+    p.spawn("security", "", true);
+    p.spawn(
+        "simulator",
+        &format!("world = {:?}\nspeed = 2\n", world.to_string_lossy()),
+        false,
+    );
+
+    let push = Twist {
+        linear_x: 1.0,
+        ..Default::default()
+    };
+    let end_ns = 7_000_000_000u64; // 7 s of simulated time: 3.3 m at 1 m/s, then standing
+    let deadline = Instant::now() + Duration::from_secs(90);
+    let (mut x, mut max_x, mut t_ns) = (1.0_f64, 1.0_f64, 0u64);
+    let mut x_at_6s = None;
+    while t_ns < end_ns {
+        assert!(
+            Instant::now() < deadline,
+            "simulation too slow: at {t_ns} ns"
+        );
+        waiter
+            .wait(Some(Duration::from_secs(5)))
+            .expect("wait for ground truth");
+        while let Some(g) = truth.receive().expect("receive") {
+            x = g.pose.x;
+            max_x = max_x.max(x);
+            t_ns = g.header.stamp_ns;
+            assert!(
+                (g.pose.y - 1.5).abs() < 0.2,
+                "the robot drove straight: {:?}",
+                g.pose
+            );
+            if x_at_6s.is_none() && t_ns >= 6_000_000_000 {
+                x_at_6s = Some(x);
+            }
+            teleop.publish(push).expect("teleop");
+        }
+    }
+    let s = *status.latest().expect("status").expect("a status sample");
+    p.stop_all();
+
+    let gap = WALL_FACE_X - x - RADIUS;
+    eprintln!(
+        "robot stopped at x = {x:.3} m, gap to the wall {gap:.3} m, min clearance {:.3} m",
+        s.min_clearance
+    );
+    assert!(
+        max_x > 3.5,
+        "the robot drove towards the wall (max x {max_x})"
+    );
+    assert!(gap > 0.0, "the robot stopped before contact: gap {gap} m");
+    assert!(
+        gap < 0.6,
+        "it was stopped by Security, not far away: gap {gap} m"
+    );
+    let x6 = x_at_6s.expect("passed 6 s");
+    assert!(
+        (x - x6).abs() < 0.05,
+        "held while still pushed: {x6} -> {x}"
+    );
+    assert_eq!(s.collisions, 0, "no collision: {s:?}");
+    assert!(s.min_clearance > 0.0, "never touched: {s:?}");
+    assert!(s.accepted_commands > 0);
+}

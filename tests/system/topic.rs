@@ -1,0 +1,110 @@
+//! `hng topic list | echo | hz` against a running module.
+
+use std::process::Command;
+use std::time::Duration;
+
+use hng_runtime::msg::Goal;
+use hng_runtime::wait::{WaitMode, Waiter};
+use hng_runtime::{Node, NodeOptions};
+
+use crate::common::TestSystem;
+
+fn hng(prefix: &str, args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_hng"))
+        .args(args)
+        .env("HNG_PREFIX", prefix)
+        .env("HNG_LOG", "warn")
+        .output()
+        .expect("run hng")
+}
+
+/// Starts the counter fixture and waits until its first message is out.
+fn running_counter(sys: &mut TestSystem) {
+    let node = Node::new(NodeOptions::new("topic-test").prefix(&sys.prefix)).expect("node");
+    let sub = node.subscriber::<Goal>("test/count").expect("subscriber");
+    let mut waiter = Waiter::new(WaitMode::default()).expect("waiter");
+    waiter.attach(&sub).expect("attach");
+    sys.spawn_testmod("counter", "counter", "period_ms = 10");
+    while sub.receive().expect("receive").is_none() {
+        waiter.wait(Some(Duration::from_secs(10))).expect("wait");
+        assert!(waiter.any_ready(), "the counter never published");
+    }
+}
+
+#[test]
+fn topic_list_echo_and_hz_see_a_running_channel() {
+    let mut sys = TestSystem::new("topic");
+    running_counter(&mut sys);
+
+    let out = hng(&sys.prefix, &["topic", "list", "--json"]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let list = String::from_utf8_lossy(&out.stdout);
+    let count: serde_json::Value = list
+        .lines()
+        .map(|l| serde_json::from_str::<serde_json::Value>(l).expect("one JSON object per line"))
+        .find(|v| v["name"] == "test/count")
+        .expect("test/count is listed");
+    assert_eq!(count["type"], "hng/Goal/v1");
+    assert!(
+        list.contains("hng/report"),
+        "the report channel is listed too"
+    );
+
+    let out = hng(
+        &sys.prefix,
+        &["topic", "echo", "test/count", "--count", "3", "--json"],
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let ids: Vec<u64> = String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .map(|l| {
+            let v: serde_json::Value = serde_json::from_str(l).expect("json");
+            v["id"].as_u64().expect("id")
+        })
+        .collect();
+    assert!(ids.len() >= 3, "{ids:?}");
+    assert!(
+        ids.windows(2).all(|w| w[1] > w[0]),
+        "counts increase: {ids:?}"
+    );
+
+    let out = hng(
+        &sys.prefix,
+        &[
+            "topic",
+            "hz",
+            "test/count",
+            "--window",
+            "0.3",
+            "--count",
+            "1",
+            "--json",
+        ],
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value =
+        serde_json::from_str(String::from_utf8_lossy(&out.stdout).trim()).expect("json");
+    assert_eq!(v["channel"], "test/count");
+    assert!(v["messages"].as_u64().expect("messages") > 0);
+    assert!(v["rate_hz"].as_f64().expect("rate") > 0.0);
+
+    let out = hng(
+        &sys.prefix,
+        &["topic", "echo", "no/such/channel", "--count", "1"],
+    );
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("no/such/channel"));
+    assert!(sys.stop_all().iter().all(|s| s.success()));
+}
