@@ -470,7 +470,6 @@ impl Node {
             last_seq: RefCell::new(Vec::new()),
             stats: Cell::new(ChannelStats::default()),
             counters: self.counters.clone(),
-            last_rx_ns: Cell::new(None),
         }))
     }
 }
@@ -545,11 +544,10 @@ pub(crate) struct Inlet {
     last_seq: RefCell<Vec<(u32, u64)>>,
     stats: Cell<ChannelStats>,
     counters: Rc<Counters>,
-    pub(crate) last_rx_ns: Cell<Option<u64>>,
 }
 
 impl Inlet {
-    fn account(&self, h: &Header, now_ns: u64) {
+    fn account(&self, h: &Header) {
         let mut stats = self.stats.get();
         stats.received += 1;
         Counters::add(&self.counters.msgs_in, 1);
@@ -568,7 +566,6 @@ impl Inlet {
             None => seqs.push((h.source, h.seq)),
         }
         self.stats.set(stats);
-        self.last_rx_ns.set(Some(now_ns));
     }
 
     /// Consumes pending event notifications without blocking.
@@ -734,8 +731,7 @@ impl<T: Message> Subscriber<T> {
         };
         match port.receive() {
             Ok(Some(inner)) => {
-                self.inlet
-                    .account(inner.payload().header(), monotonic_or_clock());
+                self.inlet.account(inner.payload().header());
                 Ok(Some(Sample { inner }))
             }
             Ok(None) => Ok(None),
@@ -773,10 +769,6 @@ impl<T: Message> Subscriber<T> {
             inlet: self.inlet.clone(),
         })
     }
-}
-
-fn monotonic_or_clock() -> u64 {
-    crate::clock::monotonic_ns()
 }
 
 struct ErasedInput<T: Message, H: SliceMessage> {
@@ -964,8 +956,7 @@ impl<H: SliceMessage> SliceSubscriber<H> {
         };
         match port.receive() {
             Ok(Some(inner)) => {
-                self.inlet
-                    .account(inner.user_header().header(), monotonic_or_clock());
+                self.inlet.account(inner.user_header().header());
                 Ok(Some(SliceSample { inner }))
             }
             Ok(None) => Ok(None),

@@ -4,19 +4,23 @@
 //! publisher only needs to pay it when a subscriber actually sleeps: a subscriber that spins,
 //! or that is busy, sees new samples by itself. Each channel therefore has a tiny shared
 //! segment holding the number of subscribers about to block. The protocol is the classic
-//! futex one, with sequentially consistent fences on both sides:
+//! futex one:
 //!
-//! - subscriber: `waiters += 1`; fence; check for samples; block (with a timeout); `waiters -= 1`
-//! - publisher: write and send the sample; fence; `if waiters > 0 { notify }`
+//! - subscriber: `waiters.fetch_add(1)`; check for samples; block (with a timeout);
+//!   `waiters -= 1`
+//! - publisher: write and send the sample; `if waiters.fetch_add(0) > 0 { notify }`
 //!
-//! Either the subscriber sees the sample before blocking, or the publisher sees the waiter and
-//! notifies: a wake-up is never lost. A subscriber killed while blocked leaves the count
+//! Both sides read-modify-write the same counter, so the two operations are ordered in its
+//! modification order and the later one synchronizes with the earlier (acquire-release): if
+//! the publisher's comes first, the subscriber's check sees the sample; if the subscriber's
+//! comes first, the publisher sees the waiter and notifies. A wake-up is never lost, and no
+//! full fence is needed (a locked add is cheaper than `mfence` on x86). A subscriber killed while blocked leaves the count
 //! raised; publishers then merely notify when they need not. The segments live in `/dev/shm`
 //! under the system's prefix and are removed with the prefix ([`crate::cleanup_prefix`]).
 
 use std::num::NonZeroUsize;
 use std::ptr::NonNull;
-use std::sync::atomic::{AtomicU32, Ordering, fence};
+use std::sync::atomic::{AtomicU32, Ordering};
 
 use nix::fcntl::OFlag;
 use nix::sys::mman::{MapFlags, ProtFlags, mmap, munmap, shm_open};
@@ -82,7 +86,6 @@ impl WakeFlag {
     /// Subscriber side: announce that we are about to block. Check for samples after this.
     pub(crate) fn begin_wait(&self) {
         self.counter().fetch_add(1, Ordering::SeqCst);
-        fence(Ordering::SeqCst);
     }
 
     /// Subscriber side: we are awake again.
@@ -95,8 +98,7 @@ impl WakeFlag {
 
     /// Publisher side, after sending: does anyone need a notification?
     pub(crate) fn has_waiters(&self) -> bool {
-        fence(Ordering::SeqCst);
-        self.counter().load(Ordering::SeqCst) > 0
+        self.counter().fetch_add(0, Ordering::SeqCst) > 0
     }
 }
 
