@@ -8,6 +8,7 @@
 //! `fix_timeout_s` Q is -1 with aptitude 0. This is what lets a client switch to SLAM there.
 
 use hng_runtime::channel::InputId;
+use hng_runtime::contract::ServiceOffer;
 use hng_runtime::msg::PoseWithCovariance;
 use hng_runtime::{Context, Module, ModuleResult, Publisher, Subscriber};
 use serde::{Deserialize, Serialize};
@@ -95,7 +96,11 @@ impl Module for GpsModule {
         if !(cfg.sigma_bad_m.is_finite() && cfg.sigma_bad_m > cfg.sigma_good_m) {
             return Err(field_error("sigma_bad_m", "must be finite and > sigma_good_m").into());
         }
-        // CONTRACTS: `ctx.provide("Localization")` with `pose_out` as its data channel.
+        // Provides "Localization" on `pose_out`; its Q falls with σ (see `gps_quality`), so
+        // a client switches to SLAM in a degraded zone and back after.
+        let mut offer = ServiceOffer::new("Localization", "hng/PoseWithCovariance/v1");
+        offer.channel = cfg.pose_out.clone();
+        ctx.provide(offer);
         ctx.set_quality(false, -1.0);
         Ok(GpsModule {
             fix_in: ctx.subscribe(&cfg.fix_in, Some(timeout))?,

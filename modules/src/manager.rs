@@ -271,10 +271,11 @@ impl Module for ManagerModule {
 
     fn configure(ctx: &mut Context, cfg: ManagerConfig) -> ModuleResult<Self> {
         let goals = mission_goals(&cfg.goals)?;
-        // CONTRACTS: the Manager's objectives, in order, are its needs:
-        // `ctx.need("Robot integrity")` (priority 1) and `ctx.need("Human control")`
-        // (priority 2), which the goals are pursued under ("Reach goal" needed by the human
-        // control provider, or directly by the Manager until an Interface module exists).
+        // The Manager's objectives, in order: "Robot integrity" (priority 1, Security) and
+        // "Reach goal" (priority 2, Planning), which activates the navigation subtree.
+        // CONTRACTS: "Human control" in place of "Reach goal" (the Interface would then need
+        // "Reach goal") once an Interface module exists.
+        ctx.manager(&["Robot integrity", "Reach goal"]);
         let mut status_in = Vec::new();
         for c in &cfg.status_in {
             status_in.push(ctx.subscribe::<GoalStatus>(c, None)?);

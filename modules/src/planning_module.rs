@@ -17,6 +17,8 @@
 //! the goal is refused.
 
 use hng_runtime::channel::InputId;
+use hng_runtime::contract::{NeedSpec, ServiceOffer};
+use hng_runtime::control::{ProviderInfo, ProviderInput};
 use hng_runtime::msg::{FrameId, Goal, GridInfo, Header, Pose2D, PoseWithCovariance, Waypoint};
 use hng_runtime::{Context, Module, ModuleResult, Publisher, SliceSubscriber, Subscriber};
 use serde::{Deserialize, Serialize};
@@ -261,6 +263,22 @@ impl PlanningCore {
         }
     }
 
+    /// True when a path can start from `pose`: it is in the map and a free cell is within
+    /// the inflation band (the same test as in [`PlanningCore::plan`]).
+    fn can_start_from(&self, pose: &Pose2D) -> bool {
+        let Some(grid) = &self.grid else {
+            return false;
+        };
+        let cfg = *self.planner.config();
+        let free = |x: i64, y: i64| grid.get(x, y).is_some_and(|v| cfg.passable(v));
+        let reach = ((self.params.robot_radius + self.params.clearance) / grid.resolution()).ceil()
+            as i64
+            + 2;
+        pose.x.is_finite()
+            && pose.y.is_finite()
+            && nearest_cell(grid.world_to_cell(pose.x, pose.y), reach, free).is_some()
+    }
+
     fn plan(&mut self, pose: &Pose2D, goal: &Goal) -> Result<PathState, String> {
         let Some(grid) = &self.grid else {
             return Err("no map".into());
@@ -341,6 +359,15 @@ impl PlanningCore {
                 Ok(path) => {
                     self.path = Some(path);
                     out.replanned = true;
+                }
+                Err(why) if !self.can_start_from(pose) => {
+                    // A position inside an obstacle or outside the map is a localization
+                    // error (e.g. a degraded GPS fix before the switch to SLAM), not a reason
+                    // to refuse the goal: hold and plan again from the next position.
+                    tracing::debug!("not planning from ({:.2}, {:.2}): {why}", pose.x, pose.y);
+                    self.path = None;
+                    self.replan = true;
+                    return out;
                 }
                 Err(why) => {
                     self.path = None;
@@ -425,11 +452,19 @@ struct PlanningState {
     refusals: u64,
 }
 
+/// Rank of Planning's "Reach waypoint" need (contract priority `P(planning).1`).
+pub const WAYPOINT_NEED: u16 = 1;
+/// Rank of Planning's "Localization" need (contract priority `P(planning).3`).
+pub const LOCALIZATION_NEED: u16 = 3;
+
 /// The Planning module.
 pub struct PlanningModule {
     core: PlanningCore,
     map: SliceSubscriber<GridInfo>,
+    /// The configured pose channel: used only until a "Localization" provider is known.
     pose: Subscriber<PoseWithCovariance>,
+    /// The contracted "Localization" provider's pose (need rank [`LOCALIZATION_NEED`]).
+    localization: ProviderInput<PoseWithCovariance>,
     goal: Subscriber<Goal>,
     waypoint_out: Publisher<Waypoint>,
     status_out: Publisher<GoalStatus>,
@@ -488,13 +523,18 @@ impl Module for PlanningModule {
         if !(p.clearance.is_finite() && p.clearance >= 0.0) {
             return Err(crate::common::field_error("params.clearance", "must be >= 0").into());
         }
-        // CONTRACTS: `ctx.provide("Reach goal")`; `ctx.need("Reach waypoint")` (its channel
-        // becomes `waypoint_out`), `ctx.need("Mapping")` (→ `map`), `ctx.need("Localization")`
-        // (→ `pose`).
+        // Provides "Reach goal" (the Manager's objective) and needs "Reach waypoint" (Servo)
+        // and "Localization": the pose comes from the contracted provider, from `pose` until
+        // one is known. CONTRACTS: the waypoint channel still is `waypoint_out`;
+        // `ctx.need("Mapping")` (→ `map`, rank 2).
+        ctx.provide(ServiceOffer::new("Reach goal", ""))
+            .need(NeedSpec::required("Reach waypoint", WAYPOINT_NEED))
+            .need(NeedSpec::required("Localization", LOCALIZATION_NEED));
         Ok(PlanningModule {
             core: PlanningCore::new(cfg.params),
             map: ctx.subscribe_slice(&cfg.map, None)?,
             pose: ctx.subscribe(&cfg.pose, None)?,
+            localization: ProviderInput::new(),
             goal: ctx.subscribe(&cfg.goal, None)?,
             waypoint_out: ctx.publisher(&cfg.waypoint_out)?,
             status_out: ctx.publisher(&cfg.status_out)?,
@@ -522,12 +562,31 @@ impl Module for PlanningModule {
                 self.state.tolerance_m = g.tolerance_m;
                 self.state.use_theta = g.use_theta;
             }
-        } else if input == self.pose.id() {
-            while let Some(p) = self.pose.receive()? {
+        } else if self.localization.is(input) {
+            while let Some(p) = self.localization.receive()? {
                 self.last_pose = Some(p.pose);
+            }
+        } else if input == self.pose.id() {
+            let fallback = self.localization.provider().is_none();
+            while let Some(p) = self.pose.receive()? {
+                if fallback {
+                    self.last_pose = Some(p.pose);
+                }
             }
         }
         self.step(ctx)
+    }
+
+    fn on_provider_changed(
+        &mut self,
+        ctx: &mut Context,
+        need: u16,
+        provider: Option<&ProviderInfo>,
+    ) -> ModuleResult {
+        if need == LOCALIZATION_NEED {
+            self.localization.follow(ctx, provider)?;
+        }
+        Ok(())
     }
 
     fn checkpoint(&self) -> Option<Vec<u8>> {
@@ -650,6 +709,18 @@ pub(crate) mod tests {
         p.set_goal(goal(3, 8.0, 1.0));
         let why = p.update(&at(2.0, 1.0)).refused.unwrap();
         assert!(why.contains("unreachable"), "{why}");
+    }
+
+    #[test]
+    fn a_position_outside_the_map_holds_without_refusing_the_goal() {
+        let mut p = PlanningCore::new(PlanningParams::default());
+        p.set_map(&room());
+        p.set_goal(goal(1, 3.0, 3.0));
+        let s = p.update(&at(-0.85, 3.0)); // a localization outlier
+        assert!(s.refused.is_none() && s.waypoint.is_none(), "{s:?}");
+        assert!(!p.is_refused());
+        let s = p.update(&at(2.0, 1.0));
+        assert!(s.refused.is_none() && s.waypoint.is_some(), "{s:?}");
     }
 
     #[test]

@@ -23,6 +23,7 @@
 use std::f64::consts::PI;
 
 use hng_runtime::channel::InputId;
+use hng_runtime::contract::ServiceOffer;
 use hng_runtime::msg::{LaserScan, Twist};
 use hng_runtime::{Context, Module, ModuleResult, Publisher, Subscriber};
 use serde::{Deserialize, Serialize};
@@ -337,7 +338,9 @@ impl Module for SecurityModule {
         }
         let freshness = seconds("freshness_s", cfg.freshness_s)?;
         let scan_timeout = seconds("scan_timeout_s", cfg.scan_timeout_s)?;
-        // CONTRACTS: `ctx.provide("Robot integrity")`, `ctx.need("Robot control")` (its
+        // Provides the Manager's objective "Robot integrity".
+        ctx.provide(ServiceOffer::new("Robot integrity", ""));
+        // CONTRACTS: `ctx.need("Robot control")` (its
         // command channel becomes `cmd_out`) and `ctx.need("LIDAR data")` (its channel becomes
         // `scan`); the desired commands then come from this module's own client contracts.
         let mux = CommandMux::new(&cfg.sources, freshness)?;

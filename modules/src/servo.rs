@@ -15,6 +15,8 @@
 use std::time::Duration;
 
 use hng_runtime::channel::InputId;
+use hng_runtime::contract::{NeedSpec, ServiceOffer};
+use hng_runtime::control::{ProviderInfo, ProviderInput};
 use hng_runtime::msg::{FrameId, Header, Pose2D, PoseWithCovariance, Twist, Waypoint};
 use hng_runtime::{Context, Module, ModuleResult, Publisher, Subscriber, TimerId};
 use serde::{Deserialize, Serialize};
@@ -186,11 +188,17 @@ struct ServoState {
     goals_reached: u64,
 }
 
+/// Rank of Servo's "Localization" need (its contract priority is `P(servo).2`).
+pub const LOCALIZATION_NEED: u16 = 2;
+
 /// The Servo-controller module.
 pub struct ServoModule {
     core: ServoCore,
     waypoint: Subscriber<Waypoint>,
+    /// The configured pose channel: used only until a "Localization" provider is known.
     pose: Subscriber<PoseWithCovariance>,
+    /// The contracted "Localization" provider's pose (need rank [`LOCALIZATION_NEED`]).
+    localization: ProviderInput<PoseWithCovariance>,
     cmd_out: Publisher<Twist>,
     status_out: Publisher<GoalStatus>,
     last_wp: Option<(Waypoint, Duration)>,
@@ -263,14 +271,18 @@ impl Module for ServoModule {
         positive("params.heading_gain", p.heading_gain)?;
         let wp_timeout = seconds("waypoint_timeout_s", cfg.waypoint_timeout_s)?;
         let pose_timeout = seconds("pose_timeout_s", cfg.pose_timeout_s)?;
-        // CONTRACTS: `ctx.provide("Reach waypoint")`; `ctx.need("Robot control")` (→ `cmd_out`)
-        // and `ctx.need("Localization")` (→ `pose`).
+        // Provides "Reach waypoint" (needed by Planning) and needs "Localization": the pose
+        // comes from the contracted provider, from `pose` until one is known.
+        // CONTRACTS: `ctx.need("Robot control")` (→ `cmd_out`).
+        ctx.provide(ServiceOffer::new("Reach waypoint", ""))
+            .need(NeedSpec::required("Localization", LOCALIZATION_NEED));
         ctx.add_timer(Duration::from_millis(100));
         ctx.set_quality(false, -1.0);
         Ok(ServoModule {
             core: ServoCore::new(cfg.params),
             waypoint: ctx.subscribe(&cfg.waypoint, None)?,
             pose: ctx.subscribe(&cfg.pose, None)?,
+            localization: ProviderInput::new(),
             cmd_out: ctx.publisher(&cfg.cmd_out)?,
             status_out: ctx.publisher(&cfg.status_out)?,
             last_wp: None,
@@ -288,11 +300,19 @@ impl Module for ServoModule {
                 self.last_wp = Some((*w, now));
             }
             Ok(())
-        } else if input == self.pose.id() {
-            while let Some(p) = self.pose.receive()? {
+        } else if self.localization.is(input) {
+            while let Some(p) = self.localization.receive()? {
                 self.last_pose = Some((p.pose, now));
             }
             self.act(ctx)
+        } else if input == self.pose.id() {
+            let fallback = self.localization.provider().is_none();
+            while let Some(p) = self.pose.receive()? {
+                if fallback {
+                    self.last_pose = Some((p.pose, now));
+                }
+            }
+            if fallback { self.act(ctx) } else { Ok(()) }
         } else {
             Ok(())
         }
@@ -306,6 +326,18 @@ impl Module for ServoModule {
             .is_none_or(|(_, t)| now.saturating_sub(t) > self.pose_timeout)
         {
             ctx.set_quality(false, -1.0);
+        }
+        Ok(())
+    }
+
+    fn on_provider_changed(
+        &mut self,
+        ctx: &mut Context,
+        need: u16,
+        provider: Option<&ProviderInfo>,
+    ) -> ModuleResult {
+        if need == LOCALIZATION_NEED {
+            self.localization.follow(ctx, provider)?;
         }
         Ok(())
     }

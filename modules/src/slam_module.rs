@@ -10,7 +10,7 @@
 //! `initial_pose` (the robot's start in the world, for the map to line up with a known map).
 //!
 //! Quality Q: the front end's match quality (`2·score − 1`, see [`crate::slam::PoseEstimate`]),
-//! smoothed over a few scans; -1 (aptitude 0) when scans or odometry stop.
+//! smoothed over a few scans, times [`SLAM_Q_SCALE`]; -1 (aptitude 0) when scans or odometry stop.
 //!
 //! Checkpoint: the pose and the number of scans; after a restart the pose continues from
 //! there (motion during the downtime is not seen) and the local map is rebuilt from the next
@@ -19,6 +19,7 @@
 use std::time::Duration;
 
 use hng_runtime::channel::InputId;
+use hng_runtime::contract::ServiceOffer;
 use hng_runtime::msg::{
     FrameId, GridInfo, Header, LaserScan, Odometry, Pose2D, PoseWithCovariance,
 };
@@ -29,6 +30,11 @@ use serde::{Deserialize, Serialize};
 use crate::common::{compose, decode_state, encode_state, relative, seconds};
 use crate::maps::msg_from_grid;
 use crate::slam::{EstimateSource, LaserConfig, SlamConfig, SlamFrontEnd};
+
+/// SLAM's contract Q is its smoothed match quality times this: at most 0.4, below the Q of a
+/// nominal GPS fix (about 0.56 at σ 0.3 m) by more than the hysteresis (0.1), so the GPS
+/// serves "Localization" where it is good and SLAM where it degrades (paper 5.8).
+pub const SLAM_Q_SCALE: f64 = 0.4;
 
 fn iso(p: &Pose2D) -> Isometry2<f64> {
     Isometry2::new(Vector2::new(p.x, p.y), p.theta)
@@ -264,9 +270,14 @@ impl Module for SlamModule {
             );
             Some(ctx.slice_publisher::<GridInfo>(&cfg.map_out, 1 << 16)?)
         };
-        // CONTRACTS: `ctx.provide("Localization")` (→ `pose_out`) and `ctx.provide("Mapping")`
-        // (→ `map_out`); `ctx.need("Odometry")` (→ `odom`) and `ctx.need("LIDAR data")`
-        // (→ `scan`).
+        // Provides "Localization" on `pose_out`, with Q scaled by `SLAM_Q_SCALE` so that a
+        // good GPS fix is preferred and SLAM takes over where the GPS degrades. SLAM keeps
+        // tracking and publishing whether selected or not (its inputs are the configured
+        // channels). CONTRACTS: `ctx.provide("Mapping")` (→ `map_out`); `ctx.need("Odometry")`
+        // (→ `odom`) and `ctx.need("LIDAR data")` (→ `scan`).
+        let mut offer = ServiceOffer::new("Localization", "hng/PoseWithCovariance/v1");
+        offer.channel = cfg.pose_out.clone();
+        ctx.provide(offer);
         ctx.set_quality(false, 0.0);
         Ok(SlamModule {
             tracker: SlamTracker::new(scfg, cfg.initial_pose),
@@ -299,7 +310,7 @@ impl Module for SlamModule {
                 if !r.matched {
                     tracing::debug!(module = ctx.name(), q = r.quality, "scan not matched");
                 }
-                ctx.set_quality(true, r.smoothed_quality as f32);
+                ctx.set_quality(true, (SLAM_Q_SCALE * r.smoothed_quality) as f32);
                 self.publish_pose()?;
             }
         }

@@ -140,29 +140,35 @@ pub trait SliceMessage: ZeroCopySend + fmt::Debug + Copy + Default + Serialize +
     fn header_mut(&mut self) -> &mut Header;
 }
 
+/// Implements [`Message`] for a `#[repr(C)]`, `ZeroCopySend` struct with a `header: Header`
+/// field: `hng_runtime::impl_message!(MyType, ChannelKind::State);`.
+#[macro_export]
 macro_rules! impl_message {
     ($t:ty, $kind:expr) => {
-        impl Message for $t {
-            const KIND: ChannelKind = $kind;
-            fn header(&self) -> &Header {
+        impl $crate::msg::Message for $t {
+            const KIND: $crate::qos::ChannelKind = $kind;
+            fn header(&self) -> &$crate::msg::Header {
                 &self.header
             }
-            fn header_mut(&mut self) -> &mut Header {
+            fn header_mut(&mut self) -> &mut $crate::msg::Header {
                 &mut self.header
             }
         }
     };
 }
 
+/// Implements [`SliceMessage`] for a slice header type with a `header: Header` field:
+/// `hng_runtime::impl_slice_message!(MyInfo, u8, ChannelKind::Bulk);`.
+#[macro_export]
 macro_rules! impl_slice_message {
     ($t:ty, $elem:ty, $kind:expr) => {
-        impl SliceMessage for $t {
+        impl $crate::msg::SliceMessage for $t {
             type Elem = $elem;
-            const KIND: ChannelKind = $kind;
-            fn header(&self) -> &Header {
+            const KIND: $crate::qos::ChannelKind = $kind;
+            fn header(&self) -> &$crate::msg::Header {
                 &self.header
             }
-            fn header_mut(&mut self) -> &mut Header {
+            fn header_mut(&mut self) -> &mut $crate::msg::Header {
                 &mut self.header
             }
         }
@@ -207,7 +213,7 @@ pub struct Twist {
     /// Turn rate, rad/s.
     pub angular_z: f64,
 }
-impl_message!(Twist, ChannelKind::Command);
+crate::impl_message!(Twist, ChannelKind::Command);
 
 /// Odometry (ROS `nav_msgs/Odometry`, planar): pose in `odom`, twist in `base_link`.
 #[repr(C)]
@@ -227,7 +233,7 @@ pub struct Odometry {
     /// Row-major 3x3 covariance of (vx, vy, wz).
     pub twist_covariance: [f64; 9],
 }
-impl_message!(Odometry, ChannelKind::Sensor);
+crate::impl_message!(Odometry, ChannelKind::Sensor);
 
 /// A pose with covariance (ROS `PoseWithCovarianceStamped`, planar): a localization output.
 #[repr(C)]
@@ -241,7 +247,7 @@ pub struct PoseWithCovariance {
     /// Row-major 3x3 covariance of (x, y, theta).
     pub covariance: [f64; 9],
 }
-impl_message!(PoseWithCovariance, ChannelKind::State);
+crate::impl_message!(PoseWithCovariance, ChannelKind::State);
 
 /// A planar laser scan (ROS `sensor_msgs/LaserScan`), up to [`MAX_BEAMS`] beams.
 ///
@@ -270,7 +276,7 @@ pub struct LaserScan {
     /// Ranges in metres; only the first `count` are meaningful.
     pub ranges: [f32; MAX_BEAMS],
 }
-impl_message!(LaserScan, ChannelKind::Sensor);
+crate::impl_message!(LaserScan, ChannelKind::Sensor);
 
 impl LaserScan {
     /// The meaningful ranges (the first `count`, capped at [`MAX_BEAMS`]).
@@ -354,7 +360,7 @@ pub struct BeaconObservation {
     /// The beacons; only the first `count` are meaningful.
     pub beacons: [Beacon; MAX_BEACONS],
 }
-impl_message!(BeaconObservation, ChannelKind::Sensor);
+crate::impl_message!(BeaconObservation, ChannelKind::Sensor);
 
 impl BeaconObservation {
     /// The meaningful entries.
@@ -379,7 +385,7 @@ pub struct Goal {
     /// 1 if the final heading matters.
     pub use_theta: u8,
 }
-impl_message!(Goal, ChannelKind::State);
+crate::impl_message!(Goal, ChannelKind::State);
 
 /// A waypoint on the way to a goal, in `map`.
 #[repr(C)]
@@ -399,7 +405,7 @@ pub struct Waypoint {
     /// 1 if this is the goal itself.
     pub is_final: u8,
 }
-impl_message!(Waypoint, ChannelKind::State);
+crate::impl_message!(Waypoint, ChannelKind::State);
 
 /// The simulation clock, published by the simulator on [`crate::clock::CLOCK_CHANNEL`].
 #[repr(C)]
@@ -411,7 +417,7 @@ pub struct Clock {
     /// Simulated time, ns since the start of the simulation.
     pub sim_time_ns: u64,
 }
-impl_message!(Clock, ChannelKind::State);
+crate::impl_message!(Clock, ChannelKind::State);
 
 /// Life-cycle state of a module, as reported in its [`ModuleReport`].
 #[repr(u8)]
@@ -477,7 +483,7 @@ pub struct ModuleReport {
     /// Checkpoints written.
     pub checkpoints: u64,
 }
-impl_message!(ModuleReport, ChannelKind::Report);
+crate::impl_message!(ModuleReport, ChannelKind::Report);
 
 impl ModuleReport {
     /// The module name as text.
@@ -535,7 +541,7 @@ pub struct GridInfo {
     /// Pose of cell (0, 0)'s corner in the header's frame.
     pub origin: Pose2D,
 }
-impl_slice_message!(GridInfo, i8, ChannelKind::StateBulk);
+crate::impl_slice_message!(GridInfo, i8, ChannelKind::StateBulk);
 
 /// User header of an image; the payload is `step * height` bytes.
 #[repr(C)]
@@ -553,7 +559,7 @@ pub struct ImageInfo {
     /// Encoding, e.g. `mono8`, `rgb8` (NUL-padded).
     pub encoding: FrameId,
 }
-impl_slice_message!(ImageInfo, u8, ChannelKind::Bulk);
+crate::impl_slice_message!(ImageInfo, u8, ChannelKind::Bulk);
 
 /// User header of a raw byte payload (benchmarks, opaque data).
 #[repr(C)]
@@ -563,7 +569,7 @@ pub struct BytesInfo {
     /// Header.
     pub header: Header,
 }
-impl_slice_message!(BytesInfo, u8, ChannelKind::Bulk);
+crate::impl_slice_message!(BytesInfo, u8, ChannelKind::Bulk);
 
 #[cfg(test)]
 mod tests {

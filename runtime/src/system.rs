@@ -18,7 +18,7 @@
 use iceoryx2::prelude::ZeroCopySend;
 use serde::Serialize;
 
-use crate::msg::{Header, MODULE_NAME_LEN, Message, SliceMessage};
+use crate::msg::{Header, MODULE_NAME_LEN};
 use crate::qos::ChannelKind;
 
 /// Commands to the supervisor.
@@ -175,15 +175,7 @@ impl Serialize for SupervisorCommand {
     }
 }
 
-impl Message for SupervisorCommand {
-    const KIND: ChannelKind = ChannelKind::Control;
-    fn header(&self) -> &Header {
-        &self.header
-    }
-    fn header_mut(&mut self) -> &mut Header {
-        &mut self.header
-    }
-}
+crate::impl_message!(SupervisorCommand, ChannelKind::Control);
 
 /// What happened to a module.
 #[repr(u8)]
@@ -266,15 +258,7 @@ impl Serialize for ModuleEvent {
     }
 }
 
-impl Message for ModuleEvent {
-    const KIND: ChannelKind = ChannelKind::Control;
-    fn header(&self) -> &Header {
-        &self.header
-    }
-    fn header_mut(&mut self) -> &mut Header {
-        &mut self.header
-    }
-}
+crate::impl_message!(ModuleEvent, ChannelKind::Control);
 
 /// The cost vector C_R(t) and the degraded-mode bar, published by the resource manager.
 #[repr(C)]
@@ -307,15 +291,7 @@ impl ResourceCosts {
     }
 }
 
-impl Message for ResourceCosts {
-    const KIND: ChannelKind = ChannelKind::State;
-    fn header(&self) -> &Header {
-        &self.header
-    }
-    fn header_mut(&mut self) -> &mut Header {
-        &mut self.header
-    }
-}
+crate::impl_message!(ResourceCosts, ChannelKind::State);
 
 /// R_eff (eq. 4) of one module: (cpu, memory, communication).
 #[repr(C)]
@@ -374,15 +350,7 @@ impl Serialize for EffectiveCosts {
     }
 }
 
-impl Message for EffectiveCosts {
-    const KIND: ChannelKind = ChannelKind::State;
-    fn header(&self) -> &Header {
-        &self.header
-    }
-    fn header_mut(&mut self) -> &mut Header {
-        &mut self.header
-    }
-}
+crate::impl_message!(EffectiveCosts, ChannelKind::State);
 
 /// The role a module plays in one contract of its [`ContractTable`].
 #[repr(u8)]
@@ -608,15 +576,7 @@ impl Serialize for ContractTable {
     }
 }
 
-impl Message for ContractTable {
-    const KIND: ChannelKind = ChannelKind::Report;
-    fn header(&self) -> &Header {
-        &self.header
-    }
-    fn header_mut(&mut self) -> &mut Header {
-        &mut self.header
-    }
-}
+crate::impl_message!(ContractTable, ChannelKind::Report);
 
 /// Header of a JSON document on a state channel (the payload is UTF-8 JSON).
 #[repr(C)]
@@ -627,16 +587,7 @@ pub struct JsonInfo {
     pub header: Header,
 }
 
-impl SliceMessage for JsonInfo {
-    type Elem = u8;
-    const KIND: ChannelKind = ChannelKind::StateBulk;
-    fn header(&self) -> &Header {
-        &self.header
-    }
-    fn header_mut(&mut self) -> &mut Header {
-        &mut self.header
-    }
-}
+crate::impl_slice_message!(JsonInfo, u8, ChannelKind::StateBulk);
 
 #[cfg(test)]
 mod tests {

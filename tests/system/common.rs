@@ -115,3 +115,13 @@ impl Drop for TestSystem {
         shm::remove_prefix_files(&self.prefix);
     }
 }
+
+/// Tests that load the machine (a whole robot in accelerated simulation, CPU-share
+/// measurements) hold this lock, so that they never run beside each other on a small machine:
+/// what they measure is then the system under test, not the neighbouring test.
+pub fn heavy() -> std::sync::MutexGuard<'static, ()> {
+    static HEAVY: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    HEAVY
+        .lock()
+        .unwrap_or_else(|poisoned| poisoned.into_inner())
+}

@@ -114,6 +114,7 @@ fn probe(sys: &mut TestSystem, name: &str, config: &str) {
 /// threshold, and back when it recovers. Priorities follow 5.5 (Servo's control query 2.2.1.1).
 #[test]
 fn contracts_navigation_tree_switches_localization() {
+    let _heavy = crate::common::heavy();
     let mut sys = TestSystem::new("ct_nav");
     let node = test_node(&sys, "test");
     let mut tables = Tables::new(&node);
@@ -189,6 +190,15 @@ commands = ["Robot control"]"#,
             && provider_of(t, "slam", "LIDAR data") == Some(id("laser"))
     });
     eprintln!("navigation tree established in {took:?}");
+    // Priorities travel down the tree after the contracts (Update messages): let them settle.
+    tables.wait("priorities settle", Duration::from_secs(10), |t| {
+        priority_of(t, "manager", "Robot integrity") == [1]
+            && priority_of(t, "manager", "Human control") == [2]
+            && priority_of(t, "security", "Robot control") == [1, 1]
+            && priority_of(t, "interface", "Robot control") == [2, 1]
+            && priority_of(t, "servo", "Robot control") == [2, 2, 1, 1]
+            && t.get("robot").is_some_and(|r| r.priority() == [1, 1])
+    });
     let t = &tables.latest;
     assert_eq!(priority_of(t, "manager", "Robot integrity"), [1]);
     assert_eq!(priority_of(t, "manager", "Human control"), [2]);

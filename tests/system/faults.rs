@@ -35,6 +35,10 @@ struct RunningSystem {
     obs: Option<Observer>,
     /// Every module pid seen in a Started event.
     pids: Vec<u32>,
+    /// Highest count and highest announced checkpoint read so far. Counts are read while
+    /// waiting: a dead publisher's unread samples go with its shared memory when the
+    /// supervisor cleans up before the restart.
+    seen: (u32, u32),
 }
 
 /// A launch file around `modules` (TOML of `[[module]]` tables; `TESTMOD` is replaced by the
@@ -98,6 +102,7 @@ impl RunningSystem {
                 _node: node,
             }),
             pids: Vec::new(),
+            seen: (0, 0),
         }
     }
 
@@ -123,6 +128,7 @@ impl RunningSystem {
                     return e;
                 }
             }
+            self.drain_counts();
             let left = deadline.saturating_duration_since(Instant::now());
             assert!(
                 !left.is_zero(),
@@ -192,11 +198,12 @@ impl RunningSystem {
 
     /// Drops every message already received (from a process that is dead now).
     fn drain_counts(&mut self) -> (u32, u32) {
-        let (mut last, mut saved) = (0, 0);
+        let (mut last, mut saved) = self.seen;
         while let Some(g) = self.obs().count.receive().expect("drain") {
             last = last.max(g.id);
             saved = saved.max(g.tolerance_m as u32);
         }
+        self.seen = (last, saved);
         (last, saved)
     }
 

@@ -119,6 +119,7 @@ fn worlds() -> PathBuf {
 
 #[test]
 fn the_default_mission_reaches_every_goal_without_collision() {
+    let _heavy = crate::common::heavy();
     let m = MissionRun::new("mission_default");
     let (out, s) = m.run(&["--speed", SPEED]);
     assert_success(&out, &s);
@@ -131,7 +132,37 @@ fn the_default_mission_reaches_every_goal_without_collision() {
 }
 
 #[test]
+fn localization_moves_to_slam_in_a_gps_degraded_zone_and_back_after() {
+    let _heavy = crate::common::heavy();
+    // Without the RM, V = Q: a nominal GPS fix (Q about 0.56) beats SLAM (at most 0.4), the
+    // degraded zone around the tree at (3, 9), which the way to the second goal crosses, drops
+    // the GPS to about -0.8, so SLAM takes over, and the GPS wins back by better offer after.
+    let m = MissionRun::new("mission_localization");
+    // At 5x the modules keep up with the simulation even with another test running beside:
+    // a module that lags sees stale poses, and localization then flaps between providers.
+    let (out, s) = m.run(&["--no-rm", "--speed", "5"]);
+    assert_success(&out, &s);
+    let text = stdout(&out);
+    assert!(
+        s["contract_switches"].as_u64().expect("switches") >= 2,
+        "{s}\n{text}"
+    );
+    for client in ["servo", "planning"] {
+        let to_slam = format!("contract switch: {client} Localization: gps -> slam");
+        let to_gps = format!("contract switch: {client} Localization: slam -> gps");
+        let at_slam = text
+            .find(&to_slam)
+            .unwrap_or_else(|| panic!("{to_slam}\n{text}"));
+        assert!(
+            text[at_slam..].contains(&to_gps),
+            "{client}: no switch back to the GPS\n{text}"
+        );
+    }
+}
+
+#[test]
 fn a_goal_in_a_second_toml_world_is_reached() {
+    let _heavy = crate::common::heavy();
     let m = MissionRun::new("mission_rooms");
     let world = worlds().join("two_rooms.toml");
     let (out, s) = m.run(&[
@@ -148,6 +179,7 @@ fn a_goal_in_a_second_toml_world_is_reached() {
 
 #[test]
 fn a_goal_in_a_map_server_world_is_reached() {
+    let _heavy = crate::common::heavy();
     let m = MissionRun::new("mission_pgm");
     let yaml = m.dir.join("rooms_map.yaml");
     let st = hng()
@@ -228,6 +260,7 @@ fn the_mission_succeeds_while_slam_planning_and_servo_are_killed() {
 
 #[test]
 fn an_unreachable_or_out_of_map_goal_is_refused_and_the_robot_stays() {
+    let _heavy = crate::common::heavy();
     let m = MissionRun::new("mission_refused");
     let (out, s) = m.run(&["--start", "2,2", "--goal", "30,40", "--speed", SPEED]);
     let text = stdout(&out);
@@ -243,6 +276,7 @@ fn an_unreachable_or_out_of_map_goal_is_refused_and_the_robot_stays() {
 
 #[test]
 fn a_world_file_error_names_the_line() {
+    let _heavy = crate::common::heavy();
     let m = MissionRun::new("mission_badworld");
     let bad = m.dir.join("bad.toml");
     std::fs::write(

@@ -163,6 +163,7 @@ fn clock_ticks_per_second() -> f64 {
 /// lets the module have it.
 #[test]
 fn rm_measures_a_burning_module_within_5_points() {
+    let _heavy = crate::common::heavy();
     const FRACTION: f64 = 30.0;
     let mut sys = TestSystem::new("rmcpu");
     let mut obs = Observer::new(&sys.prefix);
@@ -206,6 +207,7 @@ fn rm_measures_a_burning_module_within_5_points() {
 /// arrives on the supervisor's command channel, with the measured figure in its reason.
 #[test]
 fn memory_hog_over_its_limit_is_sent_over_limit() {
+    let _heavy = crate::common::heavy();
     let mut sys = TestSystem::new("rmhog");
     let mut obs = Observer::new(&sys.prefix);
     sys.spawn_testmod("hog", "hog", "step_mb = 8\nperiod_ms = 50\nmax_mb = 160");
@@ -242,6 +244,7 @@ fn memory_hog_over_its_limit_is_sent_over_limit() {
 /// when the scarcity ends, work resumes in reverse order and degraded mode ends.
 #[test]
 fn degraded_mode_stops_least_important_first_and_recovers() {
+    let _heavy = crate::common::heavy();
     let mut sys = TestSystem::new("rmdeg");
     let mut obs = Observer::new(&sys.prefix);
     let scarce = obs
@@ -339,6 +342,7 @@ fn degraded_mode_stops_least_important_first_and_recovers() {
 /// `hng top --once --json` shows the figures.
 #[test]
 fn over_limit_through_hng_run_is_killed_recorded_and_restarted() {
+    let _heavy = crate::common::heavy();
     let prefix = shm::unique_prefix("rmrun");
     let dir: PathBuf = std::env::temp_dir().join(format!("{prefix}run"));
     std::fs::create_dir_all(&dir).expect("temp dir");
