@@ -13,12 +13,37 @@ use super::status::{StatusDoc, StatusReader};
 /// How long a tool waits for the supervisor's status (it is published at least twice a second).
 const ANSWER_TIMEOUT: Duration = Duration::from_secs(3);
 
+/// How long `hng ps` waits for the resource manager's figures (it publishes at 10 Hz).
+const RM_TIMEOUT: Duration = Duration::from_millis(500);
+
 /// `hng ps [--json]`.
 pub fn ps(prefix: &str, json: bool) -> Result<()> {
     let mut reader = StatusReader::open(prefix, "hng-ps")?;
     let doc = reader.current(ANSWER_TIMEOUT)?;
+    // The resource manager's figures (CPU, memory, caps, R, R_eff), when it runs.
+    let rm = crate::top::rm_figures(prefix, RM_TIMEOUT)
+        .ok()
+        .flatten()
+        .unwrap_or_default();
+    let resources = |name: &str| rm.get(name).cloned().unwrap_or(serde_json::Value::Null);
     if json {
-        println!("{}", serde_json::to_string(&doc)?);
+        let mut v = serde_json::to_value(&doc)?;
+        if let Some(mods) = v
+            .get_mut("modules")
+            .and_then(serde_json::Value::as_array_mut)
+        {
+            for m in mods {
+                let name = m
+                    .get("name")
+                    .and_then(serde_json::Value::as_str)
+                    .unwrap_or("")
+                    .to_owned();
+                if let Some(obj) = m.as_object_mut() {
+                    obj.insert("resources".into(), resources(&name));
+                }
+            }
+        }
+        println!("{}", serde_json::to_string(&v)?);
         return Ok(());
     }
     println!(
@@ -30,21 +55,31 @@ pub fn ps(prefix: &str, json: bool) -> Result<()> {
         if doc.shutting_down { ", stopping" } else { "" }
     );
     println!(
-        "{:<16} {:<12} {:>8} {:>9} {:>8}  LAST EXIT",
-        "MODULE", "STATE", "PID", "UPTIME", "RESTARTS"
+        "{:<16} {:<12} {:>8} {:>9} {:>8} {:>6} {:>9}  LAST EXIT",
+        "MODULE", "STATE", "PID", "UPTIME", "RESTARTS", "CPU%", "RSS"
     );
     for m in &doc.modules {
         let state = match m.restart_in_ms {
             Some(t) if m.state == "backing-off" => format!("backing-off ({})", human_ms(t)),
             _ => m.state.clone(),
         };
+        let r = resources(&m.name);
+        let cpu = r["cpu_percent"]
+            .as_f64()
+            .map_or_else(|| "-".to_owned(), |c| format!("{c:.1}"));
+        let rss = r["rss_bytes"].as_f64().map_or_else(
+            || "-".to_owned(),
+            |b| format!("{:.1}M", b / (1024.0 * 1024.0)),
+        );
         println!(
-            "{:<16} {:<12} {:>8} {:>9} {:>8}  {}",
+            "{:<16} {:<12} {:>8} {:>9} {:>8} {:>6} {:>9}  {}",
             format!("{}{}", m.name, if m.manager { "*" } else { "" }),
             state,
             m.pid.map_or_else(|| "-".to_owned(), |p| p.to_string()),
             m.uptime_ms.map_or_else(|| "-".to_owned(), human_ms),
             m.restarts,
+            cpu,
+            rss,
             m.last_exit_text.as_deref().unwrap_or("-"),
         );
     }

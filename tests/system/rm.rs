@@ -514,6 +514,26 @@ fraction = 0.6
     }
     assert!(top["costs"]["cpu"].is_number(), "{top:#}");
     assert!(module(&top, "capped")["cpu_percent"].is_number(), "{top:#}");
+
+    // hng ps --json carries the RM's figures beside the supervisor's.
+    let out = Command::new(HNG)
+        .args(["ps", "--json"])
+        .env("HNG_PREFIX", &prefix)
+        .env("HNG_LOG", "warn")
+        .output()
+        .expect("run hng ps");
+    assert!(
+        out.status.success(),
+        "hng ps: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let ps: Value = serde_json::from_slice(&out.stdout).expect("hng ps --json is JSON");
+    let capped = ps["modules"]
+        .as_array()
+        .and_then(|ms| ms.iter().find(|m| m["name"] == "capped"))
+        .expect("capped in hng ps");
+    assert!(capped["resources"]["cpu_percent"].is_number(), "{ps:#}");
+    assert!(capped["resources"]["rss_bytes"].is_number(), "{ps:#}");
     drop(obs);
     drop(sup);
     drop(node);
