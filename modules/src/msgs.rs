@@ -3,7 +3,7 @@
 //! Same rules as the runtime's messages: `#[repr(C)]`, [`ZeroCopySend`], a versioned type name
 //! (`hng-modules/<Name>/v<N>`), a [`Header`] first, REP-103 units.
 
-use hng_runtime::msg::{Header, Message, Pose2D};
+use hng_runtime::msg::{Header, Pose2D};
 use hng_runtime::qos::ChannelKind;
 use iceoryx2::prelude::ZeroCopySend;
 use serde::{Deserialize, Serialize};
@@ -63,15 +63,7 @@ impl GoalStatus {
     }
 }
 
-impl Message for GoalStatus {
-    const KIND: ChannelKind = ChannelKind::State;
-    fn header(&self) -> &Header {
-        &self.header
-    }
-    fn header_mut(&mut self) -> &mut Header {
-        &mut self.header
-    }
-}
+hng_runtime::impl_message!(GoalStatus, ChannelKind::State);
 
 /// One goal of a mission.
 #[repr(C)]
@@ -149,15 +141,7 @@ impl Mission {
     }
 }
 
-impl Message for Mission {
-    const KIND: ChannelKind = ChannelKind::Command;
-    fn header(&self) -> &Header {
-        &self.header
-    }
-    fn header_mut(&mut self) -> &mut Header {
-        &mut self.header
-    }
-}
+hng_runtime::impl_message!(Mission, ChannelKind::Command);
 
 /// The Manager's mission progress (state channel).
 #[repr(C)]
@@ -180,12 +164,4 @@ pub struct MissionStatus {
     pub done: u8,
 }
 
-impl Message for MissionStatus {
-    const KIND: ChannelKind = ChannelKind::State;
-    fn header(&self) -> &Header {
-        &self.header
-    }
-    fn header_mut(&mut self) -> &mut Header {
-        &mut self.header
-    }
-}
+hng_runtime::impl_message!(MissionStatus, ChannelKind::State);

@@ -23,6 +23,23 @@ pub const MAX_BEAMS: usize = 1081;
 /// Largest number of beacons one [`BeaconObservation`] reports.
 pub const MAX_BEACONS: usize = 16;
 
+/// Writes `s` NUL-padded into `dst`, cut on a character boundary to fit.
+pub(crate) fn put_str<const N: usize>(dst: &mut [u8; N], s: &str) {
+    *dst = [0; N];
+    let b = s.as_bytes();
+    let mut n = b.len().min(N);
+    while n > 0 && !s.is_char_boundary(n) {
+        n -= 1;
+    }
+    dst[..n].copy_from_slice(&b[..n]);
+}
+
+/// The text of a NUL-padded field (`?` if it is not UTF-8).
+pub(crate) fn get_str(b: &[u8]) -> &str {
+    let len = b.iter().position(|&c| c == 0).unwrap_or(b.len());
+    core::str::from_utf8(&b[..len]).unwrap_or("?")
+}
+
 /// A frame id: a short, fixed-size name such as `map`, `odom`, `base_link`.
 #[repr(C)]
 #[derive(Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
@@ -488,20 +505,12 @@ crate::impl_message!(ModuleReport, ChannelKind::Report);
 impl ModuleReport {
     /// The module name as text.
     pub fn name(&self) -> &str {
-        let len = self
-            .name
-            .iter()
-            .position(|&c| c == 0)
-            .unwrap_or(MODULE_NAME_LEN);
-        core::str::from_utf8(&self.name[..len]).unwrap_or("?")
+        get_str(&self.name)
     }
 
-    /// Sets the module name (cut at [`MODULE_NAME_LEN`] bytes).
+    /// Sets the module name (cut on a character boundary to [`MODULE_NAME_LEN`] bytes).
     pub fn set_name(&mut self, name: &str) {
-        self.name = [0; MODULE_NAME_LEN];
-        let b = name.as_bytes();
-        let n = b.len().min(MODULE_NAME_LEN);
-        self.name[..n].copy_from_slice(&b[..n]);
+        put_str(&mut self.name, name);
     }
 }
 
@@ -581,6 +590,14 @@ mod tests {
         assert_eq!(FrameId::new("base_link"), Some(FrameId::BASE_LINK));
         assert!(FrameId::new("a_frame_name_that_is_too_long").is_none());
         assert!(FrameId::new("nul\0").is_none());
+    }
+
+    #[test]
+    fn long_names_are_cut_on_a_character_boundary() {
+        let mut r = ModuleReport::default();
+        // 32 bytes end in the middle of the 16th "é": it is dropped, not cut in half.
+        r.set_name(&format!("a{}", "é".repeat(20)));
+        assert_eq!(r.name(), format!("a{}", "é".repeat(15)));
     }
 
     #[test]

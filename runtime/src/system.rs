@@ -18,7 +18,7 @@
 use iceoryx2::prelude::ZeroCopySend;
 use serde::Serialize;
 
-use crate::msg::{Header, MODULE_NAME_LEN};
+use crate::msg::{Header, MODULE_NAME_LEN, get_str, put_str};
 use crate::qos::ChannelKind;
 
 /// Commands to the supervisor.
@@ -50,21 +50,6 @@ pub const CHANNEL_LEN: usize = 64;
 pub const MAX_PRIORITY_DEPTH: usize = 24;
 /// Length of a reason text.
 pub const REASON_LEN: usize = 64;
-
-fn put_str<const N: usize>(dst: &mut [u8; N], s: &str) {
-    *dst = [0; N];
-    let b = s.as_bytes();
-    let mut n = b.len().min(N);
-    while n > 0 && !s.is_char_boundary(n) {
-        n -= 1;
-    }
-    dst[..n].copy_from_slice(&b[..n]);
-}
-
-fn get_str(b: &[u8]) -> &str {
-    let len = b.iter().position(|&c| c == 0).unwrap_or(b.len());
-    core::str::from_utf8(&b[..len]).unwrap_or("?")
-}
 
 /// What a [`SupervisorCommand`] asks.
 #[repr(u8)]

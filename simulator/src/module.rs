@@ -24,7 +24,7 @@ use hng_runtime::channel::InputId;
 use hng_runtime::clock::{CLOCK_CHANNEL, Clock, ClockMode};
 use hng_runtime::msg::{
     self, Beacon as MsgBeacon, BeaconObservation, FrameId, GridInfo, Header, LaserScan,
-    MAX_BEACONS, MAX_BEAMS, Message, PoseWithCovariance, Twist, Velocity2D,
+    MAX_BEACONS, MAX_BEAMS, PoseWithCovariance, Twist, Velocity2D,
 };
 use hng_runtime::qos::ChannelKind;
 use hng_runtime::{
@@ -76,15 +76,7 @@ pub struct SimStatus {
     pub target_factor: f64,
 }
 
-impl Message for SimStatus {
-    const KIND: ChannelKind = ChannelKind::State;
-    fn header(&self) -> &Header {
-        &self.header
-    }
-    fn header_mut(&mut self) -> &mut Header {
-        &mut self.header
-    }
-}
+hng_runtime::impl_message!(SimStatus, ChannelKind::State);
 
 /// A collision began (published on `sim/collisions`). Header stamp: simulated time.
 #[repr(C)]
@@ -103,15 +95,7 @@ pub struct SimCollision {
     pub count: u64,
 }
 
-impl Message for SimCollision {
-    const KIND: ChannelKind = ChannelKind::Sensor;
-    fn header(&self) -> &Header {
-        &self.header
-    }
-    fn header_mut(&mut self) -> &mut Header {
-        &mut self.header
-    }
-}
+hng_runtime::impl_message!(SimCollision, ChannelKind::Sensor);
 
 /// Per-sensor switches; `None` keeps the world file's setting. A sensor switched off publishes
 /// nothing and does not even open its channel, so a real driver or a log replay can provide it
