@@ -140,6 +140,7 @@ struct NeedPort {
     rank: u16,
     input: ProviderInput<Odometry>,
     command: Option<(String, Publisher<Twist>)>,
+    command_cache: Vec<(String, Publisher<Twist>)>,
     sends_commands: bool,
 }
 
@@ -222,6 +223,7 @@ impl Module for Probe {
                 rank,
                 input: ProviderInput::new(),
                 command: None,
+                command_cache: Vec::new(),
                 sends_commands: cfg.commands.contains(s),
             });
         }
@@ -325,8 +327,23 @@ impl Module for Probe {
             return Ok(());
         };
         if n.sends_commands {
-            n.command = match provider {
-                Some(p) => Some((p.channel.clone(), ctx.publisher::<Twist>(&p.channel)?)),
+            let target = provider.map(|p| p.channel.as_str());
+            if n.command.as_ref().map(|(c, _)| c.as_str()) == target {
+                return Ok(());
+            }
+            // Keep the publishers left (like `ProviderInput`): going back to a driver opens
+            // no channel.
+            if let Some(old) = n.command.take() {
+                if n.command_cache.len() >= 4 {
+                    n.command_cache.remove(0);
+                }
+                n.command_cache.push(old);
+            }
+            n.command = match target {
+                Some(c) => match n.command_cache.iter().position(|(k, _)| k == c) {
+                    Some(pos) => Some(n.command_cache.remove(pos)),
+                    None => Some((c.to_string(), ctx.publisher::<Twist>(c)?)),
+                },
                 None => None,
             };
         } else {

@@ -6,7 +6,9 @@ use clap::{Parser, Subcommand};
 
 mod bench;
 mod contracts;
+mod doc;
 mod eval;
+mod mission;
 mod modules;
 mod run;
 mod sim;
@@ -41,6 +43,11 @@ enum Command {
     Eval {
         #[command(subcommand)]
         command: eval::EvalCommand,
+    },
+    /// Show or change the running Manager's mission (goals).
+    Mission {
+        #[command(subcommand)]
+        command: mission::MissionCommand,
     },
     /// Run a built-in module as this process (what launch files start).
     Module {
@@ -105,6 +112,7 @@ fn main() -> ExitCode {
         Command::Start { module } => run::ctl::start(&cli.prefix, &module),
         Command::Stop { module } => run::ctl::stop(&cli.prefix, module.as_deref()),
         Command::Topic { command } => topic::run(&cli.prefix, command),
+        Command::Mission { command } => mission::run(&cli.prefix, command),
         Command::Top(args) => top::run(&cli.prefix, &args),
         Command::Contracts(args) => contracts::run(&cli.prefix, &args),
         Command::Bench { bench } => bench::run(bench),

@@ -1,9 +1,11 @@
 //! Camera: the camera driver (Table 1: provides "Video"). Backed here by the simulator's beacon
-//! camera (`sim/camera`, beacons detected in each frame), relayed on `beacons_out`.
+//! camera (`sim/camera`, beacons detected in each frame), relayed on `beacons_out`, the data
+//! channel of its "Video" offer.
 //!
 //! Quality Q: 1 while frames arrive, -1 (aptitude 0) after `frame_timeout_s` without one.
 
 use hng_runtime::channel::InputId;
+use hng_runtime::contract::ServiceOffer;
 use hng_runtime::msg::BeaconObservation;
 use hng_runtime::{Context, Module, ModuleResult, Publisher, Subscriber};
 use serde::{Deserialize, Serialize};
@@ -57,7 +59,9 @@ impl Module for CameraModule {
 
     fn configure(ctx: &mut Context, cfg: CameraModuleConfig) -> ModuleResult<Self> {
         let timeout = seconds("frame_timeout_s", cfg.frame_timeout_s)?;
-        // CONTRACTS: `ctx.provide("Video")` with `beacons_out` as its data channel.
+        let mut offer = ServiceOffer::new("Video", "hng/BeaconObservation/v1");
+        offer.channel = cfg.beacons_out.clone();
+        ctx.provide(offer);
         ctx.set_quality(false, -1.0);
         Ok(CameraModule {
             input: ctx.subscribe(&cfg.beacons_in, Some(timeout))?,

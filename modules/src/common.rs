@@ -1,14 +1,22 @@
-//! Helpers shared by the navigation modules: command sources arbitrated by priority, poses,
-//! angles, checkpoint encoding.
+//! Helpers shared by the navigation modules: inputs that follow a contracted provider, command
+//! sources arbitrated by priority, the holders of a driver's contracts, poses, angles,
+//! checkpoint encoding.
 
 use std::time::Duration;
 
+use hng_runtime::Context;
+use hng_runtime::channel::{InputId, Sample};
 use hng_runtime::contract::{CommandArbiter, ModuleId, Priority, Verdict};
-use hng_runtime::msg::{Pose2D, Twist};
+use hng_runtime::control::ProviderInfo;
+use hng_runtime::msg::{Message, Pose2D, Twist};
+use hng_runtime::system::{ContractRole, ContractTable};
+use hng_runtime::{Error, Subscriber};
 use serde::{Deserialize, Serialize};
 
-/// One client that may command a driver: the channel it publishes on and the priority of its
-/// contract (paper 5.5: smaller is more important, `1.1` beats `2.1` beats `2.2.1.1`).
+/// One client that may command a driver without contracts (static wiring for benches and
+/// systems without a Manager): the channel it publishes on and the priority it is given
+/// (paper 5.5: smaller is more important, `1.1` beats `2.1` beats `2.2.1.1`). With contracts
+/// the clients and their priorities come from the contract tree instead.
 #[derive(Debug, Clone, PartialEq, Eq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct CommandSource {
@@ -68,14 +76,10 @@ pub fn seconds(field: &str, v: f64) -> Result<Duration, ConfigError> {
 
 /// Which of several command sources is obeyed: the live source with the most important
 /// priority; a source is live while its last command is younger than the freshness timeout
-/// (like ROS `twist_mux`). Built on the runtime's [`CommandArbiter`], keyed here by the
-/// source's index in the configured list.
-///
-/// CONTRACTS: when the SDK's contracts land, the holders come from the driver's client
-/// contracts instead of the configuration: call [`CommandMux::sync`] with
-/// `(ModuleId, Priority)` of every client contract (keyed by the client's module id, i.e.
-/// `Header::source` of its commands) in `on_provider_changed`/`on_activation`, and key
-/// [`CommandMux::on_command`] by `Header::source`.
+/// (like ROS `twist_mux`). Built on the runtime's [`CommandArbiter`], keyed either by the
+/// source's index in a configured list ([`CommandMux::new`], static wiring) or by the client's
+/// module id (`Header::source` of its commands) with the holders of a contract tree
+/// ([`CommandMux::contracted`] and [`CommandMux::sync`], e.g. from [`ContractHolders`]).
 #[derive(Debug, Clone)]
 pub struct CommandMux {
     arbiter: CommandArbiter,
@@ -109,6 +113,14 @@ impl CommandMux {
             arbiter,
             active: None,
         })
+    }
+
+    /// A mux with no holder yet (contract mode: [`CommandMux::sync`] sets them).
+    pub fn contracted(freshness: Duration) -> CommandMux {
+        CommandMux {
+            arbiter: CommandArbiter::new(freshness),
+            active: None,
+        }
     }
 
     /// Replaces the holders (contract mode).
@@ -152,6 +164,165 @@ impl CommandMux {
     /// Commands ignored so far (preempted or from no contract holder).
     pub fn ignored(&self) -> u64 {
         self.arbiter.drops().total()
+    }
+}
+
+/// A data input that follows the provider of a need (paper 5.6, "Consumer"): its samples are
+/// read from the channel the provider named in its proposal, and only those the provider
+/// published (by `Header::source`), so a contract decides where the data comes from. Until a
+/// provider is known (the module is not yet, or not, selected), the configured channel is the
+/// fallback and any publisher on it is accepted. When the provider's channel is the configured
+/// one, the one subscription serves both.
+#[derive(Debug)]
+pub struct ContractedInput<T: Message> {
+    configured: Subscriber<T>,
+    followed: Option<Subscriber<T>>,
+    provider: Option<ProviderInfo>,
+    deadline: Option<Duration>,
+    foreign: u64,
+}
+
+impl<T: Message> ContractedInput<T> {
+    /// Subscribes to the fallback `channel`; `deadline` watches whichever channel is read.
+    ///
+    /// # Errors
+    /// The channel cannot be opened.
+    pub fn new(
+        ctx: &mut Context,
+        channel: &str,
+        deadline: Option<Duration>,
+    ) -> Result<ContractedInput<T>, Error> {
+        Ok(ContractedInput {
+            configured: ctx.subscribe(channel, deadline)?,
+            followed: None,
+            provider: None,
+            deadline,
+            foreign: 0,
+        })
+    }
+
+    /// Follows `provider` (or none, back to the fallback), from `on_provider_changed`.
+    ///
+    /// # Errors
+    /// The provider's channel cannot be opened (e.g. it carries another type).
+    pub fn follow(
+        &mut self,
+        ctx: &mut Context,
+        provider: Option<&ProviderInfo>,
+    ) -> Result<(), Error> {
+        let want = provider
+            .map(|p| p.channel.as_str())
+            .filter(|c| !c.is_empty() && *c != self.configured.channel());
+        let have = self.followed.as_ref().map(|s| s.channel().to_string());
+        if want != have.as_deref() {
+            if let Some(old) = self.followed.take() {
+                ctx.unsubscribe(old.id())?;
+            }
+            if let Some(c) = want {
+                self.followed = Some(ctx.subscribe(c, self.deadline)?);
+            }
+        }
+        self.provider = provider.cloned();
+        Ok(())
+    }
+
+    /// The provider followed (`None`: the fallback channel is read).
+    pub fn provider(&self) -> Option<&ProviderInfo> {
+        self.provider.as_ref()
+    }
+
+    /// True when `input` is one of this input's subscriptions.
+    pub fn is(&self, input: InputId) -> bool {
+        self.configured.id() == input || self.followed.as_ref().is_some_and(|s| s.id() == input)
+    }
+
+    /// The channel read now.
+    pub fn channel(&self) -> &str {
+        self.followed
+            .as_ref()
+            .map_or(self.configured.channel(), |s| s.channel())
+    }
+
+    /// The next sample of the provider (or of the fallback channel while none is known).
+    ///
+    /// # Errors
+    /// The channel failed.
+    pub fn receive(&mut self) -> Result<Option<Sample<T>>, Error> {
+        let Some(p) = &self.provider else {
+            return self.configured.receive();
+        };
+        let source = p.module.0;
+        let sub = match &self.followed {
+            Some(f) => {
+                // Not read while another channel is followed: drain it.
+                while self.configured.receive()?.is_some() {}
+                f
+            }
+            None => &self.configured,
+        };
+        while let Some(s) = sub.receive()? {
+            if s.header().source == source {
+                return Ok(Some(s));
+            }
+            self.foreign += 1;
+        }
+        Ok(None)
+    }
+
+    /// Samples skipped because a module other than the provider published them.
+    pub fn foreign(&self) -> u64 {
+        self.foreign
+    }
+}
+
+/// The clients holding a contract for one service of one provider, with their priorities, as
+/// the provider's [`ContractTable`] (on `hng/contracts`) shows them: how a module that is not
+/// the driver (Security) learns the priorities the driver obeys.
+#[derive(Debug, Clone, Default)]
+pub struct ContractHolders {
+    holders: Vec<(ModuleId, Priority)>,
+}
+
+impl ContractHolders {
+    /// Reads `table` if it is `provider`'s: true when the holders of `service` changed.
+    /// `except` (the reader itself) is left out.
+    pub fn update(
+        &mut self,
+        table: &ContractTable,
+        provider: ModuleId,
+        service: &str,
+        except: ModuleId,
+    ) -> bool {
+        if table.module_id != provider.0 {
+            return false;
+        }
+        let mut next: Vec<(ModuleId, Priority)> = table
+            .entries()
+            .iter()
+            .filter(|e| e.role() == Some(ContractRole::Provider) && e.service() == service)
+            .filter(|e| e.peer != except.0)
+            .filter_map(|e| {
+                Priority::new(e.priority())
+                    .ok()
+                    .map(|p| (ModuleId(e.peer), p))
+            })
+            .collect();
+        next.sort_by_key(|(m, _)| *m);
+        if next == self.holders {
+            return false;
+        }
+        self.holders = next;
+        true
+    }
+
+    /// Forgets every holder (the provider changed or is gone).
+    pub fn clear(&mut self) {
+        self.holders.clear();
+    }
+
+    /// The holders and their priorities.
+    pub fn holders(&self) -> &[(ModuleId, Priority)] {
+        &self.holders
     }
 }
 

@@ -80,7 +80,10 @@ impl Module for LaserModule {
 
     fn configure(ctx: &mut Context, cfg: LaserModuleConfig) -> ModuleResult<Self> {
         let timeout = seconds("scan_timeout_s", cfg.scan_timeout_s)?;
-        // CONTRACTS: `ctx.provide("LIDAR data")` with `scan_out` as its data channel.
+        // Provides "LIDAR data" on `scan_out`.
+        let mut offer = hng_runtime::contract::ServiceOffer::new("LIDAR data", "hng/LaserScan/v1");
+        offer.channel = cfg.scan_out.clone();
+        ctx.provide(offer);
         ctx.set_quality(false, -1.0);
         Ok(LaserModule {
             scan_in: ctx.subscribe(&cfg.scan_in, Some(timeout))?,

@@ -5,13 +5,14 @@
 //!
 //! Modules (each a [`hng_runtime::Module`], run as `hng module <name>`; each keeps its logic
 //! in a pure, unit-tested core and its I/O in the module struct): [`manager`], [`security`],
-//! [`robot`], [`laser`], [`camera`], [`planning_module`], [`servo`], [`slam_module`],
+//! [`robot`], [`interface`], [`laser`], [`camera`], [`planning_module`], [`servo`], [`slam_module`],
 //! [`gps`], [`maps`]. Their messages beyond the runtime's are in [`msgs`]. See
 //! `docs/modules.md`.
 
 pub mod camera;
 pub mod common;
 pub mod gps;
+pub mod interface;
 pub mod laser;
 pub mod manager;
 pub mod maps;

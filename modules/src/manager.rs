@@ -8,14 +8,17 @@
 //! `Reached` (from the Servo-controller) or `Refused` (from Planning) for it moves to the next.
 //! When every goal is dealt with, a goal with id 0 ("none") is published and the robot holds.
 //! The mission changes while running through [`Mission`] messages on `mission_in`
-//! (`hng/mission`): replace, append, clear, skip. Progress is published as [`MissionStatus`].
+//! (`hng/mission`, sent by `hng mission set|add|clear|skip`): replace, append, clear, skip.
+//! Progress is published as [`MissionStatus`], and the whole mission as a JSON
+//! [`MissionPlan`] on `plan_out` (`manager/mission`, a state channel read by `hng mission show`).
 //!
 //! Quality Q: 1 (the Manager is the mission; it can always evaluate itself). Checkpoint: the
 //! whole mission with its progress, so a restarted Manager resumes at the same goal.
 
 use hng_runtime::channel::InputId;
 use hng_runtime::msg::{FrameId, Goal, Header};
-use hng_runtime::{Context, Module, ModuleResult, Publisher, Subscriber};
+use hng_runtime::system::JsonInfo;
+use hng_runtime::{Context, Module, ModuleResult, Publisher, SlicePublisher, Subscriber};
 use serde::{Deserialize, Serialize};
 
 use crate::common::{decode_state, encode_state, field_error};
@@ -41,6 +44,43 @@ pub enum Outcome {
     Reached,
     /// Refused by Planning, or skipped.
     Refused,
+}
+
+/// One goal of a [`MissionPlan`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PlanEntry {
+    /// The goal's id.
+    pub id: u32,
+    /// x, m (map frame).
+    pub x: f64,
+    /// y, m.
+    pub y: f64,
+    /// Final heading, rad, when it matters.
+    pub theta: Option<f64>,
+    /// Position tolerance, m.
+    pub tolerance_m: f64,
+    /// `reached`, `refused`, `active` (the current goal) or `pending`.
+    pub state: String,
+}
+
+/// The whole mission as the Manager holds it: the JSON document on `plan_out`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MissionPlan {
+    /// Mission changes applied by this Manager process (an acknowledgement for
+    /// `hng mission`; starts at 0 again after a restart).
+    pub revision: u64,
+    /// Goals in the mission.
+    pub goals_total: u32,
+    /// Goals reached.
+    pub goals_reached: u32,
+    /// Goals refused or skipped.
+    pub goals_refused: u32,
+    /// Id of the current goal (0 when none).
+    pub current_goal_id: u32,
+    /// Every goal dealt with.
+    pub done: bool,
+    /// Every goal, in mission order.
+    pub goals: Vec<PlanEntry>,
 }
 
 /// The mission logic, without I/O.
@@ -143,6 +183,41 @@ impl MissionCore {
         }
     }
 
+    /// The whole mission, for `hng mission show`.
+    pub fn plan(&self, revision: u64) -> MissionPlan {
+        let s = self.status_msg();
+        let goals = self
+            .goals
+            .iter()
+            .enumerate()
+            .map(|(i, g)| {
+                let state = match self.outcomes.get(i) {
+                    Some(Outcome::Reached) => "reached",
+                    Some(Outcome::Refused) => "refused",
+                    None if i == self.outcomes.len() => "active",
+                    None => "pending",
+                };
+                PlanEntry {
+                    id: g.id,
+                    x: g.goal.pose.x,
+                    y: g.goal.pose.y,
+                    theta: (g.goal.use_theta != 0).then_some(g.goal.pose.theta),
+                    tolerance_m: g.goal.tolerance_m,
+                    state: state.to_owned(),
+                }
+            })
+            .collect();
+        MissionPlan {
+            revision,
+            goals_total: s.goals_total,
+            goals_reached: s.goals_reached,
+            goals_refused: s.goals_refused,
+            current_goal_id: s.current_goal_id,
+            done: s.done != 0,
+            goals,
+        }
+    }
+
     /// The progress message.
     pub fn status_msg(&self) -> MissionStatus {
         let count = |o: Outcome| self.outcomes.iter().filter(|&&x| x == o).count() as u32;
@@ -186,6 +261,8 @@ pub struct ManagerConfig {
     pub mission_in: String,
     /// Progress out (default `manager/status`).
     pub status_out: String,
+    /// The whole mission as JSON out (default `manager/mission`).
+    pub plan_out: String,
 }
 
 impl Default for ManagerConfig {
@@ -196,7 +273,36 @@ impl Default for ManagerConfig {
             status_in: vec!["servo/status".into(), "planning/status".into()],
             mission_in: "hng/mission".into(),
             status_out: "manager/status".into(),
+            plan_out: MISSION_PLAN_CHANNEL.into(),
         }
+    }
+}
+
+/// Default channel of the [`MissionPlan`] document.
+pub const MISSION_PLAN_CHANNEL: &str = "manager/mission";
+
+/// Default channel of mission changes.
+pub const MISSION_CHANNEL: &str = "hng/mission";
+
+/// Why a goal cannot be part of a mission.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum GoalProblem {
+    /// A coordinate is NaN or infinite.
+    #[error("coordinates must be finite")]
+    Coordinates,
+    /// The tolerance is not a positive number.
+    #[error("tolerance must be > 0")]
+    Tolerance,
+}
+
+/// Checks a goal (`None`: it can be part of a mission).
+pub fn goal_problem(g: &MissionGoal) -> Option<GoalProblem> {
+    if !(g.pose.x.is_finite() && g.pose.y.is_finite() && g.pose.theta.is_finite()) {
+        Some(GoalProblem::Coordinates)
+    } else if !(g.tolerance_m.is_finite() && g.tolerance_m > 0.0) {
+        Some(GoalProblem::Tolerance)
+    } else {
+        None
     }
 }
 
@@ -206,25 +312,22 @@ pub fn mission_goals(goals: &[GoalConfig]) -> Result<Vec<MissionGoal>, crate::co
         .iter()
         .enumerate()
         .map(|(i, g)| {
-            let tol = g.tolerance.unwrap_or(0.2);
-            if !(g.x.is_finite() && g.y.is_finite() && g.theta.is_none_or(f64::is_finite)) {
-                return Err(field_error(
-                    format!("goals[{i}]"),
-                    "coordinates must be finite",
-                ));
-            }
-            if !(tol.is_finite() && tol > 0.0) {
-                return Err(field_error(format!("goals[{i}].tolerance"), "must be > 0"));
-            }
-            Ok(MissionGoal {
+            let goal = MissionGoal {
                 pose: hng_runtime::msg::Pose2D {
                     x: g.x,
                     y: g.y,
                     theta: g.theta.unwrap_or(0.0),
                 },
-                tolerance_m: tol,
+                tolerance_m: g.tolerance.unwrap_or(0.2),
                 use_theta: u8::from(g.theta.is_some()),
-            })
+            };
+            match goal_problem(&goal) {
+                None => Ok(goal),
+                Some(GoalProblem::Tolerance) => {
+                    Err(field_error(format!("goals[{i}].tolerance"), "must be > 0"))
+                }
+                Some(why) => Err(field_error(format!("goals[{i}]"), why.to_string())),
+            }
         })
         .collect()
 }
@@ -234,6 +337,9 @@ pub struct ManagerModule {
     core: MissionCore,
     goal_out: Publisher<Goal>,
     status_out: Publisher<MissionStatus>,
+    plan_out: SlicePublisher<JsonInfo>,
+    /// Mission changes applied (see [`MissionPlan::revision`]).
+    revision: u64,
     status_in: Vec<Subscriber<GoalStatus>>,
     mission_in: Subscriber<Mission>,
 }
@@ -262,6 +368,10 @@ impl ManagerModule {
         }
         self.goal_out.publish(g)?;
         self.status_out.publish(self.core.status_msg())?;
+        match serde_json::to_vec(&self.core.plan(self.revision)) {
+            Ok(doc) => self.plan_out.publish_copy(JsonInfo::default(), &doc)?,
+            Err(e) => tracing::warn!(module = ctx.name(), "mission document: {e}"),
+        }
         Ok(())
     }
 }
@@ -272,10 +382,9 @@ impl Module for ManagerModule {
     fn configure(ctx: &mut Context, cfg: ManagerConfig) -> ModuleResult<Self> {
         let goals = mission_goals(&cfg.goals)?;
         // The Manager's objectives, in order: "Robot integrity" (priority 1, Security) and
-        // "Reach goal" (priority 2, Planning), which activates the navigation subtree.
-        // CONTRACTS: "Human control" in place of "Reach goal" (the Interface would then need
-        // "Reach goal") once an Interface module exists.
-        ctx.manager(&["Robot integrity", "Reach goal"]);
+        // "Human control" (priority 2, the Interface, which needs "Reach goal": the goals are
+        // pursued under Human control, paper 5.8).
+        ctx.manager(&OBJECTIVES);
         let mut status_in = Vec::new();
         for c in &cfg.status_in {
             status_in.push(ctx.subscribe::<GoalStatus>(c, None)?);
@@ -285,6 +394,8 @@ impl Module for ManagerModule {
             core: MissionCore::new(&goals),
             goal_out: ctx.publisher(&cfg.goal_out)?,
             status_out: ctx.publisher(&cfg.status_out)?,
+            plan_out: ctx.slice_publisher(&cfg.plan_out, 4096)?,
+            revision: 0,
             status_in,
             mission_in: ctx.subscribe(&cfg.mission_in, None)?,
         })
@@ -312,13 +423,27 @@ impl Module for ManagerModule {
                     );
                     continue;
                 };
+                let goals: Vec<MissionGoal> = m
+                    .goals()
+                    .iter()
+                    .enumerate()
+                    .filter(|(i, g)| match goal_problem(g) {
+                        Some(why) => {
+                            tracing::warn!(module = ctx.name(), goal = i, "goal dropped: {why}");
+                            false
+                        }
+                        None => true,
+                    })
+                    .map(|(_, g)| *g)
+                    .collect();
                 tracing::info!(
                     module = ctx.name(),
                     ?op,
-                    goals = m.goals().len(),
+                    goals = goals.len(),
                     "mission changed"
                 );
-                self.core.apply(op, m.goals());
+                self.core.apply(op, &goals);
+                self.revision += 1;
                 changed = true; // publish the new totals even if the goal stays
             }
         } else if let Some(sub) = self.status_in.iter().find(|s| s.id() == input) {
@@ -420,6 +545,30 @@ mod tests {
         let bytes = encode_state(&m).unwrap();
         let back: MissionCore = decode_state(&bytes).unwrap();
         assert_eq!(back, m);
+    }
+
+    #[test]
+    fn plan_lists_every_goal_with_its_state() {
+        let mut m = MissionCore::new(&[g(1.0), g(2.0), g(3.0)]);
+        assert!(m.on_status(&status(1, GoalState::Reached)));
+        let p = m.plan(7);
+        assert_eq!(p.revision, 7);
+        let states: Vec<&str> = p.goals.iter().map(|e| e.state.as_str()).collect();
+        assert_eq!(states, ["reached", "active", "pending"]);
+        assert_eq!(
+            (p.goals_total, p.goals_reached, p.current_goal_id),
+            (3, 1, 2)
+        );
+        assert_eq!(p.goals[1].x, 2.0);
+        assert!(p.goals[1].theta.is_none());
+        let bad = MissionGoal {
+            tolerance_m: 0.0,
+            ..g(1.0)
+        };
+        assert_eq!(goal_problem(&bad), Some(GoalProblem::Tolerance));
+        let mut nan = g(1.0);
+        nan.pose.y = f64::NAN;
+        assert_eq!(goal_problem(&nan), Some(GoalProblem::Coordinates));
     }
 
     #[test]

@@ -134,7 +134,10 @@ impl Module for MapsModule {
         if let Some(r) = cfg.reload_s {
             ctx.add_timer(seconds("reload_s", r)?.max(Duration::from_millis(100)));
         }
-        // CONTRACTS: `ctx.provide("Mapping")` with `map_out` as its data channel.
+        // Provides "Mapping" on `map_out`.
+        let mut offer = hng_runtime::contract::ServiceOffer::new("Mapping", "hng/GridInfo/v1");
+        offer.channel = cfg.map_out.clone();
+        ctx.provide(offer);
         let out = ctx.slice_publisher::<GridInfo>(&cfg.map_out, grid.data().len())?;
         ctx.set_quality(true, 1.0);
         tracing::info!(

@@ -13,6 +13,10 @@
 //! unreachable are refused: a [`GoalStatus`] `Refused`, an error in the log that says why,
 //! Q = -1, and no waypoint (the servo then stops commanding and Security holds the robot).
 //!
+//! The map comes from its "Mapping" provider (Maps' surveyed map, or SLAM's), the position
+//! from its "Localization" provider; until a provider is known, from the configured `map` and
+//! `pose` channels.
+//!
 //! Quality Q: 1 while following a plan; 0 while waiting for a map, a pose or a goal; -1 when
 //! the goal is refused.
 
@@ -415,7 +419,7 @@ impl PlanningCore {
 #[derive(Debug, Clone, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct PlanningModuleConfig {
-    /// Map input (default `maps/map`).
+    /// Map input until a "Mapping" provider is known (default `maps/map`).
     pub map: String,
     /// Position input (default `slam/pose`).
     pub pose: String,
@@ -454,13 +458,25 @@ struct PlanningState {
 
 /// Rank of Planning's "Reach waypoint" need (contract priority `P(planning).1`).
 pub const WAYPOINT_NEED: u16 = 1;
+/// Rank of Planning's "Mapping" need (contract priority `P(planning).2`).
+pub const MAPPING_NEED: u16 = 2;
 /// Rank of Planning's "Localization" need (contract priority `P(planning).3`).
 pub const LOCALIZATION_NEED: u16 = 3;
 
 /// The Planning module.
 pub struct PlanningModule {
     core: PlanningCore,
+    /// The configured map channel: read until a "Mapping" provider is known, and for the
+    /// provider when it publishes there.
     map: SliceSubscriber<GridInfo>,
+    /// The "Mapping" provider (need rank [`MAPPING_NEED`]), and its channel when it is not
+    /// the configured one.
+    map_provider: Option<ProviderInfo>,
+    map_followed: Option<SliceSubscriber<GridInfo>>,
+    /// The latest map of each publisher seen on the map inputs (a provider's map is on a
+    /// state channel, published once or rarely: kept so that switching providers back and
+    /// forth never leaves Planning without the provider's map).
+    maps_seen: Vec<(u32, OccupancyGrid)>,
     /// The configured pose channel: used only until a "Localization" provider is known.
     pose: Subscriber<PoseWithCovariance>,
     /// The contracted "Localization" provider's pose (need rank [`LOCALIZATION_NEED`]).
@@ -481,6 +497,40 @@ impl std::fmt::Debug for PlanningModule {
 }
 
 impl PlanningModule {
+    /// Reads the map inputs: the provider's maps only once it is known (the configured
+    /// channel's, from any publisher, before).
+    fn read_map(&mut self, ctx: &mut Context) -> ModuleResult {
+        let source = self.map_provider.as_ref().map(|p| p.module.0);
+        let mut use_now = None;
+        let subs = std::iter::once(&self.map).chain(self.map_followed.as_ref());
+        for sub in subs {
+            while let Some(m) = sub.receive()? {
+                let from = m.header().header.source;
+                let g = match grid_from_msg(m.header(), m.data()) {
+                    Ok(g) => g,
+                    Err(e) => {
+                        tracing::warn!(module = ctx.name(), "map ignored: {e}");
+                        continue;
+                    }
+                };
+                // Before a provider is known, the configured channel's maps are used.
+                if source.is_none_or(|s| s == from) {
+                    use_now = Some(from);
+                }
+                match self.maps_seen.iter_mut().find(|(s, _)| *s == from) {
+                    Some(e) => e.1 = g,
+                    None => self.maps_seen.push((from, g)),
+                }
+            }
+        }
+        if let Some(from) = use_now
+            && let Some((_, g)) = self.maps_seen.iter().find(|(s, _)| *s == from)
+        {
+            self.core.set_map(g);
+        }
+        Ok(())
+    }
+
     fn step(&mut self, ctx: &mut Context) -> ModuleResult {
         let Some(pose) = self.last_pose else {
             return Ok(());
@@ -523,16 +573,20 @@ impl Module for PlanningModule {
         if !(p.clearance.is_finite() && p.clearance >= 0.0) {
             return Err(crate::common::field_error("params.clearance", "must be >= 0").into());
         }
-        // Provides "Reach goal" (the Manager's objective) and needs "Reach waypoint" (Servo)
-        // and "Localization": the pose comes from the contracted provider, from `pose` until
-        // one is known. CONTRACTS: the waypoint channel still is `waypoint_out`;
-        // `ctx.need("Mapping")` (→ `map`, rank 2).
+        // Provides "Reach goal" (needed by the Interface, under Human control) and needs
+        // "Reach waypoint" (Servo; the waypoints go on `waypoint_out`), "Mapping" and
+        // "Localization": the map and the pose come from the contracted providers, from `map`
+        // and `pose` until they are known.
         ctx.provide(ServiceOffer::new("Reach goal", ""))
             .need(NeedSpec::required("Reach waypoint", WAYPOINT_NEED))
+            .need(NeedSpec::required("Mapping", MAPPING_NEED))
             .need(NeedSpec::required("Localization", LOCALIZATION_NEED));
         Ok(PlanningModule {
             core: PlanningCore::new(cfg.params),
             map: ctx.subscribe_slice(&cfg.map, None)?,
+            map_provider: None,
+            map_followed: None,
+            maps_seen: Vec::new(),
             pose: ctx.subscribe(&cfg.pose, None)?,
             localization: ProviderInput::new(),
             goal: ctx.subscribe(&cfg.goal, None)?,
@@ -544,16 +598,8 @@ impl Module for PlanningModule {
     }
 
     fn on_input(&mut self, ctx: &mut Context, input: InputId) -> ModuleResult {
-        if input == self.map.id() {
-            let mut latest = None;
-            while let Some(m) = self.map.receive()? {
-                latest = Some(grid_from_msg(m.header(), m.data()));
-            }
-            match latest {
-                Some(Ok(g)) => self.core.set_map(&g),
-                Some(Err(e)) => tracing::warn!(module = ctx.name(), "map ignored: {e}"),
-                None => {}
-            }
+        if input == self.map.id() || self.map_followed.as_ref().is_some_and(|s| s.id() == input) {
+            self.read_map(ctx)?;
         } else if input == self.goal.id() {
             while let Some(g) = self.goal.receive()? {
                 self.core.set_goal(*g);
@@ -585,6 +631,29 @@ impl Module for PlanningModule {
     ) -> ModuleResult {
         if need == LOCALIZATION_NEED {
             self.localization.follow(ctx, provider)?;
+        } else if need == MAPPING_NEED {
+            let want = provider
+                .map(|p| p.channel.as_str())
+                .filter(|c| !c.is_empty() && *c != self.map.channel());
+            let have = self.map_followed.as_ref().map(|s| s.channel().to_string());
+            if want != have.as_deref() {
+                if let Some(old) = self.map_followed.take() {
+                    ctx.unsubscribe(old.id())?;
+                }
+                if let Some(c) = want {
+                    self.map_followed = Some(ctx.subscribe_slice(c, None)?);
+                }
+            }
+            let changed = self.map_provider.as_ref() != provider;
+            self.map_provider = provider.cloned();
+            if changed && let Some(p) = provider {
+                tracing::info!(module = ctx.name(), provider = %p.module, channel = %p.channel, "map from the Mapping provider");
+                // Its map may have been seen already (a state channel, published rarely).
+                self.read_map(ctx)?;
+                if let Some((_, g)) = self.maps_seen.iter().find(|(s, _)| *s == p.module.0) {
+                    self.core.set_map(g);
+                }
+            }
         }
         Ok(())
     }

@@ -1,11 +1,19 @@
 //! Robot: the driver of the mobile base (Table 1: provides "Robot control" and "Odometry";
 //! data in: commands, data out: odometry).
 //!
-//! It obeys one commanding client at a time, by priority (paper 5.6 "Drivers"): commands from
-//! every configured source go through a [`CommandMux`]; the accepted ones are forwarded to the
-//! base (`cmd_out`, the simulator's `sim/cmd_vel` here, a hardware bridge on a real robot) after
-//! clamping to the base's limits. When the client in control goes silent and no other is live,
-//! one stop is sent. Odometry from the base is relayed on `odom_out`.
+//! It is a driver (paper 5.6 "Drivers"): its clients hold "Robot control" contracts and send
+//! their commands on its data channel `cmd_in` (`robot/cmd_vel`, named in its proposals); it
+//! obeys only the live contract holder with the most important priority
+//! (`ctx.drive` + `ctx.command_verdict`: Security 1.1 over the operator's Interface 2.1 over
+//! the Servo-controller 2.2.1.1); commands of the others are ignored and counted
+//! (`commands_preempted`, `commands_no_contract` in its contract table). The accepted ones are
+//! forwarded to the base (`cmd_out`, the simulator's `sim/cmd_vel` here, a hardware bridge on a
+//! real robot) after clamping to the base's limits. When the client in control goes silent
+//! and no other takes over, one stop is sent. Odometry from the base is provided as
+//! "Odometry" on `odom_out` (`robot/odom`).
+//!
+//! Without contracts (benches, systems without a Manager) `sources` wires clients statically,
+//! each with a configured priority ([`CommandMux`]).
 //!
 //! Quality Q: 1 while odometry flows and the last command was well formed; 0.5 after a
 //! non-finite command was replaced by a stop; -1 (aptitude 0) when odometry stops (the base
@@ -14,6 +22,7 @@
 use std::time::Duration;
 
 use hng_runtime::channel::InputId;
+use hng_runtime::contract::{ServiceOffer, Verdict};
 use hng_runtime::msg::{Odometry, Twist};
 use hng_runtime::{Context, Module, ModuleResult, Publisher, Subscriber, TimerId};
 use serde::{Deserialize, Serialize};
@@ -26,8 +35,11 @@ use crate::common::{
 #[derive(Debug, Clone, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct RobotConfig {
-    /// Clients that may command the base, with their priorities. Default: `security/cmd_vel`
-    /// (1.1), `teleop/cmd_vel` (2.1), `servo/cmd_vel` (2.2.1.1), the paper's 5.8 example.
+    /// The "Robot control" data channel: contracted clients send their commands here
+    /// (default `robot/cmd_vel`).
+    pub cmd_in: String,
+    /// Static clients, each with a configured priority, for systems without contracts
+    /// (default none: only contract holders command the base).
     pub sources: Vec<CommandSource>,
     /// A client loses control after this long without a command, s (default 0.5).
     pub freshness_s: f64,
@@ -48,11 +60,8 @@ pub struct RobotConfig {
 impl Default for RobotConfig {
     fn default() -> Self {
         RobotConfig {
-            sources: vec![
-                CommandSource::new("security/cmd_vel", "1.1"),
-                CommandSource::new("teleop/cmd_vel", "2.1"),
-                CommandSource::new("servo/cmd_vel", "2.2.1.1"),
-            ],
+            cmd_in: "robot/cmd_vel".into(),
+            sources: Vec::new(),
             freshness_s: 0.5,
             cmd_out: "sim/cmd_vel".into(),
             odom_in: "sim/odom".into(),
@@ -81,8 +90,15 @@ struct RobotState {
     invalid: u64,
 }
 
+/// The "Robot control" service.
+pub const ROBOT_CONTROL: &str = "Robot control";
+
 /// The Robot driver module.
 pub struct RobotModule {
+    cmd_in: Subscriber<Twist>,
+    /// When the last contracted command was obeyed (`None`: nobody in control).
+    obeyed_at: Option<Duration>,
+    freshness: Duration,
     sources: Vec<Subscriber<Twist>>,
     mux: CommandMux,
     cmd_out: Publisher<Twist>,
@@ -113,6 +129,24 @@ impl RobotModule {
         Ok(())
     }
 
+    /// Forwards `cmd` (a stop if it is not finite), counting invalid commands.
+    fn obey(&mut self, ctx: &mut Context, cmd: &Twist, from: &str) -> ModuleResult {
+        let finite = [cmd.linear_x, cmd.linear_y, cmd.angular_z]
+            .iter()
+            .all(|v| v.is_finite());
+        if finite {
+            return self.send(cmd);
+        }
+        self.state.invalid += 1;
+        tracing::warn!(
+            module = ctx.name(),
+            source = from,
+            "non-finite command replaced by a stop"
+        );
+        self.update_quality(ctx);
+        self.send(&Twist::default())
+    }
+
     fn update_quality(&self, ctx: &mut Context) {
         if !self.odom_ok {
             ctx.set_quality(false, -1.0);
@@ -132,8 +166,18 @@ impl Module for RobotModule {
         let odom_timeout = seconds("odom_timeout_s", cfg.odom_timeout_s)?;
         positive("max_linear_speed", cfg.max_linear_speed)?;
         positive("max_angular_speed", cfg.max_angular_speed)?;
-        // CONTRACTS: `ctx.provide("Robot control")` and `ctx.provide("Odometry")` go here, and
-        // the arbiter's holders then come from the client contracts (see `CommandMux`).
+        if cfg.cmd_in.is_empty() {
+            return Err(crate::common::field_error("cmd_in", "is empty").into());
+        }
+        // Provides "Robot control" (commands in on `cmd_in`, obeyed by contract priority) and
+        // "Odometry" (on `odom_out`).
+        let mut control = ServiceOffer::new(ROBOT_CONTROL, "hng/Twist/v1");
+        control.channel = cfg.cmd_in.clone();
+        let mut odometry = ServiceOffer::new("Odometry", "hng/Odometry/v1");
+        odometry.channel = cfg.odom_out.clone();
+        ctx.provide(control)
+            .provide(odometry)
+            .drive(ROBOT_CONTROL, freshness);
         let mux = CommandMux::new(&cfg.sources, freshness)?;
         let mut sources = Vec::with_capacity(cfg.sources.len());
         for s in &cfg.sources {
@@ -141,6 +185,9 @@ impl Module for RobotModule {
         }
         ctx.add_timer((freshness / 4).max(Duration::from_millis(10)));
         Ok(RobotModule {
+            cmd_in: ctx.subscribe(&cfg.cmd_in, None)?,
+            obeyed_at: None,
+            freshness,
             sources,
             mux,
             cmd_out: ctx.publisher(&cfg.cmd_out)?,
@@ -162,32 +209,44 @@ impl Module for RobotModule {
             self.update_quality(ctx);
             return Ok(());
         }
+        if input == self.cmd_in.id() {
+            // Contract holders: only the live one with the most important priority is obeyed.
+            while let Some(cmd) = self.cmd_in.receive()? {
+                let cmd = *cmd;
+                if ctx.command_verdict(ROBOT_CONTROL, &cmd.header) == Verdict::Accept {
+                    self.obeyed_at = Some(ctx.now());
+                    self.obey(ctx, &cmd, "contract")?;
+                }
+            }
+            return Ok(());
+        }
         let Some(i) = self.sources.iter().position(|s| s.id() == input) else {
             return Ok(());
         };
         let now = ctx.now();
         while let Some(cmd) = self.sources[i].receive()? {
-            let finite = [cmd.linear_x, cmd.linear_y, cmd.angular_z]
-                .iter()
-                .all(|v| v.is_finite());
-            if let MuxAction::Send(out) = self.mux.on_command(i as u32, &cmd, now) {
-                if !finite {
-                    self.state.invalid += 1;
-                    tracing::warn!(
-                        module = ctx.name(),
-                        source = self.sources[i].channel(),
-                        "non-finite command replaced by a stop"
-                    );
-                    self.update_quality(ctx);
-                }
-                self.send(&out)?;
+            let cmd = *cmd;
+            if let MuxAction::Send(_) = self.mux.on_command(i as u32, &cmd, now) {
+                let from = self.sources[i].channel().to_string();
+                self.obey(ctx, &cmd, &from)?;
             }
         }
         Ok(())
     }
 
     fn on_tick(&mut self, ctx: &mut Context, _timer: TimerId) -> ModuleResult {
-        if let MuxAction::Send(stop) = self.mux.on_tick(ctx.now()) {
+        // The contracted client in control went silent and nobody took over: one stop.
+        let now = ctx.now();
+        if self
+            .obeyed_at
+            .is_some_and(|t| now.saturating_sub(t) >= self.freshness)
+        {
+            self.obeyed_at = None;
+            tracing::debug!(module = ctx.name(), "commanding client went silent: stop");
+            self.state.stops += 1;
+            self.send(&Twist::default())?;
+        }
+        if let MuxAction::Send(stop) = self.mux.on_tick(now) {
             tracing::debug!(module = ctx.name(), "commanding client went silent: stop");
             self.state.stops += 1;
             self.send(&stop)?;

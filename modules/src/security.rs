@@ -1,13 +1,20 @@
 //! Security: robot integrity (Table 1: provides "Robot integrity", needs "Robot control" and
 //! "LIDAR data"; data in: lidar, data out: commands).
 //!
-//! Security sits between the clients that want to move the robot and the Robot driver. It
-//! takes the desired command of the most important live client (its own [`CommandMux`] over
-//! `sources`, by default teleoperation 2.1 and the servo-controller 2.2.1.1), limits its
-//! speed to what the lidar says is safe, and publishes the result on `cmd_out` as the most
-//! important client of the Robot (priority 1.1), at every scan and every desired command.
-//! When no client commands, it commands a stop: the robot holds still. Without a fresh scan it
-//! commands a stop too (it cannot vouch for anything it cannot see).
+//! Security answers the Manager's objective 1, so its "Robot control" contract with the Robot
+//! driver has priority 1.1, the most important of the Robot's clients (paper 5.8): while it
+//! commands, the Robot obeys only it. The other clients (the operator's Interface 2.1, the
+//! Servo-controller 2.2.1.1) send their commands to the Robot's channel as well; Security
+//! reads them there, takes the command of the most important live one (the priorities of the
+//! Robot's contracts, from the Robot's contract table on `hng/contracts`), limits its speed to
+//! what the lidar says is safe, and sends the result to the Robot at every scan and every
+//! desired command. When no client commands, it commands a stop: the robot holds still.
+//! Without a fresh scan it commands a stop too (it cannot vouch for anything it cannot see).
+//! The lidar comes from its "LIDAR data" provider (the configured `scan` channel until one is
+//! known).
+//!
+//! Without contracts (benches, systems without a Manager), `sources` wires the clients
+//! statically with configured priorities, and the result goes to `cmd_out`.
 //!
 //! The speed limit ([`speed_limit`]): the free distance `d` along the robot's path (the swept
 //! disc of radius `robot_radius + side_margin`, straight or along the arc of the commanded
@@ -23,14 +30,23 @@
 use std::f64::consts::PI;
 
 use hng_runtime::channel::InputId;
-use hng_runtime::contract::ServiceOffer;
+use hng_runtime::contract::{NeedSpec, ServiceOffer};
+use hng_runtime::control::ProviderInfo;
 use hng_runtime::msg::{LaserScan, Twist};
+use hng_runtime::system::{CONTRACTS, ContractTable};
 use hng_runtime::{Context, Module, ModuleResult, Publisher, Subscriber};
 use serde::{Deserialize, Serialize};
 
 use crate::common::{
-    CommandMux, CommandSource, MuxAction, decode_state, encode_state, positive, seconds,
+    CommandMux, CommandSource, ContractHolders, ContractedInput, MuxAction, decode_state,
+    encode_state, positive, seconds,
 };
+use crate::robot::ROBOT_CONTROL;
+
+/// Rank of Security's "Robot control" need (contract priority `P(security).1`: 1.1).
+pub const ROBOT_CONTROL_NEED: u16 = 1;
+/// Rank of Security's "LIDAR data" need (1.2).
+pub const LIDAR_NEED: u16 = 2;
 
 /// Parameters of the safety envelope.
 #[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize)]
@@ -227,14 +243,15 @@ pub fn decide(desired: &Twist, scan: &ScanView<'_>, cfg: &SafetyConfig) -> Decis
 #[derive(Debug, Clone, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct SecurityModuleConfig {
-    /// Lidar input (default `laser/scan`).
+    /// Lidar input until a "LIDAR data" provider is known (default `laser/scan`).
     pub scan: String,
-    /// The clients whose commands are made safe (default `teleop/cmd_vel` 2.1,
-    /// `servo/cmd_vel` 2.2.1.1).
+    /// Static clients whose commands are made safe, with configured priorities, for systems
+    /// without contracts (default none: the clients are the Robot's contract holders).
     pub sources: Vec<CommandSource>,
     /// A client's command counts for this long, s (default 0.5).
     pub freshness_s: f64,
-    /// Output to the Robot, as its most important client (default `security/cmd_vel`).
+    /// Output of the static mode (with `sources`; default `security/cmd_vel`). With contracts
+    /// the output is the Robot's "Robot control" channel.
     pub cmd_out: String,
     /// No scan for this long: stop and report inaptitude, s (default 0.5).
     pub scan_timeout_s: f64,
@@ -246,10 +263,7 @@ impl Default for SecurityModuleConfig {
     fn default() -> Self {
         SecurityModuleConfig {
             scan: "laser/scan".into(),
-            sources: vec![
-                CommandSource::new("teleop/cmd_vel", "2.1"),
-                CommandSource::new("servo/cmd_vel", "2.2.1.1"),
-            ],
+            sources: Vec::new(),
             freshness_s: 0.5,
             cmd_out: "security/cmd_vel".into(),
             scan_timeout_s: 0.5,
@@ -266,14 +280,30 @@ struct SecurityState {
     min_free_m: f64,
 }
 
+/// Where Security's commands go and where the desired ones come from.
+enum Wiring {
+    /// `sources` configured: a mux keyed by source index, output on `cmd_out`.
+    Static {
+        sources: Vec<Subscriber<Twist>>,
+        cmd_out: Publisher<Twist>,
+    },
+    /// The Robot's "Robot control" channel, once contracted: its other clients' commands in,
+    /// Security's out; the mux is keyed by module id with the priorities of the Robot's
+    /// contracts.
+    Contract {
+        robot: Option<(ProviderInfo, Subscriber<Twist>, Publisher<Twist>)>,
+        tables: Subscriber<ContractTable>,
+        holders: ContractHolders,
+    },
+}
+
 /// The Security module.
 pub struct SecurityModule {
-    scan: Subscriber<LaserScan>,
-    sources: Vec<Subscriber<Twist>>,
+    scan: ContractedInput<LaserScan>,
+    wiring: Wiring,
     mux: CommandMux,
     desired: Option<(u32, Twist)>,
     last_scan: Option<LaserScan>,
-    cmd_out: Publisher<Twist>,
     cfg: SafetyConfig,
     state: SecurityState,
     was_limited: bool,
@@ -288,6 +318,19 @@ impl std::fmt::Debug for SecurityModule {
 }
 
 impl SecurityModule {
+    /// Sends a command to the Robot (nothing before a "Robot control" contract).
+    fn send(&self, cmd: Twist) -> ModuleResult {
+        match &self.wiring {
+            Wiring::Static { cmd_out, .. } => cmd_out.publish(cmd)?,
+            Wiring::Contract {
+                robot: Some((_, _, out)),
+                ..
+            } => out.publish(cmd)?,
+            Wiring::Contract { robot: None, .. } => {}
+        }
+        Ok(())
+    }
+
     /// Decides and publishes the command for the current scan and desired command.
     fn act(&mut self, ctx: &mut Context) -> ModuleResult {
         let now = ctx.now();
@@ -297,7 +340,7 @@ impl SecurityModule {
             _ => Twist::default(), // nobody commands: hold still
         };
         let Some(scan) = &self.last_scan else {
-            self.cmd_out.publish(Twist::default())?;
+            self.send(Twist::default())?;
             return Ok(());
         };
         let d = decide(&desired, &ScanView::of(scan), &self.cfg);
@@ -318,7 +361,69 @@ impl SecurityModule {
             );
             self.was_limited = d.limited;
         }
-        self.cmd_out.publish(d.cmd)?;
+        self.send(d.cmd)?;
+        Ok(())
+    }
+
+    /// Reads the desired commands of the clients on `input`; true if one was taken.
+    fn read_commands(&mut self, ctx: &mut Context, input: InputId) -> ModuleResult<bool> {
+        let now = ctx.now();
+        let own = ctx.module_id().0;
+        let mut got = false;
+        match &self.wiring {
+            Wiring::Static { sources, .. } => {
+                let Some(i) = sources.iter().position(|s| s.id() == input) else {
+                    return Ok(false);
+                };
+                while let Some(cmd) = sources[i].receive()? {
+                    if let MuxAction::Send(c) = self.mux.on_command(i as u32, &cmd, now) {
+                        self.desired = Some((i as u32, c));
+                        got = true;
+                    }
+                }
+            }
+            Wiring::Contract {
+                robot: Some((_, sub, _)),
+                ..
+            } if sub.id() == input => {
+                while let Some(cmd) = sub.receive()? {
+                    let from = cmd.header.source;
+                    if from == own {
+                        continue; // our own commands to the Robot
+                    }
+                    if let MuxAction::Send(c) = self.mux.on_command(from, &cmd, now) {
+                        self.desired = Some((from, c));
+                        got = true;
+                    }
+                }
+            }
+            Wiring::Contract { .. } => {}
+        }
+        Ok(got)
+    }
+
+    /// Reads the contract tables: the Robot's tells who may command and with what priority.
+    fn read_tables(&mut self, ctx: &mut Context) -> ModuleResult {
+        let own = ctx.module_id();
+        let Wiring::Contract {
+            robot,
+            tables,
+            holders,
+        } = &mut self.wiring
+        else {
+            return Ok(());
+        };
+        let provider = robot.as_ref().map(|(p, _, _)| p.module);
+        let mut changed = false;
+        while let Some(t) = tables.receive()? {
+            if let Some(p) = provider {
+                changed |= holders.update(&t, p, ROBOT_CONTROL, own);
+            }
+        }
+        if changed {
+            tracing::debug!(module = ctx.name(), holders = ?holders.holders(), "Robot control clients");
+            self.mux.sync(holders.holders().iter().copied());
+        }
         Ok(())
     }
 }
@@ -338,24 +443,34 @@ impl Module for SecurityModule {
         }
         let freshness = seconds("freshness_s", cfg.freshness_s)?;
         let scan_timeout = seconds("scan_timeout_s", cfg.scan_timeout_s)?;
-        // Provides the Manager's objective "Robot integrity".
-        ctx.provide(ServiceOffer::new("Robot integrity", ""));
-        // CONTRACTS: `ctx.need("Robot control")` (its
-        // command channel becomes `cmd_out`) and `ctx.need("LIDAR data")` (its channel becomes
-        // `scan`); the desired commands then come from this module's own client contracts.
-        let mux = CommandMux::new(&cfg.sources, freshness)?;
-        let mut sources = Vec::new();
-        for src in &cfg.sources {
-            sources.push(ctx.subscribe::<Twist>(&src.channel, None)?);
-        }
+        // Provides the Manager's objective "Robot integrity"; needs "Robot control" (1.1: the
+        // Robot's most important client) and "LIDAR data" (1.2).
+        ctx.provide(ServiceOffer::new("Robot integrity", ""))
+            .need(NeedSpec::required(ROBOT_CONTROL, ROBOT_CONTROL_NEED))
+            .need(NeedSpec::required("LIDAR data", LIDAR_NEED));
+        let (wiring, mux) = if cfg.sources.is_empty() {
+            let wiring = Wiring::Contract {
+                robot: None,
+                tables: ctx.subscribe(CONTRACTS, None)?,
+                holders: ContractHolders::default(),
+            };
+            (wiring, CommandMux::contracted(freshness))
+        } else {
+            let mux = CommandMux::new(&cfg.sources, freshness)?;
+            let mut sources = Vec::new();
+            for src in &cfg.sources {
+                sources.push(ctx.subscribe::<Twist>(&src.channel, None)?);
+            }
+            let cmd_out = ctx.publisher(&cfg.cmd_out)?;
+            (Wiring::Static { sources, cmd_out }, mux)
+        };
         ctx.set_quality(false, -1.0);
         Ok(SecurityModule {
-            scan: ctx.subscribe(&cfg.scan, Some(scan_timeout))?,
-            sources,
+            scan: ContractedInput::new(ctx, &cfg.scan, Some(scan_timeout))?,
+            wiring,
             mux,
             desired: None,
             last_scan: None,
-            cmd_out: ctx.publisher(&cfg.cmd_out)?,
             cfg: cfg.safety,
             state: SecurityState {
                 min_free_m: f64::INFINITY,
@@ -366,7 +481,7 @@ impl Module for SecurityModule {
     }
 
     fn on_input(&mut self, ctx: &mut Context, input: InputId) -> ModuleResult {
-        if input == self.scan.id() {
+        if self.scan.is(input) {
             let mut got = false;
             while let Some(s) = self.scan.receive()? {
                 self.last_scan = Some(*s);
@@ -381,19 +496,49 @@ impl Module for SecurityModule {
             }
             return Ok(());
         }
-        let Some(i) = self.sources.iter().position(|s| s.id() == input) else {
+        if let Wiring::Contract { tables, .. } = &self.wiring
+            && tables.id() == input
+        {
+            return self.read_tables(ctx);
+        }
+        if self.read_commands(ctx, input)? {
+            self.act(ctx)?;
+        }
+        Ok(())
+    }
+
+    fn on_provider_changed(
+        &mut self,
+        ctx: &mut Context,
+        need: u16,
+        provider: Option<&ProviderInfo>,
+    ) -> ModuleResult {
+        if need == LIDAR_NEED {
+            self.scan.follow(ctx, provider)?;
+            return Ok(());
+        }
+        if need != ROBOT_CONTROL_NEED {
+            return Ok(());
+        }
+        let Wiring::Contract { robot, holders, .. } = &mut self.wiring else {
             return Ok(());
         };
-        let now = ctx.now();
-        let mut got = false;
-        while let Some(cmd) = self.sources[i].receive()? {
-            if let MuxAction::Send(c) = self.mux.on_command(i as u32, &cmd, now) {
-                self.desired = Some((i as u32, c));
-                got = true;
-            }
+        let same = matches!((robot.as_ref(), provider), (Some((a, _, _)), Some(b)) if a == b);
+        if same {
+            return Ok(());
         }
-        if got {
-            self.act(ctx)?;
+        if let Some((_, sub, out)) = robot.take() {
+            // Leave the old Robot stopped.
+            let _ = out.publish(Twist::default());
+            ctx.unsubscribe(sub.id())?;
+        }
+        holders.clear();
+        self.mux.sync(std::iter::empty());
+        self.desired = None;
+        if let Some(p) = provider.filter(|p| !p.channel.is_empty()) {
+            let sub = ctx.subscribe::<Twist>(&p.channel, None)?;
+            let out = ctx.publisher::<Twist>(&p.channel)?;
+            *robot = Some((p.clone(), sub, out));
         }
         Ok(())
     }
@@ -403,7 +548,7 @@ impl Module for SecurityModule {
         self.last_scan = None;
         self.state.stops_no_scan += 1;
         ctx.set_quality(false, -1.0);
-        self.cmd_out.publish(Twist::default())?;
+        self.send(Twist::default())?;
         Ok(())
     }
 
@@ -417,7 +562,7 @@ impl Module for SecurityModule {
     }
 
     fn stop(&mut self, _ctx: &mut Context) {
-        let _ = self.cmd_out.publish(Twist::default());
+        let _ = self.send(Twist::default());
     }
 }
 

@@ -9,6 +9,10 @@
 //! `goal_tolerance_m` of it the goal is reached: a stop, a [`GoalStatus`] `Reached`, and
 //! silence until the next goal (so the client above regains the robot).
 //!
+//! Its commands go to the Robot's "Robot control" channel under its contract with the Robot
+//! (priority 2.2.1.1 in the paper's tree: the operator and Security override it); before that
+//! contract exists it sends nothing.
+//!
 //! Quality Q: `1 − |α|/π` while following (1 on the path, lower when far off heading); 0 with
 //! no waypoint; -1 (aptitude 0) without a recent position.
 
@@ -154,10 +158,8 @@ impl ServoCore {
 pub struct ServoModuleConfig {
     /// Waypoint input (default `planning/waypoint`).
     pub waypoint: String,
-    /// Position input (default `slam/pose`).
+    /// Position input until a "Localization" provider is known (default `slam/pose`).
     pub pose: String,
-    /// Commands out (default `servo/cmd_vel`).
-    pub cmd_out: String,
     /// Goal status out (default `servo/status`).
     pub status_out: String,
     /// A waypoint older than this is not followed, s (default 1.0).
@@ -173,7 +175,6 @@ impl Default for ServoModuleConfig {
         ServoModuleConfig {
             waypoint: "planning/waypoint".into(),
             pose: "slam/pose".into(),
-            cmd_out: "servo/cmd_vel".into(),
             status_out: "servo/status".into(),
             waypoint_timeout_s: 1.0,
             pose_timeout_s: 0.5,
@@ -188,6 +189,8 @@ struct ServoState {
     goals_reached: u64,
 }
 
+/// Rank of Servo's "Robot control" need (its contract priority is `P(servo).1`).
+pub const ROBOT_CONTROL_NEED: u16 = 1;
 /// Rank of Servo's "Localization" need (its contract priority is `P(servo).2`).
 pub const LOCALIZATION_NEED: u16 = 2;
 
@@ -199,7 +202,8 @@ pub struct ServoModule {
     pose: Subscriber<PoseWithCovariance>,
     /// The contracted "Localization" provider's pose (need rank [`LOCALIZATION_NEED`]).
     localization: ProviderInput<PoseWithCovariance>,
-    cmd_out: Publisher<Twist>,
+    /// Commands to the contracted Robot's channel (need rank [`ROBOT_CONTROL_NEED`]).
+    cmd_out: Option<Publisher<Twist>>,
     status_out: Publisher<GoalStatus>,
     last_wp: Option<(Waypoint, Duration)>,
     last_pose: Option<(Pose2D, Duration)>,
@@ -233,8 +237,8 @@ impl ServoModule {
             return Ok(());
         };
         let out = self.core.command(&pose, &wp);
-        if let Some(cmd) = out.cmd {
-            self.cmd_out.publish(cmd)?;
+        if let (Some(cmd), Some(cmd_out)) = (out.cmd, &self.cmd_out) {
+            cmd_out.publish(cmd)?;
         }
         if out.reached {
             self.state.reached_goal = Some(wp.goal_id);
@@ -271,10 +275,14 @@ impl Module for ServoModule {
         positive("params.heading_gain", p.heading_gain)?;
         let wp_timeout = seconds("waypoint_timeout_s", cfg.waypoint_timeout_s)?;
         let pose_timeout = seconds("pose_timeout_s", cfg.pose_timeout_s)?;
-        // Provides "Reach waypoint" (needed by Planning) and needs "Localization": the pose
-        // comes from the contracted provider, from `pose` until one is known.
-        // CONTRACTS: `ctx.need("Robot control")` (→ `cmd_out`).
+        // Provides "Reach waypoint" (needed by Planning); needs "Robot control" (its commands
+        // go to the Robot's channel) and "Localization" (the pose comes from the contracted
+        // provider, from `pose` until one is known).
         ctx.provide(ServiceOffer::new("Reach waypoint", ""))
+            .need(NeedSpec::required(
+                crate::robot::ROBOT_CONTROL,
+                ROBOT_CONTROL_NEED,
+            ))
             .need(NeedSpec::required("Localization", LOCALIZATION_NEED));
         ctx.add_timer(Duration::from_millis(100));
         ctx.set_quality(false, -1.0);
@@ -283,7 +291,7 @@ impl Module for ServoModule {
             waypoint: ctx.subscribe(&cfg.waypoint, None)?,
             pose: ctx.subscribe(&cfg.pose, None)?,
             localization: ProviderInput::new(),
-            cmd_out: ctx.publisher(&cfg.cmd_out)?,
+            cmd_out: None,
             status_out: ctx.publisher(&cfg.status_out)?,
             last_wp: None,
             last_pose: None,
@@ -338,6 +346,16 @@ impl Module for ServoModule {
     ) -> ModuleResult {
         if need == LOCALIZATION_NEED {
             self.localization.follow(ctx, provider)?;
+        } else if need == ROBOT_CONTROL_NEED {
+            let want = provider
+                .map(|p| p.channel.as_str())
+                .filter(|c| !c.is_empty());
+            if want != self.cmd_out.as_ref().map(|p| p.channel()) {
+                self.cmd_out = match want {
+                    Some(c) => Some(ctx.publisher(c)?),
+                    None => None,
+                };
+            }
         }
         Ok(())
     }

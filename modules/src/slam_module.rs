@@ -9,25 +9,33 @@
 //! rate. The beam geometry comes from the first scan. The map frame is fixed by
 //! `initial_pose` (the robot's start in the world, for the map to line up with a known map).
 //!
+//! Contracts: provides "Localization" on `pose_out` and "Mapping" on `map_out`; needs
+//! "Odometry" (rank 1, from the Robot) and "LIDAR data" (rank 2, from the Laser), followed on
+//! their providers' channels. SLAM tracks whether selected or not (it must be ready when the
+//! GPS degrades): while it has no provider (it is not selected, so it makes no contracts) it
+//! reads the configured `odom` and `scan` channels.
+//!
 //! Quality Q: the front end's match quality (`2·score − 1`, see [`crate::slam::PoseEstimate`]),
 //! smoothed over a few scans, times [`SLAM_Q_SCALE`]; -1 (aptitude 0) when scans or odometry stop.
 //!
-//! Checkpoint: the pose and the number of scans; after a restart the pose continues from
-//! there (motion during the downtime is not seen) and the local map is rebuilt from the next
-//! scans.
+//! Checkpoint: the pose, the odometry reading it goes with, and the number of scans. After a
+//! restart the tracker is anchored there: its first pose is the checkpointed pose plus the
+//! odometry motion since the checkpoint, so the motion during the downtime (and since the last
+//! periodic checkpoint) is not lost; the local map is rebuilt from the next scans.
 
 use std::time::Duration;
 
 use hng_runtime::channel::InputId;
-use hng_runtime::contract::ServiceOffer;
+use hng_runtime::contract::{NeedSpec, ServiceOffer};
+use hng_runtime::control::ProviderInfo;
 use hng_runtime::msg::{
     FrameId, GridInfo, Header, LaserScan, Odometry, Pose2D, PoseWithCovariance,
 };
-use hng_runtime::{Context, Module, ModuleResult, Publisher, SlicePublisher, Subscriber, TimerId};
+use hng_runtime::{Context, Module, ModuleResult, Publisher, SlicePublisher, TimerId};
 use nalgebra::{Isometry2, Vector2};
 use serde::{Deserialize, Serialize};
 
-use crate::common::{compose, decode_state, encode_state, relative, seconds};
+use crate::common::{ContractedInput, compose, decode_state, encode_state, relative, seconds};
 use crate::maps::msg_from_grid;
 use crate::slam::{EstimateSource, LaserConfig, SlamConfig, SlamFrontEnd};
 
@@ -90,6 +98,22 @@ impl SlamTracker {
             quality: 0.0,
             scans: 0,
         }
+    }
+
+    /// A tracker resuming from a checkpoint: the robot was at `pose` (map frame) when the
+    /// odometry read `odom`, so the next odometry places it at `pose` plus the motion since.
+    /// Without `odom` (a checkpoint taken before any odometry) it starts at `pose`.
+    pub fn resume(cfg: SlamConfig, pose: Pose2D, odom: Option<Pose2D>) -> SlamTracker {
+        SlamTracker {
+            odom_at_scan: odom,
+            ..SlamTracker::new(cfg, pose)
+        }
+    }
+
+    /// What a checkpoint needs to [`SlamTracker::resume`]: the current pose and the odometry
+    /// reading it corresponds to.
+    pub fn anchor(&self) -> (Pose2D, Option<Pose2D>) {
+        (self.pose(), self.odom.or(self.odom_at_scan))
     }
 
     /// Odometry arrived.
@@ -183,9 +207,9 @@ impl SlamTracker {
 #[derive(Debug, Clone, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct SlamModuleConfig {
-    /// Lidar input (default `laser/scan`).
+    /// Lidar input until a "LIDAR data" provider is known (default `laser/scan`).
     pub scan: String,
-    /// Odometry input (default `robot/odom`).
+    /// Odometry input until an "Odometry" provider is known (default `robot/odom`).
     pub odom: String,
     /// Position out (default `slam/pose`).
     pub pose_out: String,
@@ -219,14 +243,21 @@ impl Default for SlamModuleConfig {
 #[derive(Debug, Clone, Copy, Default, Serialize, Deserialize, PartialEq)]
 struct SlamState {
     pose: Pose2D,
+    /// The odometry reading at `pose` (`None` before any odometry).
+    odom: Option<Pose2D>,
     scans: u64,
 }
+
+/// Rank of SLAM's "Odometry" need.
+pub const ODOMETRY_NEED: u16 = 1;
+/// Rank of SLAM's "LIDAR data" need.
+pub const LIDAR_NEED: u16 = 2;
 
 /// The SLAM module.
 pub struct SlamModule {
     tracker: SlamTracker,
-    scan: Subscriber<LaserScan>,
-    odom: Subscriber<Odometry>,
+    scan: ContractedInput<LaserScan>,
+    odom: ContractedInput<Odometry>,
     pose_out: Publisher<PoseWithCovariance>,
     map_out: Option<SlicePublisher<GridInfo>>,
     restored_scans: u64,
@@ -256,6 +287,8 @@ impl SlamModule {
 
 impl Module for SlamModule {
     type Config = SlamModuleConfig;
+    /// 2: the checkpoint carries the odometry reading of its pose.
+    const STATE_VERSION: u32 = 2;
 
     fn configure(ctx: &mut Context, cfg: SlamModuleConfig) -> ModuleResult<Self> {
         let timeout = seconds("input_timeout_s", cfg.input_timeout_s)?;
@@ -271,18 +304,25 @@ impl Module for SlamModule {
             Some(ctx.slice_publisher::<GridInfo>(&cfg.map_out, 1 << 16)?)
         };
         // Provides "Localization" on `pose_out`, with Q scaled by `SLAM_Q_SCALE` so that a
-        // good GPS fix is preferred and SLAM takes over where the GPS degrades. SLAM keeps
-        // tracking and publishing whether selected or not (its inputs are the configured
-        // channels). CONTRACTS: `ctx.provide("Mapping")` (→ `map_out`); `ctx.need("Odometry")`
-        // (→ `odom`) and `ctx.need("LIDAR data")` (→ `scan`).
+        // good GPS fix is preferred and SLAM takes over where the GPS degrades, and "Mapping"
+        // on `map_out` (below a surveyed map's Q = 1, so Maps is preferred where it runs).
+        // SLAM keeps tracking and publishing whether selected or not; its inputs follow its
+        // "Odometry" and "LIDAR data" providers, the configured channels until they are known.
         let mut offer = ServiceOffer::new("Localization", "hng/PoseWithCovariance/v1");
         offer.channel = cfg.pose_out.clone();
         ctx.provide(offer);
+        if !cfg.map_out.is_empty() {
+            let mut mapping = ServiceOffer::new("Mapping", "hng/GridInfo/v1");
+            mapping.channel = cfg.map_out.clone();
+            ctx.provide(mapping);
+        }
+        ctx.need(NeedSpec::required("Odometry", ODOMETRY_NEED))
+            .need(NeedSpec::required("LIDAR data", LIDAR_NEED));
         ctx.set_quality(false, 0.0);
         Ok(SlamModule {
             tracker: SlamTracker::new(scfg, cfg.initial_pose),
-            scan: ctx.subscribe(&cfg.scan, Some(timeout))?,
-            odom: ctx.subscribe(&cfg.odom, Some(timeout))?,
+            scan: ContractedInput::new(ctx, &cfg.scan, Some(timeout))?,
+            odom: ContractedInput::new(ctx, &cfg.odom, Some(timeout))?,
             pose_out: ctx.publisher(&cfg.pose_out)?,
             map_out,
             restored_scans: 0,
@@ -290,7 +330,7 @@ impl Module for SlamModule {
     }
 
     fn on_input(&mut self, ctx: &mut Context, input: InputId) -> ModuleResult {
-        if input == self.odom.id() {
+        if self.odom.is(input) {
             let mut got = false;
             while let Some(o) = self.odom.receive()? {
                 self.tracker.on_odometry(o.pose);
@@ -299,7 +339,7 @@ impl Module for SlamModule {
             if got {
                 self.publish_pose()?;
             }
-        } else if input == self.scan.id() {
+        } else if self.scan.is(input) {
             let mut latest = None;
             while let Some(s) = self.scan.receive()? {
                 latest = Some(*s);
@@ -325,7 +365,7 @@ impl Module for SlamModule {
     }
 
     fn on_deadline_missed(&mut self, ctx: &mut Context, input: InputId) -> ModuleResult {
-        let what = if input == self.scan.id() {
+        let what = if self.scan.is(input) {
             "lidar"
         } else {
             "odometry"
@@ -335,16 +375,32 @@ impl Module for SlamModule {
         Ok(())
     }
 
+    fn on_provider_changed(
+        &mut self,
+        ctx: &mut Context,
+        need: u16,
+        provider: Option<&ProviderInfo>,
+    ) -> ModuleResult {
+        match need {
+            ODOMETRY_NEED => self.odom.follow(ctx, provider)?,
+            LIDAR_NEED => self.scan.follow(ctx, provider)?,
+            _ => {}
+        }
+        Ok(())
+    }
+
     fn checkpoint(&self) -> Option<Vec<u8>> {
+        let (pose, odom) = self.tracker.anchor();
         encode_state(&SlamState {
-            pose: self.tracker.pose(),
+            pose,
+            odom,
             scans: self.restored_scans + self.tracker.scans(),
         })
     }
 
     fn restore(&mut self, state: &[u8]) -> ModuleResult {
         let s: SlamState = decode_state(state)?;
-        self.tracker = SlamTracker::new(self.tracker.cfg, s.pose);
+        self.tracker = SlamTracker::resume(self.tracker.cfg, s.pose, s.odom);
         self.restored_scans = s.scans;
         Ok(())
     }
@@ -413,5 +469,45 @@ mod tests {
         );
         assert!(t.quality() > 0.5, "Q {}", t.quality());
         assert!(t.map().is_some());
+    }
+
+    #[test]
+    fn a_resumed_tracker_sees_the_motion_since_its_checkpoint() {
+        let start = Pose2D {
+            x: 2.0,
+            y: 2.0,
+            theta: 0.0,
+        };
+        // Odometry has its own frame: it reads (10, -3, 1) when the robot is at the start.
+        let odom0 = Pose2D {
+            x: 10.0,
+            y: -3.0,
+            theta: 1.0,
+        };
+        let mut t = SlamTracker::new(SlamConfig::default(), start);
+        t.on_odometry(odom0);
+        t.on_scan(&box_scan(&start)).expect("odometry is known");
+        let (pose, odom) = t.anchor();
+        assert_eq!(odom, Some(odom0));
+        // The process dies; the robot drives 1 m forward and turns a little meanwhile.
+        let moved = Pose2D {
+            x: 1.0,
+            y: 0.0,
+            theta: 0.3,
+        };
+        let truth = compose(&start, &moved);
+        let mut r = SlamTracker::resume(SlamConfig::default(), pose, odom);
+        r.on_odometry(compose(&odom0, &moved));
+        let p = r.pose();
+        assert!(
+            (p.x - truth.x).hypot(p.y - truth.y) < 1e-9 && (p.theta - truth.theta).abs() < 1e-9,
+            "resumed at {p:?}, robot at {truth:?}"
+        );
+        // The first scan after the restart starts the local map there.
+        let s = r.on_scan(&box_scan(&truth)).expect("odometry is known");
+        assert!(
+            (s.pose.x - truth.x).hypot(s.pose.y - truth.y) < 0.05,
+            "{s:?}"
+        );
     }
 }

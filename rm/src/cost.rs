@@ -321,6 +321,10 @@ pub struct ResourceObservation {
     pub waiting_for: WaitingFor,
     /// Largest report delay (sent → received) seen; `None` = no report.
     pub max_report_delay: Option<Duration>,
+    /// Share of the machine's busy CPU that the system's own modules use, [0, 1]
+    /// (Σ module CPU / (cores × (1 − `cpu_free`))); `None` = unknown, in which case a low
+    /// `cpu_free` alone makes CPU scarce.
+    pub own_cpu_share: Option<f64>,
 }
 
 impl ResourceObservation {
@@ -336,25 +340,46 @@ impl ResourceObservation {
             memory_free: Some(system.mem_free()),
             waiting_for,
             max_report_delay,
+            own_cpu_share: None,
         }
+    }
+
+    /// Sets [`ResourceObservation::own_cpu_share`].
+    #[must_use]
+    pub fn with_own_cpu_share(mut self, share: Option<f64>) -> Self {
+        self.own_cpu_share = share.filter(|s| s.is_finite()).map(|s| s.clamp(0.0, 1.0));
+        self
     }
 }
 
 /// Settings of the cost vector. Plain data with documented defaults.
+///
+/// Scale: R is a fraction of what the machine supplies (see [`ResourceVec`]), so C_R is
+/// the value a module would lose by using the whole machine. At `min` (0.1) a module
+/// using one core of two (R = 0.5) loses 0.05 of V, small against Q ∈ [−1, 1]: costs
+/// only break ties. At `max` (1.6, four doublings) the same module loses 0.8, so under
+/// real scarcity a cheaper provider wins over a better but heavier one.
 #[derive(Debug, Clone, PartialEq)]
 pub struct CostConfig {
-    /// Lowest cost of each resource (default 1).
+    /// Lowest cost of each resource (default 0.1).
     pub min: f64,
-    /// Highest cost (default 16).
+    /// Highest cost (default 1.6).
     pub max: f64,
-    /// Multiplicative raise per update while a resource is scarce (default 2: from 1 to
-    /// the maximum 16 in 4 updates).
+    /// Multiplicative raise per update while a resource is scarce (default 2: from 0.1
+    /// to the maximum 1.6 in 4 updates).
     pub raise_factor: f64,
     /// Multiplicative decay per update otherwise (default 0.8, i.e. −20% per update,
     /// down to `min`). Slower than the raise so the cost does not oscillate.
     pub lower_factor: f64,
-    /// CPU is scarce when the free fraction is under this (default 0.10).
+    /// CPU is scarce when the free fraction is under this (default 0.10) while the
+    /// system's own modules use at least `cpu_own_share_min` of the busy CPU.
     pub cpu_free_threshold: f64,
+    /// A machine busy mostly with other work (the system's modules use less than this
+    /// share of the busy CPU, default 0.5) does not make CPU scarce for the system:
+    /// the scheduler still gives the modules their fair share, and choosing cheaper
+    /// providers would free little. Modules that really lack CPU say so in their
+    /// reports (`waiting_for_resources`), which always counts. 0 = any load counts.
+    pub cpu_own_share_min: f64,
     /// Memory is scarce when the free fraction is under this (default 0.10).
     pub memory_free_threshold: f64,
     /// Communication is scarce when a report took longer than this (default 20 ms).
@@ -364,11 +389,12 @@ pub struct CostConfig {
 impl Default for CostConfig {
     fn default() -> Self {
         CostConfig {
-            min: 1.0,
-            max: 16.0,
+            min: 0.1,
+            max: 1.6,
             raise_factor: 2.0,
             lower_factor: 0.8,
             cpu_free_threshold: 0.10,
+            cpu_own_share_min: 0.5,
             memory_free_threshold: 0.10,
             comm_delay_threshold: Duration::from_millis(20),
         }
@@ -385,12 +411,13 @@ impl CostConfig {
             && self.raise_factor > 1.0
             && self.lower_factor.is_finite()
             && self.lower_factor > 0.0
-            && self.lower_factor < 1.0;
+            && self.lower_factor < 1.0
+            && (0.0..=1.0).contains(&self.cpu_own_share_min);
         if ok {
             Ok(())
         } else {
             Err(RmError::Config(format!(
-                "cost: need 0 < min <= max, raise_factor > 1 and 0 < lower_factor < 1, got {self:?}"
+                "cost: need 0 < min <= max, raise_factor > 1, 0 < lower_factor < 1 and 0 <= cpu_own_share_min <= 1, got {self:?}"
             )))
         }
     }
@@ -422,9 +449,14 @@ pub struct CostUpdate {
     pub costs: ResourceVec,
     /// Resources found scarce by this update.
     pub scarce: Scarcity,
-    /// Whether a scarce resource was already at maximal cost: the trigger of the
-    /// degraded mode.
+    /// Whether a scarce resource was already at maximal cost.
     pub scarce_at_max: bool,
+    /// Whether a resource was already at maximal cost while modules reported waiting
+    /// for it, or while memory was short: real scarcity, the trigger of the degraded
+    /// mode (paper 5.3: "if despite a maximal cost for the resources, it still
+    /// receives this kind of reports"). A low free-CPU or a slow report alone raise
+    /// the cost but never start the degraded mode.
+    pub hard_at_max: bool,
 }
 
 /// The cost vector C_R(t) of section 5.3.
@@ -465,8 +497,9 @@ impl CostController {
     pub fn update(&mut self, obs: &ResourceObservation) -> CostUpdate {
         let c = &self.config;
         let under = |free: Option<f64>, thr: f64| free.is_some_and(|f| f < thr);
+        let ours = obs.own_cpu_share.is_none_or(|s| s >= c.cpu_own_share_min);
         let scarce = Scarcity {
-            cpu: obs.waiting_for.cpu || under(obs.cpu_free, c.cpu_free_threshold),
+            cpu: obs.waiting_for.cpu || (ours && under(obs.cpu_free, c.cpu_free_threshold)),
             memory: obs.waiting_for.memory || under(obs.memory_free, c.memory_free_threshold),
             comm: obs.waiting_for.comm
                 || obs
@@ -477,6 +510,9 @@ impl CostController {
         let scarce_at_max = (scarce.cpu && at_max(self.costs.cpu))
             || (scarce.memory && at_max(self.costs.memory))
             || (scarce.comm && at_max(self.costs.comm));
+        let hard_at_max = (obs.waiting_for.cpu && at_max(self.costs.cpu))
+            || ((obs.waiting_for.memory || scarce.memory) && at_max(self.costs.memory))
+            || (obs.waiting_for.comm && at_max(self.costs.comm));
         let step = |v: f64, s: bool| {
             if s {
                 (v * c.raise_factor).min(c.max)
@@ -493,6 +529,7 @@ impl CostController {
             costs: self.costs,
             scarce,
             scarce_at_max,
+            hard_at_max,
         }
     }
 }
@@ -616,7 +653,12 @@ mod tests {
 
     #[test]
     fn cost_rises_on_scarcity_and_falls_to_min() {
-        let mut cc = CostController::new(CostConfig::default()).expect("valid config");
+        let mut cc = CostController::new(CostConfig {
+            min: 1.0,
+            max: 16.0,
+            ..CostConfig::default()
+        })
+        .expect("valid config");
         let scarce = ResourceObservation {
             cpu_free: Some(0.02),
             memory_free: Some(0.5),
@@ -636,6 +678,7 @@ mod tests {
         );
         u = cc.update(&scarce);
         assert!(u.scarce_at_max);
+        assert!(!u.hard_at_max, "a low free CPU alone is not real scarcity");
         assert_eq!(u.costs.cpu, 16.0);
         // A wait-for-resources report alone also keeps it at max.
         let waiting = ResourceObservation {
@@ -643,7 +686,8 @@ mod tests {
             waiting_for: WaitingFor::CPU_AND_MEMORY,
             ..Default::default()
         };
-        assert!(cc.update(&waiting).scarce_at_max);
+        let u2 = cc.update(&waiting);
+        assert!(u2.scarce_at_max && u2.hard_at_max);
         // Recovery: decays to the minimum and stays there.
         let calm = ResourceObservation {
             cpu_free: Some(0.9),
@@ -674,9 +718,61 @@ mod tests {
     }
 
     #[test]
+    fn default_scale_keeps_v_dominated_by_q_until_real_scarcity() {
+        let c = CostConfig::default();
+        // A module using one core of two (R = 0.5): at min it loses at most 0.05.
+        let r = ResourceVec::new(0.5, 0.05, 0.01);
+        assert!(r.dot(&ResourceVec::splat(c.min)) < 0.1);
+        // At max the same module loses most of a Q range of 1.
+        assert!(r.dot(&ResourceVec::splat(c.max)) > 0.8);
+        let mut cc = CostController::new(c).expect("valid config");
+        // A machine busy with other work (the system uses 20% of the busy CPU): free
+        // CPU under the threshold but not scarce for the system.
+        let external = ResourceObservation {
+            cpu_free: Some(0.0),
+            memory_free: Some(0.6),
+            ..Default::default()
+        }
+        .with_own_cpu_share(Some(0.2));
+        for _ in 0..20 {
+            let u = cc.update(&external);
+            assert!(!u.scarce.any() && !u.hard_at_max, "{u:?}");
+        }
+        assert_eq!(cc.costs(), ResourceVec::splat(0.1));
+        // The system itself fills the machine: the CPU cost rises to max, but only a
+        // wait report at max cost is real scarcity.
+        let own = external.with_own_cpu_share(Some(0.9));
+        let mut last = cc.update(&own);
+        for _ in 0..10 {
+            last = cc.update(&own);
+            assert!(!last.hard_at_max);
+        }
+        assert!((last.costs.cpu - 1.6).abs() < 1e-12 && last.scarce_at_max);
+        let starving = ResourceObservation {
+            waiting_for: WaitingFor::CPU_AND_MEMORY,
+            ..external
+        };
+        assert!(cc.update(&starving).hard_at_max);
+        // Memory short at max cost is real scarcity without any report.
+        let mut mc = CostController::new(CostConfig::default()).expect("valid config");
+        let low_mem = ResourceObservation {
+            cpu_free: Some(0.5),
+            memory_free: Some(0.02),
+            ..Default::default()
+        };
+        let hard: Vec<bool> = (0..6).map(|_| mc.update(&low_mem).hard_at_max).collect();
+        assert_eq!(hard, [false, false, false, false, true, true]);
+    }
+
+    #[test]
     fn bad_cost_config_is_refused() {
         let bad = CostConfig {
             raise_factor: 0.5,
+            ..Default::default()
+        };
+        assert!(CostController::new(bad).is_err());
+        let bad = CostConfig {
+            cpu_own_share_min: 1.5,
             ..Default::default()
         };
         assert!(CostController::new(bad).is_err());

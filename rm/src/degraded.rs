@@ -259,15 +259,17 @@ impl<P: Admission> RmCore<P> {
         })
     }
 
-    /// One period: updates C_R(t), then the degraded mode. Pressure is "a scarce
-    /// resource at maximal cost" in normal mode and "any scarce resource or
-    /// wait-for-resources report" once degraded.
+    /// One period: updates C_R(t), then the degraded mode. Pressure is real scarcity
+    /// in normal mode ([`crate::cost::CostUpdate::hard_at_max`]: wait-for-resources
+    /// reports, or short memory, at maximal cost) and, once degraded, "wait reports or
+    /// no more available resources" (paper 5.3): a wait report, scarce CPU or scarce
+    /// memory. Slow reports (communication) raise their cost only.
     pub fn update(&mut self, obs: &ResourceObservation, active: &[P]) -> RmDecision<P> {
         let u = self.costs.update(obs);
         let pressure = if self.degraded.is_degraded() {
-            u.scarce.any()
+            obs.waiting_for.any() || u.scarce.cpu || u.scarce.memory
         } else {
-            u.scarce_at_max
+            u.hard_at_max
         };
         let change = self.degraded.update(pressure, active);
         RmDecision {
@@ -328,15 +330,28 @@ mod tests {
             allow_full_stop: false,
         };
         let mut rm: RmCore<Vec<u32>> =
-            RmCore::new(CostConfig::default(), cfg).expect("valid config");
+            RmCore::new(CostConfig::default(), cfg.clone()).expect("valid config");
         let active: Vec<Vec<u32>> = ["1", "1.1", "1.2", "1.2.1", "2", "2.1", "3", "3.1"]
             .into_iter()
             .map(p)
             .collect();
-        let scarce = ResourceObservation {
+        // A machine without free CPU but with no module waiting is not real scarcity:
+        // the cost rises, the degraded mode never starts.
+        let busy = ResourceObservation {
             cpu_free: Some(0.01),
             memory_free: Some(0.5),
             ..Default::default()
+        };
+        let mut other: RmCore<Vec<u32>> =
+            RmCore::new(CostConfig::default(), cfg).expect("valid config");
+        for _ in 0..30 {
+            let d = other.update(&busy, &active);
+            assert_eq!(d.bar, ServeBar::All);
+        }
+        assert_eq!(other.costs().costs().cpu, CostConfig::default().max);
+        let scarce = ResourceObservation {
+            waiting_for: WaitingFor::CPU_AND_MEMORY,
+            ..busy
         };
         let calm = ResourceObservation {
             cpu_free: Some(0.8),
@@ -351,7 +366,7 @@ mod tests {
                 .collect()
         };
 
-        // Cost climbs 1 -> 16 in 4 updates; scarce_at_max from the 5th; enter after 2.
+        // Cost climbs 0.1 -> 1.6 in 4 updates; scarce_at_max from the 5th; enter after 2.
         let mut bars = Vec::new();
         for _ in 0..6 {
             let d = rm.update(&scarce, &active);

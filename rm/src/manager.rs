@@ -127,15 +127,18 @@ pub struct RmConfig {
     pub rate_hz: f64,
     /// Refresh PSS every this many passes (default 50; 0 = RSS only).
     pub pss_every: u32,
-    /// CPU is scarce under this free fraction of the machine (default 0.10).
+    /// CPU is scarce under this free fraction of the machine (default 0.10) when the
+    /// system's modules use at least `cpu_own_share_min` of the busy CPU.
     pub cpu_free_threshold: f64,
+    /// See [`CostConfig::cpu_own_share_min`] (default 0.5; 0: any load counts).
+    pub cpu_own_share_min: f64,
     /// Memory is scarce under this free fraction (default 0.10).
     pub memory_free_threshold: f64,
     /// Communication is scarce when a report took longer than this, ms (default 20).
     pub comm_delay_threshold_ms: f64,
-    /// Lowest cost (default 1).
+    /// Lowest cost (default 0.1; see [`CostConfig`] for the scale).
     pub cost_min: f64,
-    /// Highest cost (default 16).
+    /// Highest cost (default 1.6).
     pub cost_max: f64,
     /// Raise factor per period while scarce (default 2).
     pub cost_raise_factor: f64,
@@ -179,6 +182,7 @@ impl Default for RmConfig {
             rate_hz: 10.0,
             pss_every: SamplerConfig::default().pss_every,
             cpu_free_threshold: c.cpu_free_threshold,
+            cpu_own_share_min: c.cpu_own_share_min,
             memory_free_threshold: c.memory_free_threshold,
             comm_delay_threshold_ms: c.comm_delay_threshold.as_secs_f64() * 1e3,
             cost_min: c.min,
@@ -214,6 +218,7 @@ impl RmConfig {
             raise_factor: self.cost_raise_factor,
             lower_factor: self.cost_lower_factor,
             cpu_free_threshold: self.cpu_free_threshold,
+            cpu_own_share_min: self.cpu_own_share_min,
             memory_free_threshold: self.memory_free_threshold,
             comm_delay_threshold: Duration::from_secs_f64(self.comm_delay_threshold_ms / 1e3),
         })
@@ -809,8 +814,19 @@ impl ResourceManager {
         if max_delay.is_some() {
             self.last_delay = max_delay;
         }
+        // Share of the busy CPU that the system's own modules use.
+        let own_cpu_share = system.and_then(|s| {
+            let busy = (1.0 - s.cpu_free?) * f64::from(s.cpus.max(1)) * 100.0;
+            let ours: f64 = samples
+                .iter()
+                .filter(|m| m.liveness == Liveness::Alive)
+                .filter_map(|m| m.cpu_percent)
+                .sum();
+            Some(if busy > 1.0 { ours / busy } else { 1.0 })
+        });
         let obs = match &system {
-            Some(s) => ResourceObservation::from_system(s, waiting, max_delay),
+            Some(s) => ResourceObservation::from_system(s, waiting, max_delay)
+                .with_own_cpu_share(own_cpu_share),
             None => ResourceObservation {
                 waiting_for: waiting,
                 max_report_delay: max_delay,
@@ -1029,6 +1045,7 @@ impl ResourceManager {
             "cgroups": self.cgroup_note,
             "cpus": sys.map(|s| s.cpus),
             "cpu_free": obs.cpu_free,
+            "own_cpu_share": obs.own_cpu_share,
             "memory_free": obs.memory_free,
             "mem_available_bytes": sys.map(|s| s.mem_available_bytes),
             "mem_total_bytes": sys.map(|s| s.mem_total_bytes),
@@ -1036,6 +1053,7 @@ impl ResourceManager {
             "waiting_reports": waiting_reports,
             "costs": {"cpu": u.costs.cpu, "memory": u.costs.memory, "comm": u.costs.comm},
             "scarce": {"cpu": u.scarce.cpu, "memory": u.scarce.memory, "comm": u.scarce.comm},
+            "real_scarcity": u.hard_at_max,
             "degraded": decision.bar.is_degraded(),
             "serve_nothing": matches!(decision.bar, ServeBar::Nothing),
             "min_priority": match &decision.bar {
@@ -1277,7 +1295,7 @@ mod tests {
         }
         let last = last.expect("ticks");
         assert_eq!(last.costs.degraded, 0);
-        assert!(last.costs.cpu < 16.0);
+        assert!(last.costs.cpu < RmConfig::default().cost_max);
     }
 
     #[test]

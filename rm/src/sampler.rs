@@ -193,6 +193,9 @@ struct PrevFaults {
 #[derive(Debug)]
 struct Target {
     stat: Option<File>,
+    /// `smaps_rollup`, opened at the first PSS refresh and kept open (re-read with
+    /// `pread` like `stat`: no path walk, no open/close per refresh).
+    smaps: Option<File>,
     smaps_path: PathBuf,
     smaps_ok: bool,
     cgroup_cpu: Option<(File, CgroupCpu)>,
@@ -420,6 +423,7 @@ impl Sampler {
         }
         self.targets.push(Target {
             stat: Some(stat),
+            smaps: None,
             smaps_path,
             smaps_ok,
             cgroup_cpu,
@@ -524,6 +528,7 @@ struct PassPlan {
 fn mark_gone(t: &mut Target, s: &mut ModuleSample, liveness: Liveness) {
     s.liveness = liveness;
     t.stat = None;
+    t.smaps = None;
     s.cpu_percent = None;
 }
 
@@ -616,7 +621,15 @@ fn sample_one(
     }
 
     if plan.read_pss && t.smaps_ok {
-        match read_pss_bytes(&t.smaps_path, buf) {
+        if t.smaps.is_none() {
+            t.smaps = File::open(&t.smaps_path).ok();
+        }
+        let read = match t.smaps.as_ref() {
+            Some(f) => pread_all(f, buf)
+                .map(|n| find_kv(&buf[..n], b"Pss:").map(|kb| kb.saturating_mul(1024))),
+            None => read_pss_bytes(&t.smaps_path, buf),
+        };
+        match read {
             Ok(Some(pss)) => s.pss_bytes = Some(pss),
             Ok(None) => t.smaps_ok = false,
             Err(e) if e.kind() == ErrorKind::PermissionDenied => t.smaps_ok = false,

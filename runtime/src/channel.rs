@@ -22,6 +22,7 @@ use std::ops::{Deref, DerefMut};
 use std::rc::{Rc, Weak};
 
 use iceoryx2::node::{Node as IoxNode, NodeBuilder};
+use iceoryx2::port::ReceiveError;
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher as IoxPublisher;
@@ -32,8 +33,9 @@ use iceoryx2::sample::Sample as IoxSample;
 use iceoryx2::sample_mut::SampleMut;
 use iceoryx2::sample_mut_uninit::SampleMutUninit;
 use iceoryx2::service::builder::publish_subscribe::{
-    PublishSubscribeOpenError, PublishSubscribeOpenOrCreateError,
+    Builder as PsBuilder, PublishSubscribeOpenError, PublishSubscribeOpenOrCreateError,
 };
+use iceoryx2::service::port_factory::publish_subscribe::PortFactory as PsFactory;
 use serde::Serialize;
 
 use crate::clock::Clock;
@@ -44,6 +46,9 @@ use crate::wake::WakeFlag;
 
 /// The iceoryx2 service flavour hng uses (inter-process, single-threaded ports).
 pub type Service = ipc::Service;
+
+type FixedService<T> = PsFactory<Service, T, ()>;
+type SliceService<H> = PsFactory<Service, [<H as SliceMessage>::Elem], H>;
 
 /// Default prefix of every hng file in `/dev/shm` and iceoryx2's folders.
 pub const DEFAULT_PREFIX: &str = "hng_";
@@ -299,73 +304,57 @@ impl Node {
             .map_err(|e| Error::channel(channel, "open event service", e))
     }
 
+    fn fixed_service<T: Message>(
+        &self,
+        channel: &str,
+    ) -> Result<(FixedService<T>, ServiceName), Error> {
+        let name = Self::service_name(channel)?;
+        let service = with_qos(
+            self.inner.service_builder(&name).publish_subscribe::<T>(),
+            T::KIND.qos(),
+        )
+        .open_or_create()
+        .map_err(|e| self.open_error(channel, &name, type_name::<T>(), e))?;
+        Ok((service, name))
+    }
+
+    fn slice_service<H: SliceMessage>(
+        &self,
+        channel: &str,
+    ) -> Result<(SliceService<H>, ServiceName), Error> {
+        let name = Self::service_name(channel)?;
+        let service = with_qos(
+            self.inner
+                .service_builder(&name)
+                .publish_subscribe::<[H::Elem]>()
+                .user_header::<H>(),
+            H::KIND.qos(),
+        )
+        .open_or_create()
+        .map_err(|e| self.open_error(channel, &name, slice_type_name::<H>(), e))?;
+        Ok((service, name))
+    }
+
     /// Opens (or creates) a channel and returns a publisher on it.
     pub fn publisher<T: Message>(&self, channel: &str) -> Result<Publisher<T>, Error> {
-        let name = Self::service_name(channel)?;
-        let qos = T::KIND.qos();
-        let service = self
-            .inner
-            .service_builder(&name)
-            .publish_subscribe::<T>()
-            .enable_safe_overflow(true)
-            .history_size(qos.history)
-            .subscriber_max_buffer_size(qos.buffer)
-            .subscriber_max_borrowed_samples(qos.borrowed)
-            .max_publishers(qos.max_publishers)
-            .max_subscribers(qos.max_subscribers)
-            .max_nodes(qos.max_publishers + qos.max_subscribers)
-            .open_or_create()
-            .map_err(|e| self.open_error(channel, &name, type_name::<T>(), e))?;
+        let (service, name) = self.fixed_service::<T>(channel)?;
         let port = service
             .publisher_builder()
             .create()
             .map_err(|e| Error::channel(channel, "create publisher", e))?;
-        let notifier = self
-            .events(channel, &name, qos)?
-            .notifier_builder()
-            .create()
-            .map_err(|e| Error::channel(channel, "create notifier", e))?;
-        let _ = port.update_connections();
-        let port = Rc::new(port);
-        self.track_state(T::KIND, &port);
-        Ok(Publisher {
-            port,
-            out: self.outlet(channel, notifier)?,
-        })
+        let (port, out) = self.outlet(channel, &name, T::KIND, port)?;
+        Ok(Publisher { port, out })
     }
 
     /// Opens (or creates) a channel and returns a subscriber on it. On state channels the
     /// latest sample published before this call is delivered too.
     pub fn subscriber<T: Message>(&self, channel: &str) -> Result<Subscriber<T>, Error> {
-        let name = Self::service_name(channel)?;
-        let qos = T::KIND.qos();
-        let service = self
-            .inner
-            .service_builder(&name)
-            .publish_subscribe::<T>()
-            .enable_safe_overflow(true)
-            .history_size(qos.history)
-            .subscriber_max_buffer_size(qos.buffer)
-            .subscriber_max_borrowed_samples(qos.borrowed)
-            .max_publishers(qos.max_publishers)
-            .max_subscribers(qos.max_subscribers)
-            .max_nodes(qos.max_publishers + qos.max_subscribers)
-            .open_or_create()
-            .map_err(|e| self.open_error(channel, &name, type_name::<T>(), e))?;
+        let (service, name) = self.fixed_service::<T>(channel)?;
         let port = service
             .subscriber_builder()
             .create()
             .map_err(|e| Error::channel(channel, "create subscriber", e))?;
-        let listener = self
-            .events(channel, &name, qos)?
-            .listener_builder()
-            .create()
-            .map_err(|e| Error::channel(channel, "create listener", e))?;
-        let _ = port.update_connections();
-        Ok(Subscriber {
-            port: Rc::new(Port::Fixed(port)),
-            inlet: self.inlet(channel, listener)?,
-        })
+        self.receiver(channel, &name, T::KIND.qos(), port)
     }
 
     /// Opens (or creates) a variable-size channel and returns a publisher whose samples may
@@ -376,40 +365,15 @@ impl Node {
         channel: &str,
         max_len: usize,
     ) -> Result<SlicePublisher<H>, Error> {
-        let name = Self::service_name(channel)?;
-        let qos = H::KIND.qos();
-        let service = self
-            .inner
-            .service_builder(&name)
-            .publish_subscribe::<[H::Elem]>()
-            .user_header::<H>()
-            .enable_safe_overflow(true)
-            .history_size(qos.history)
-            .subscriber_max_buffer_size(qos.buffer)
-            .subscriber_max_borrowed_samples(qos.borrowed)
-            .max_publishers(qos.max_publishers)
-            .max_subscribers(qos.max_subscribers)
-            .max_nodes(qos.max_publishers + qos.max_subscribers)
-            .open_or_create()
-            .map_err(|e| self.open_error(channel, &name, slice_type_name::<H>(), e))?;
+        let (service, name) = self.slice_service::<H>(channel)?;
         let port = service
             .publisher_builder()
             .initial_max_slice_len(max_len.max(1))
             .allocation_strategy(AllocationStrategy::PowerOfTwo)
             .create()
             .map_err(|e| Error::channel(channel, "create publisher", e))?;
-        let notifier = self
-            .events(channel, &name, qos)?
-            .notifier_builder()
-            .create()
-            .map_err(|e| Error::channel(channel, "create notifier", e))?;
-        let _ = port.update_connections();
-        let port = Rc::new(port);
-        self.track_state(H::KIND, &port);
-        Ok(SlicePublisher {
-            port,
-            out: self.outlet(channel, notifier)?,
-        })
+        let (port, out) = self.outlet(channel, &name, H::KIND, port)?;
+        Ok(SlicePublisher { port, out })
     }
 
     /// Opens (or creates) a variable-size channel and returns a subscriber on it.
@@ -417,40 +381,31 @@ impl Node {
         &self,
         channel: &str,
     ) -> Result<SliceSubscriber<H>, Error> {
-        let name = Self::service_name(channel)?;
-        let qos = H::KIND.qos();
-        let service = self
-            .inner
-            .service_builder(&name)
-            .publish_subscribe::<[H::Elem]>()
-            .user_header::<H>()
-            .enable_safe_overflow(true)
-            .history_size(qos.history)
-            .subscriber_max_buffer_size(qos.buffer)
-            .subscriber_max_borrowed_samples(qos.borrowed)
-            .max_publishers(qos.max_publishers)
-            .max_subscribers(qos.max_subscribers)
-            .max_nodes(qos.max_publishers + qos.max_subscribers)
-            .open_or_create()
-            .map_err(|e| self.open_error(channel, &name, slice_type_name::<H>(), e))?;
+        let (service, name) = self.slice_service::<H>(channel)?;
         let port = service
             .subscriber_builder()
             .create()
             .map_err(|e| Error::channel(channel, "create subscriber", e))?;
-        let listener = self
-            .events(channel, &name, qos)?
-            .listener_builder()
-            .create()
-            .map_err(|e| Error::channel(channel, "create listener", e))?;
-        let _ = port.update_connections();
-        Ok(SliceSubscriber {
-            port: Rc::new(Port::Slice(port)),
-            inlet: self.inlet(channel, listener)?,
-        })
+        self.receiver(channel, &name, H::KIND.qos(), port)
     }
 
-    fn outlet(&self, channel: &str, notifier: Notifier<Service>) -> Result<Outlet, Error> {
-        Ok(Outlet {
+    /// The sending side shared by both publisher kinds: notifier, wake flag, header stamping.
+    fn outlet<P: UpdateConnections + 'static>(
+        &self,
+        channel: &str,
+        name: &ServiceName,
+        kind: crate::qos::ChannelKind,
+        port: P,
+    ) -> Result<(Rc<P>, Outlet), Error> {
+        let notifier = self
+            .events(channel, name, kind.qos())?
+            .notifier_builder()
+            .create()
+            .map_err(|e| Error::channel(channel, "create notifier", e))?;
+        let _ = port.update_connections();
+        let port = Rc::new(port);
+        self.track_state(kind, &port);
+        let out = Outlet {
             notifier,
             wake: WakeFlag::open(&self.prefix, channel)?,
             seq: Cell::new(0),
@@ -459,19 +414,50 @@ impl Node {
             channel: channel.into(),
             counters: self.counters.clone(),
             notified: Cell::new(0),
-        })
+        };
+        Ok((port, out))
     }
 
-    fn inlet(&self, channel: &str, listener: Listener<Service>) -> Result<Rc<Inlet>, Error> {
-        Ok(Rc::new(Inlet {
+    fn receiver<K: Kind>(
+        &self,
+        channel: &str,
+        name: &ServiceName,
+        qos: Qos,
+        port: K::Port,
+    ) -> Result<Receiver<K>, Error> {
+        let listener = self
+            .events(channel, name, qos)?
+            .listener_builder()
+            .create()
+            .map_err(|e| Error::channel(channel, "create listener", e))?;
+        let inlet = Rc::new(Inlet {
             listener,
             wake: WakeFlag::open(&self.prefix, channel)?,
             channel: channel.into(),
             last_seq: RefCell::new(Vec::new()),
             stats: Cell::new(ChannelStats::default()),
             counters: self.counters.clone(),
-        }))
+        });
+        K::update_connections(&port);
+        Ok(Receiver {
+            reader: Rc::new(Reader { port, inlet }),
+        })
     }
+}
+
+/// The QoS settings every opener of a channel must ask for (see [`crate::qos`]).
+fn with_qos<P: fmt::Debug + IceoryxSend + ?Sized, U: fmt::Debug + ZeroCopySend>(
+    builder: PsBuilder<P, U, Service>,
+    qos: Qos,
+) -> PsBuilder<P, U, Service> {
+    builder
+        .enable_safe_overflow(true)
+        .history_size(qos.history)
+        .subscriber_max_buffer_size(qos.buffer)
+        .subscriber_max_borrowed_samples(qos.borrowed)
+        .max_publishers(qos.max_publishers)
+        .max_subscribers(qos.max_subscribers)
+        .max_nodes(qos.max_publishers + qos.max_subscribers)
 }
 
 fn type_name<T: ZeroCopySend>() -> String {
@@ -574,25 +560,10 @@ impl Inlet {
     }
 }
 
-/// The data port of a subscriber, type-erased for the executor.
-pub(crate) enum Port<T: Message, H: SliceMessage> {
-    Fixed(IoxSubscriber<Service, T, ()>),
-    Slice(IoxSubscriber<Service, [H::Elem], H>),
-}
-
 /// Anything the executor can wait on.
 pub(crate) trait Input {
     fn inlet(&self) -> &Rc<Inlet>;
     fn has_samples(&self) -> bool;
-}
-
-impl<T: Message, H: SliceMessage> Port<T, H> {
-    fn has_samples(&self) -> bool {
-        match self {
-            Port::Fixed(p) => p.has_samples().unwrap_or(false),
-            Port::Slice(p) => p.has_samples().unwrap_or(false),
-        }
-    }
 }
 
 /// Publishes fixed-size messages of type `T`.
@@ -683,23 +654,6 @@ impl<T: Message> DerefMut for Loan<'_, T> {
     }
 }
 
-/// A placeholder slice header for fixed-size subscribers' erased port.
-type NoSlice = crate::msg::BytesInfo;
-
-/// Receives fixed-size messages of type `T`.
-pub struct Subscriber<T: Message> {
-    port: Rc<Port<T, NoSlice>>,
-    inlet: Rc<Inlet>,
-}
-
-impl<T: Message> fmt::Debug for Subscriber<T> {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.debug_struct("Subscriber")
-            .field("channel", &self.inlet.channel)
-            .finish_non_exhaustive()
-    }
-}
-
 /// A received message, still in shared memory; dereferences to the message.
 pub struct Sample<T: Message> {
     inner: IoxSample<Service, T, ()>,
@@ -718,29 +672,131 @@ impl<T: Message> fmt::Debug for Sample<T> {
     }
 }
 
-impl<T: Message> Subscriber<T> {
+mod sealed {
+    pub trait Sealed {}
+}
+
+/// The two kinds of subscriber: [`Fixed`] messages and [`Slice`] payloads. Everything else
+/// about receiving (sequence accounting, statistics, what the executor watches) is shared
+/// by [`Receiver`].
+pub trait Kind: sealed::Sealed + 'static {
+    /// The iceoryx2 port.
+    #[doc(hidden)]
+    type Port;
+    /// What [`Receiver::receive`] returns.
+    type Sample;
+    /// The name `Debug` shows.
+    #[doc(hidden)]
+    const NAME: &'static str;
+    #[doc(hidden)]
+    fn receive(port: &Self::Port) -> Result<Option<Self::Sample>, ReceiveError>;
+    #[doc(hidden)]
+    fn has_samples(port: &Self::Port) -> bool;
+    #[doc(hidden)]
+    fn update_connections(port: &Self::Port);
+    #[doc(hidden)]
+    fn header(sample: &Self::Sample) -> &Header;
+}
+
+/// Fixed-size messages of type `T` (see [`Subscriber`]).
+pub struct Fixed<T>(std::marker::PhantomData<T>);
+
+/// Variable-size payloads described by header `H` (see [`SliceSubscriber`]).
+pub struct Slice<H>(std::marker::PhantomData<H>);
+
+impl<T: Message> sealed::Sealed for Fixed<T> {}
+impl<H: SliceMessage> sealed::Sealed for Slice<H> {}
+
+impl<T: Message> Kind for Fixed<T> {
+    type Port = IoxSubscriber<Service, T, ()>;
+    type Sample = Sample<T>;
+    const NAME: &'static str = "Subscriber";
+    fn receive(port: &Self::Port) -> Result<Option<Sample<T>>, ReceiveError> {
+        Ok(port.receive()?.map(|inner| Sample { inner }))
+    }
+    fn has_samples(port: &Self::Port) -> bool {
+        port.has_samples().unwrap_or(false)
+    }
+    fn update_connections(port: &Self::Port) {
+        let _ = port.update_connections();
+    }
+    fn header(sample: &Sample<T>) -> &Header {
+        sample.inner.payload().header()
+    }
+}
+
+impl<H: SliceMessage> Kind for Slice<H> {
+    type Port = IoxSubscriber<Service, [H::Elem], H>;
+    type Sample = SliceSample<H>;
+    const NAME: &'static str = "SliceSubscriber";
+    fn receive(port: &Self::Port) -> Result<Option<SliceSample<H>>, ReceiveError> {
+        Ok(port.receive()?.map(|inner| SliceSample { inner }))
+    }
+    fn has_samples(port: &Self::Port) -> bool {
+        port.has_samples().unwrap_or(false)
+    }
+    fn update_connections(port: &Self::Port) {
+        let _ = port.update_connections();
+    }
+    fn header(sample: &SliceSample<H>) -> &Header {
+        sample.inner.user_header().header()
+    }
+}
+
+/// The receiving port of either kind and what the executor watches.
+struct Reader<K: Kind> {
+    port: K::Port,
+    inlet: Rc<Inlet>,
+}
+
+impl<K: Kind> Input for Reader<K> {
+    fn inlet(&self) -> &Rc<Inlet> {
+        &self.inlet
+    }
+    fn has_samples(&self) -> bool {
+        K::has_samples(&self.port)
+    }
+}
+
+/// Receives messages from a channel: [`Subscriber`] for fixed-size ones, [`SliceSubscriber`]
+/// for variable-size payloads.
+pub struct Receiver<K: Kind> {
+    reader: Rc<Reader<K>>,
+}
+
+/// Receives fixed-size messages of type `T`.
+pub type Subscriber<T> = Receiver<Fixed<T>>;
+
+/// Receives variable-size payloads described by header `H`.
+pub type SliceSubscriber<H> = Receiver<Slice<H>>;
+
+impl<K: Kind> fmt::Debug for Receiver<K> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct(K::NAME)
+            .field("channel", &self.reader.inlet.channel)
+            .finish_non_exhaustive()
+    }
+}
+
+impl<K: Kind> Receiver<K> {
     /// The channel's name.
     pub fn channel(&self) -> &str {
-        &self.inlet.channel
+        &self.reader.inlet.channel
     }
 
     /// The next message, or `None` when there is none.
-    pub fn receive(&self) -> Result<Option<Sample<T>>, Error> {
-        let Port::Fixed(port) = &*self.port else {
-            return Ok(None);
-        };
-        match port.receive() {
-            Ok(Some(inner)) => {
-                self.inlet.account(inner.payload().header());
-                Ok(Some(Sample { inner }))
-            }
-            Ok(None) => Ok(None),
-            Err(e) => Err(Error::channel(&self.inlet.channel, "receive", e)),
+    pub fn receive(&self) -> Result<Option<K::Sample>, Error> {
+        let r = &*self.reader;
+        let next =
+            K::receive(&r.port).map_err(|e| Error::channel(&r.inlet.channel, "receive", e))?;
+        if let Some(s) = &next {
+            r.inlet.account(K::header(s));
         }
+        Ok(next)
     }
 
     /// Drains the channel and returns only the newest message.
-    pub fn latest(&self) -> Result<Option<Sample<T>>, Error> {
+    pub fn latest(&self) -> Result<Option<K::Sample>, Error> {
         let mut last = None;
         while let Some(s) = self.receive()? {
             last = Some(s);
@@ -750,38 +806,21 @@ impl<T: Message> Subscriber<T> {
 
     /// True if a message is waiting.
     pub fn has_samples(&self) -> bool {
-        self.port.has_samples()
+        K::has_samples(&self.reader.port)
     }
 
     /// This subscriber's statistics.
     pub fn stats(&self) -> ChannelStats {
-        self.inlet.stats.get()
+        self.reader.inlet.stats.get()
     }
 
     /// The id the executor reports when this input has data or misses its deadline.
     pub fn id(&self) -> InputId {
-        InputId(Rc::as_ptr(&self.inlet) as usize)
+        InputId(Rc::as_ptr(&self.reader.inlet) as usize)
     }
 
     pub(crate) fn as_input(&self) -> Rc<dyn Input> {
-        Rc::new(ErasedInput {
-            port: self.port.clone(),
-            inlet: self.inlet.clone(),
-        })
-    }
-}
-
-struct ErasedInput<T: Message, H: SliceMessage> {
-    port: Rc<Port<T, H>>,
-    inlet: Rc<Inlet>,
-}
-
-impl<T: Message, H: SliceMessage> Input for ErasedInput<T, H> {
-    fn inlet(&self) -> &Rc<Inlet> {
-        &self.inlet
-    }
-    fn has_samples(&self) -> bool {
-        self.port.has_samples()
+        self.reader.clone()
     }
 }
 
@@ -909,23 +948,6 @@ impl<H: SliceMessage> SliceLoan<'_, H> {
     }
 }
 
-/// Receives variable-size payloads.
-pub struct SliceSubscriber<H: SliceMessage> {
-    port: Rc<Port<NoFixed, H>>,
-    inlet: Rc<Inlet>,
-}
-
-/// A placeholder fixed type for slice subscribers' erased port.
-type NoFixed = crate::msg::Clock;
-
-impl<H: SliceMessage> fmt::Debug for SliceSubscriber<H> {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.debug_struct("SliceSubscriber")
-            .field("channel", &self.inlet.channel)
-            .finish_non_exhaustive()
-    }
-}
-
 /// A received variable-size sample, still in shared memory.
 pub struct SliceSample<H: SliceMessage> {
     inner: IoxSample<Service, [H::Elem], H>,
@@ -943,59 +965,6 @@ impl<H: SliceMessage> SliceSample<H> {
     }
 }
 
-impl<H: SliceMessage> SliceSubscriber<H> {
-    /// The channel's name.
-    pub fn channel(&self) -> &str {
-        &self.inlet.channel
-    }
-
-    /// The next sample, or `None`.
-    pub fn receive(&self) -> Result<Option<SliceSample<H>>, Error> {
-        let Port::Slice(port) = &*self.port else {
-            return Ok(None);
-        };
-        match port.receive() {
-            Ok(Some(inner)) => {
-                self.inlet.account(inner.user_header().header());
-                Ok(Some(SliceSample { inner }))
-            }
-            Ok(None) => Ok(None),
-            Err(e) => Err(Error::channel(&self.inlet.channel, "receive", e)),
-        }
-    }
-
-    /// Drains the channel and returns only the newest sample.
-    pub fn latest(&self) -> Result<Option<SliceSample<H>>, Error> {
-        let mut last = None;
-        while let Some(s) = self.receive()? {
-            last = Some(s);
-        }
-        Ok(last)
-    }
-
-    /// True if a sample is waiting.
-    pub fn has_samples(&self) -> bool {
-        self.port.has_samples()
-    }
-
-    /// Statistics.
-    pub fn stats(&self) -> ChannelStats {
-        self.inlet.stats.get()
-    }
-
-    /// The id the executor reports for this input.
-    pub fn id(&self) -> InputId {
-        InputId(Rc::as_ptr(&self.inlet) as usize)
-    }
-
-    pub(crate) fn as_input(&self) -> Rc<dyn Input> {
-        Rc::new(ErasedInput {
-            port: self.port.clone(),
-            inlet: self.inlet.clone(),
-        })
-    }
-}
-
 /// Anything that can be waited on by the executor: fixed or slice subscribers.
 pub trait Waitable {
     /// The input id.
@@ -1005,17 +974,7 @@ pub trait Waitable {
     fn erased(&self) -> Rc<dyn Input>;
 }
 
-impl<T: Message> Waitable for Subscriber<T> {
-    fn input_id(&self) -> InputId {
-        self.id()
-    }
-    #[allow(private_interfaces)]
-    fn erased(&self) -> Rc<dyn Input> {
-        self.as_input()
-    }
-}
-
-impl<H: SliceMessage> Waitable for SliceSubscriber<H> {
+impl<K: Kind> Waitable for Receiver<K> {
     fn input_id(&self) -> InputId {
         self.id()
     }

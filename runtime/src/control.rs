@@ -164,6 +164,10 @@ pub(crate) struct ControlPlane {
     r_eff: ResourceVec,
     cost: ResourceVec,
     pending: Vec<PlaneEvent>,
+    /// Provider changes held back while a call is open (see [`ControlPlane::take_events`]).
+    held: Vec<PlaneEvent>,
+    held_since: Option<Duration>,
+    hold_limit: Duration,
     changed: bool,
 }
 
@@ -203,6 +207,7 @@ impl ControlPlane {
             cfg.tau = tau;
         }
         let tick = tick_period(&cfg.timing);
+        let cfg_reply_window = cfg.timing.reply_window;
         let agent = ContractAgent::new(cfg).map_err(|e| Error::Config(e.to_string()))?;
 
         let inbox = node.slice_subscriber::<ControlInfo>(&inbox_channel(id))?;
@@ -259,6 +264,9 @@ impl ControlPlane {
             r_eff: ResourceVec::default(),
             cost: ResourceVec::default(),
             pending: Vec::new(),
+            held: Vec::new(),
+            held_since: None,
+            hold_limit: cfg_reply_window,
             changed: true,
         };
         plane.discover_peers(node);
@@ -280,7 +288,11 @@ impl ControlPlane {
 
     /// When the plane wants to run next (clock time).
     pub(crate) fn next_wake(&self) -> Duration {
-        self.next_tick.min(self.next_table)
+        let mut at = self.next_tick.min(self.next_table);
+        if let Some(since) = self.held_since {
+            at = at.min(since + self.hold_limit);
+        }
+        at
     }
 
     /// Transport-level drops (decode failures, spoofed senders).
@@ -289,8 +301,29 @@ impl ControlPlane {
     }
 
     /// Takes the events for the module's callbacks.
-    pub(crate) fn take_events(&mut self) -> Vec<PlaneEvent> {
-        std::mem::take(&mut self.pending)
+    ///
+    /// Provider changes are held back while one of the module's calls is still collecting
+    /// proposals (at most one reply window): `on_provider_changed` typically opens the new
+    /// provider's data channel, which takes milliseconds (tens on a loaded machine) and
+    /// would keep the module from answering, accepting and activating its other providers
+    /// meanwhile, delaying the whole tree below it. Activation and contract-table changes
+    /// are not held: a provider starts serving a new client at once.
+    pub(crate) fn take_events(&mut self, now: Duration) -> Vec<PlaneEvent> {
+        let mut out = Vec::with_capacity(self.pending.len());
+        for ev in self.pending.drain(..) {
+            match ev {
+                PlaneEvent::Provider(..) => self.held.push(ev),
+                other => out.push(other),
+            }
+        }
+        if !self.held.is_empty() {
+            let since = *self.held_since.get_or_insert(now);
+            if !self.agent.calling() || now >= since + self.hold_limit {
+                out.append(&mut self.held);
+                self.held_since = None;
+            }
+        }
+        out
     }
 
     /// Reads every control input, feeds the agent, ticks it when due, sends what it says and
@@ -686,18 +719,28 @@ fn open_service_out(node: &Node, service: &str) -> Result<ServiceOut, Error> {
     Ok(ServiceOut { publisher, factory })
 }
 
+/// Subscriptions a [`ProviderInput`] keeps after leaving a provider, so that coming back to it
+/// (a re-established tree, localization switching back and forth between two providers) opens
+/// no channel: opening a subscriber costs milliseconds (much more on a loaded machine) and
+/// would block the module's contract protocol meanwhile.
+pub const PROVIDER_INPUT_CACHE: usize = 4;
+
 /// A consumer's input from whichever provider currently serves one of its needs.
 ///
-/// Call [`ProviderInput::follow`] from [`crate::Module::on_provider_changed`]: it unsubscribes
-/// from the old provider's channel and subscribes to the new one's. [`ProviderInput::receive`]
+/// Call [`ProviderInput::follow`] from [`crate::Module::on_provider_changed`]: it stops
+/// listening to the old provider's channel and subscribes to the new one's. [`ProviderInput::receive`]
 /// returns only samples published by the selected provider (by `header.source`), so two
-/// providers sharing a channel never mix.
+/// providers sharing a channel never mix. The last [`PROVIDER_INPUT_CACHE`] channels left are
+/// kept open (detached from the executor, so they never wake the module); following one of
+/// them again discards what it buffered meanwhile and reuses it.
 #[derive(Debug)]
 pub struct ProviderInput<T: Message> {
-    sub: Option<Subscriber<T>>,
+    sub: Option<(String, Subscriber<T>)>,
+    cache: Vec<(String, Subscriber<T>)>,
     provider: Option<ProviderInfo>,
     deadline: Option<Duration>,
     foreign: u64,
+    reused: u64,
 }
 
 impl<T: Message> Default for ProviderInput<T> {
@@ -711,9 +754,11 @@ impl<T: Message> ProviderInput<T> {
     pub fn new() -> Self {
         ProviderInput {
             sub: None,
+            cache: Vec::new(),
             provider: None,
             deadline: None,
             foreign: 0,
+            reused: 0,
         }
     }
 
@@ -733,23 +778,42 @@ impl<T: Message> ProviderInput<T> {
         ctx: &mut crate::Context,
         provider: Option<&ProviderInfo>,
     ) -> Result<(), Error> {
-        let same_channel = match (&self.provider, provider) {
-            (Some(a), Some(b)) => a.channel == b.channel && self.sub.is_some(),
+        let same_channel = match (&self.sub, provider) {
+            (Some((c, _)), Some(p)) => *c == p.channel,
             _ => false,
         };
         self.provider = provider.cloned();
         if same_channel {
             return Ok(());
         }
-        if let Some(old) = self.sub.take() {
+        if let Some((channel, old)) = self.sub.take() {
             ctx.unsubscribe(old.id())?;
+            if self.cache.len() >= PROVIDER_INPUT_CACHE {
+                self.cache.remove(0);
+            }
+            self.cache.push((channel, old));
         }
-        if let Some(p) = provider
-            && !p.channel.is_empty()
-        {
-            self.sub = Some(ctx.subscribe::<T>(&p.channel, self.deadline)?);
+        let Some(p) = provider.filter(|p| !p.channel.is_empty()) else {
+            return Ok(());
+        };
+        if let Some(pos) = self.cache.iter().position(|(c, _)| *c == p.channel) {
+            let (channel, sub) = self.cache.remove(pos);
+            // What arrived while nobody listened belongs to a former contract.
+            while sub.receive()?.is_some() {}
+            ctx.resubscribe(&sub, self.deadline)?;
+            self.reused += 1;
+            self.sub = Some((channel, sub));
+        } else {
+            let sub = ctx.subscribe::<T>(&p.channel, self.deadline)?;
+            self.sub = Some((p.channel.clone(), sub));
         }
         Ok(())
+    }
+
+    /// How many times [`ProviderInput::follow`] reused a kept subscription instead of opening
+    /// the channel.
+    pub fn reused(&self) -> u64 {
+        self.reused
     }
 
     /// The provider followed.
@@ -759,7 +823,7 @@ impl<T: Message> ProviderInput<T> {
 
     /// True when `input` is this input's subscriber.
     pub fn is(&self, input: InputId) -> bool {
-        self.sub.as_ref().is_some_and(|s| s.id() == input)
+        self.sub.as_ref().is_some_and(|(_, s)| s.id() == input)
     }
 
     /// The next sample from the selected provider; samples of other publishers on the same
@@ -768,7 +832,7 @@ impl<T: Message> ProviderInput<T> {
     /// # Errors
     /// The channel failed.
     pub fn receive(&mut self) -> Result<Option<Sample<T>>, Error> {
-        let (Some(sub), Some(p)) = (&self.sub, &self.provider) else {
+        let (Some((_, sub)), Some(p)) = (&self.sub, &self.provider) else {
             return Ok(None);
         };
         while let Some(s) = sub.receive()? {

@@ -240,6 +240,18 @@ impl Context {
         Ok(sub)
     }
 
+    /// Calls back again for a subscriber earlier passed to [`Context::unsubscribe`] and kept
+    /// (a cached [`crate::control::ProviderInput`] channel): no channel is opened.
+    pub(crate) fn resubscribe<T: Message>(
+        &mut self,
+        sub: &Subscriber<T>,
+        deadline: Option<Duration>,
+    ) -> Result<(), Error> {
+        self.waiter.attach(sub)?;
+        self.watch_deadline(sub.id(), deadline);
+        Ok(())
+    }
+
     /// Stops calling back for an input (drop the subscriber afterwards).
     pub fn unsubscribe(&mut self, input: InputId) -> Result<(), Error> {
         self.deadlines.retain(|d| d.input != input);
@@ -761,6 +773,7 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
     }
 
     ctx.state = ModuleState::Stopping;
+    tracing::debug!(module = %opts.name, stats = ?ctx.waiter.stats(), "waiter");
     module.stop(&mut ctx);
     if let Some(p) = ctx.plane.as_mut() {
         let now = ctx.node.clock().now();
@@ -780,7 +793,7 @@ fn poll_contracts<M: Module>(module: &mut M, ctx: &mut Context, name: &str) {
     };
     let now = ctx.node.clock().now();
     plane.poll(&ctx.node, ctx.aptitude, f64::from(ctx.quality), now);
-    let events = plane.take_events();
+    let events = plane.take_events(now);
     for ev in events {
         let r = match &ev {
             PlaneEvent::Activation(active) => module.on_activation(ctx, *active),

@@ -12,6 +12,10 @@
 //!   the supervisor's channel, as `hng run` does when its pidfd fires. Time from the SIGKILL
 //!   to the first message B publishes for the client. A is then restarted and wins the
 //!   contract back by a better offer before the next sample.
+//! - Both report `first_ns`, the first sample: the only one in which the modules open the
+//!   channels of the tree (clients keep the subscriptions and command publishers they
+//!   leave, and every module keeps its publishers to its peers' inboxes), so it is the cold
+//!   figure; the others measure re-establishment among running modules.
 //! - `decide_10`, `decide_100`, `decide_1000`: one query decided among N candidates inside a
 //!   Manager's agent (N proposals handled, then the deadline tick that accepts the best and
 //!   rejects the others); `select_best_ns` is the bare choice.
@@ -351,7 +355,9 @@ announce = "bench/manager/active""#;
         }
         while commands.receive()?.is_some() {}
     }
+    let first = out.first().copied().unwrap_or(0);
     Ok(row("tree15", &mut out, 20_000_000)
+        .with("first_ns", first)
         .with("modules", 15u64)
         .with("channels", (TREE15_DATA.len() + 1) as u64)
         .with("timeouts", timeouts))
@@ -412,7 +418,10 @@ fn switch_after_kill(samples: usize) -> Result<BenchRow> {
         // A comes back and wins the contract back (better offer) for the next sample.
         sys.spawn("loc_a", a_cfg)?;
     }
-    Ok(row("switch_after_kill", &mut out, 50_000_000).with("detection", "supervisor Died event"))
+    let first = out.first().copied().unwrap_or(0);
+    Ok(row("switch_after_kill", &mut out, 50_000_000)
+        .with("first_ns", first)
+        .with("detection", "supervisor Died event"))
 }
 
 fn proposals(n: usize) -> Vec<Proposal> {

@@ -29,6 +29,10 @@ pub struct LoopArgs {
     /// Time limit, seconds.
     #[arg(long, default_value_t = 5.0)]
     pub max_seconds: f64,
+    /// Scans per second, as a lidar publishes them; 0 publishes the next scan as soon as the
+    /// previous command came back (back to back).
+    #[arg(long, default_value_t = 0.0)]
+    pub rate: f64,
     /// Wait mode of all three processes: `blocking`, `blocking:<µs spin>` or `spin`.
     #[arg(long, default_value = "blocking")]
     pub wait: String,
@@ -201,9 +205,21 @@ pub fn lidar_to_command(a: &LoopArgs) -> Result<BenchRow> {
     let limit = Duration::from_secs_f64(a.max_seconds.max(0.1));
     let begin = Instant::now();
     let mut limited = 0u64;
+    let period = (a.rate > 0.0).then(|| Duration::from_secs_f64(1.0 / a.rate));
+    let mut next_scan = Instant::now();
     for i in 0..a.samples {
         if begin.elapsed() > limit {
             break;
+        }
+        if let Some(p) = period {
+            // A periodic sensor: the next scan leaves at its time, whatever the loop did.
+            next_scan += p;
+            let now = Instant::now();
+            if next_scan > now {
+                std::thread::sleep(next_scan - now);
+            } else {
+                next_scan = now;
+            }
         }
         let is_near = i % 2 == 1;
         let scan = if is_near { &near } else { &far };
@@ -241,6 +257,7 @@ pub fn lidar_to_command(a: &LoopArgs) -> Result<BenchRow> {
     Ok(BenchRow::new("loop", "lidar_to_command", p)
         .with("mean_ns", mean_ns)
         .with("wait", a.wait.clone())
+        .with("rate_hz", a.rate)
         .with("processes", 3)
         .with("hops", 2)
         .with("limited_commands", limited))

@@ -8,7 +8,7 @@ use anyhow::{Context as _, Result, bail};
 use hng_runtime::system::{CommandOp, SUPERVISOR_COMMAND, SupervisorCommand};
 use hng_watchdog::Signal;
 
-use super::status::{StatusDoc, StatusReader};
+use super::status::{StatusDoc, status_reader};
 
 /// How long a tool waits for the supervisor's status (it is published at least twice a second).
 const ANSWER_TIMEOUT: Duration = Duration::from_secs(3);
@@ -18,7 +18,7 @@ const RM_TIMEOUT: Duration = Duration::from_millis(500);
 
 /// `hng ps [--json]`.
 pub fn ps(prefix: &str, json: bool) -> Result<()> {
-    let mut reader = StatusReader::open(prefix, "hng-ps")?;
+    let mut reader = status_reader(prefix, "hng-ps")?;
     let doc = reader.current(ANSWER_TIMEOUT)?;
     // The resource manager's figures (CPU, memory, caps, R, R_eff), when it runs.
     let rm = crate::top::rm_figures(prefix, RM_TIMEOUT)
@@ -55,8 +55,8 @@ pub fn ps(prefix: &str, json: bool) -> Result<()> {
         if doc.shutting_down { ", stopping" } else { "" }
     );
     println!(
-        "{:<16} {:<12} {:>8} {:>9} {:>8} {:>6} {:>9}  LAST EXIT",
-        "MODULE", "STATE", "PID", "UPTIME", "RESTARTS", "CPU%", "RSS"
+        "{:<16} {:<12} {:>8} {:>9} {:>8} {:>6} {:>9}  {:<18} LAST EXIT",
+        "MODULE", "STATE", "PID", "UPTIME", "RESTARTS", "CPU%", "RSS", "CAPS"
     );
     for m in &doc.modules {
         let state = match m.restart_in_ms {
@@ -72,7 +72,7 @@ pub fn ps(prefix: &str, json: bool) -> Result<()> {
             |b| format!("{:.1}M", b / (1024.0 * 1024.0)),
         );
         println!(
-            "{:<16} {:<12} {:>8} {:>9} {:>8} {:>6} {:>9}  {}",
+            "{:<16} {:<12} {:>8} {:>9} {:>8} {:>6} {:>9}  {:<18} {}",
             format!("{}{}", m.name, if m.manager { "*" } else { "" }),
             state,
             m.pid.map_or_else(|| "-".to_owned(), |p| p.to_string()),
@@ -80,6 +80,9 @@ pub fn ps(prefix: &str, json: bool) -> Result<()> {
             m.restarts,
             cpu,
             rss,
+            m.caps
+                .as_ref()
+                .map_or_else(|| "-".to_owned(), super::status::CapsRow::short),
             m.last_exit_text.as_deref().unwrap_or("-"),
         );
     }
@@ -120,7 +123,7 @@ pub fn parse_signal(s: &str) -> Result<Signal> {
 /// Sends one command and waits for the supervisor's acknowledgement; returns the document
 /// that acknowledges it.
 fn command(prefix: &str, cmd: SupervisorCommand, tool: &str) -> Result<StatusDoc> {
-    let mut reader = StatusReader::open(prefix, tool)?;
+    let mut reader = status_reader(prefix, tool)?;
     let before = reader.current(ANSWER_TIMEOUT)?;
     let module = cmd.module();
     if cmd.op() != Some(CommandOp::Shutdown) && before.module(module).is_none() {

@@ -9,7 +9,7 @@ use std::process::Command;
 use std::rc::Rc;
 
 use hng_rm::cgroup::{CgroupRun, ModuleCgroup};
-use hng_rm::limits::ResourceLimits;
+use hng_rm::limits::{AppliedLimits, ResourceLimits};
 use hng_runtime::Node;
 use hng_watchdog::{ModuleSpec, SupervisorHooks};
 
@@ -21,18 +21,23 @@ pub struct RunHooks {
     pub cgroup_run: Option<CgroupRun>,
     /// Module cgroups, created at first spawn; with the OOM-kill count seen at the last spawn.
     pub cgroups: HashMap<String, (ModuleCgroup, Option<u64>)>,
+    /// Each module's caps and who enforces them (for the status document), set at its
+    /// first spawn.
+    pub caps: HashMap<String, Option<super::status::CapsRow>>,
+    /// A resource manager runs: caps the kernel does not enforce are checked by it.
+    pub software_enforcer: bool,
 }
 
 impl RunHooks {
     fn cgroup(&mut self, module: &ModuleSpec) -> Option<&mut (ModuleCgroup, Option<u64>)> {
-        if !self.cgroups.contains_key(&module.name) {
-            let run = self.cgroup_run.as_ref()?;
-            let cg = match run.module(&module.name) {
-                Ok(cg) => cg,
-                Err(e) => {
+        if !self.caps.contains_key(&module.name) {
+            let cg = match self.cgroup_run.as_ref().map(|run| run.module(&module.name)) {
+                Some(Ok(cg)) => Some(cg),
+                Some(Err(e)) => {
                     tracing::warn!(module = %module.name, "no cgroup for the module: {e}");
-                    return None;
+                    None
                 }
+                None => None,
             };
             let r = &module.resources;
             let limits = ResourceLimits {
@@ -41,11 +46,27 @@ impl RunHooks {
                 memory_high_bytes: None,
                 pids: r.pids_max,
             };
-            if limits != ResourceLimits::default() {
-                let applied = cg.apply_limits(&limits);
-                tracing::debug!(module = %module.name, ?applied, "resource caps");
+            // A cap the kernel refuses is a warning from the cgroup layer naming the
+            // fallback; here it goes to the status, where the resource manager reads
+            // it and checks it in software.
+            let applied = match &cg {
+                Some(cg) if limits != ResourceLimits::default() => cg.apply_limits(&limits),
+                _ => AppliedLimits::all_software(&limits, "no cgroup for the module"),
+            };
+            let row = super::status::CapsRow::new(r, &applied, self.software_enforcer);
+            if let Some(row) = &row {
+                for f in &row.fallback {
+                    if self.software_enforcer {
+                        tracing::info!(module = %module.name, "cap {f}");
+                    } else {
+                        tracing::warn!(module = %module.name, "cap {f}");
+                    }
+                }
             }
-            self.cgroups.insert(module.name.clone(), (cg, None));
+            self.caps.insert(module.name.clone(), row);
+            if let Some(cg) = cg {
+                self.cgroups.insert(module.name.clone(), (cg, None));
+            }
         }
         self.cgroups.get_mut(&module.name)
     }

@@ -255,6 +255,7 @@ give_up_window = "60s"
         ("camera", "camera"),
         ("robot", "robot"),
         ("security", "security"),
+        ("interface", "interface"),
         ("gps", "gps"),
     ] {
         module(&mut s, name, cmd);
@@ -307,7 +308,7 @@ mod tests {
         let plan = hng_watchdog::launch::parse(&m.plan, Path::new("<mission>"), &opts);
         let plan = plan.unwrap_or_else(|e| panic!("{e}\n{}", m.plan));
         assert!(plan.sim_clock);
-        assert_eq!(plan.modules.len(), 11);
+        assert_eq!(plan.modules.len(), 12);
     }
 
     #[test]

@@ -514,7 +514,9 @@ fn supervise_inner(
     let cgroup_run = match CgroupRun::create(&support, &system_tag, &unique_run_id()) {
         Ok(r) => Some(r),
         Err(e) => {
-            tracing::warn!("no cgroups for this run ({e}); modules run uncapped");
+            tracing::warn!(
+                "no cgroups for this run ({e}); caps are checked in software by the resource manager"
+            );
             None
         }
     };
@@ -537,6 +539,8 @@ fn supervise_inner(
         node: Rc::clone(&node),
         cgroup_run,
         cgroups: HashMap::new(),
+        caps: HashMap::new(),
+        software_enforcer: plan.modules.iter().any(|m| m.name == "rm"),
     };
     let sup = Supervisor::with_hooks(
         plan.modules,
@@ -735,7 +739,8 @@ impl Runner {
                     .reports
                     .get(&s.name)
                     .map(|(r, at)| ReportFigures::new(r, *at, now));
-                ModuleRow::new(s, report)
+                let caps = self.sup.hooks().caps.get(&s.name).cloned().flatten();
+                ModuleRow::new(s, report).with_caps(caps)
             })
             .collect();
         StatusDoc {

@@ -3,14 +3,13 @@
 
 use std::time::{Duration, Instant};
 
-use anyhow::{Context as _, Result, bail};
-use hng_runtime::channel::{Service, iceoryx_config};
+use anyhow::Result;
 use hng_runtime::msg::{ModuleReport, ModuleState as ReportState};
-use hng_runtime::system::{JsonInfo, SUPERVISOR_STATUS};
-use hng_runtime::wait::{WaitMode, Waiter};
-use hng_runtime::{Node, NodeOptions, SliceSubscriber};
+use hng_runtime::system::SUPERVISOR_STATUS;
 use hng_watchdog::{ModuleState, ModuleStatus};
 use serde::{Deserialize, Serialize};
+
+use crate::doc::{DocReader, ensure_channel_exists};
 
 /// The whole document.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -72,6 +71,124 @@ pub struct ModuleRow {
     pub manager: bool,
     /// Figures of the module's last report (from its current process).
     pub report: Option<ReportFigures>,
+    /// The caps of the launch file and who enforces each (`None`: no cap asked for).
+    /// The resource manager reads `cpu_quota` and `memory_max` here and checks those
+    /// the kernel does not enforce.
+    #[serde(default)]
+    pub caps: Option<CapsRow>,
+}
+
+/// A module's caps (launch file `cpu_quota`, `memory_max`, `pids_max`) and how each is
+/// enforced: `kernel` (its cgroup), `software` (the resource manager measures it and has
+/// the module killed and restarted with cause "over limit" when it goes over), or
+/// `unenforced`.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct CapsRow {
+    /// CPU, fraction of one core.
+    pub cpu_quota: Option<f64>,
+    /// Memory, bytes.
+    pub memory_max: Option<u64>,
+    /// Tasks.
+    pub pids_max: Option<u64>,
+    /// How `cpu_quota` is enforced.
+    pub cpu: Option<String>,
+    /// How `memory_max` is enforced.
+    pub memory: Option<String>,
+    /// How `pids_max` is enforced.
+    pub pids: Option<String>,
+    /// One line per cap the kernel does not enforce: why, and the fallback.
+    pub fallback: Vec<String>,
+}
+
+impl CapsRow {
+    /// From the launch file's caps and what the cgroup layer made of them.
+    /// `software_enforcer`: a resource manager runs (else software caps are unenforced).
+    /// `None` when no cap is asked for.
+    pub fn new(
+        caps: &hng_watchdog::ResourceCaps,
+        applied: &hng_rm::limits::AppliedLimits,
+        software_enforcer: bool,
+    ) -> Option<CapsRow> {
+        use hng_rm::limits::Cap;
+        if *caps == hng_watchdog::ResourceCaps::default() {
+            return None;
+        }
+        let mut fallback = Vec::new();
+        let mut how = |what: &str, asked: bool, cap: &Cap, software_ok: bool| -> Option<String> {
+            if !asked {
+                return None;
+            }
+            Some(
+                match cap {
+                    Cap::Kernel => "kernel",
+                    Cap::Software { reason } if software_ok && software_enforcer => {
+                        fallback.push(format!(
+                            "{what}: not in the kernel ({reason}); the resource manager measures it and stops the module over it"
+                        ));
+                        "software"
+                    }
+                    Cap::Software { reason } | Cap::Unenforced { reason } => {
+                        let why = if software_ok && !software_enforcer {
+                            format!("{reason}; no resource manager runs")
+                        } else {
+                            reason.clone()
+                        };
+                        fallback.push(format!("{what}: not enforced ({why})"));
+                        "unenforced"
+                    }
+                    // Asked for but not applied (cannot happen with the cgroup layer).
+                    Cap::NotRequested => {
+                        fallback.push(format!("{what}: not applied"));
+                        "unenforced"
+                    }
+                }
+                .to_owned(),
+            )
+        };
+        let cpu = how("cpu_quota", caps.cpu_quota.is_some(), &applied.cpu, true);
+        let memory = how(
+            "memory_max",
+            caps.memory_max.is_some(),
+            &applied.memory,
+            true,
+        );
+        let pids = how("pids_max", caps.pids_max.is_some(), &applied.pids, false);
+        Some(CapsRow {
+            cpu_quota: caps.cpu_quota,
+            memory_max: caps.memory_max,
+            pids_max: caps.pids_max,
+            cpu,
+            memory,
+            pids,
+            fallback,
+        })
+    }
+
+    /// Short text for tables: `cpu 20%k mem 64M s pids 32k` (`k` kernel, `s` software,
+    /// `-` unenforced).
+    #[must_use]
+    pub fn short(&self) -> String {
+        let tag = |h: &Option<String>| match h.as_deref() {
+            Some("kernel") => "k",
+            Some("software") => "s",
+            _ => "-",
+        };
+        let mut parts = Vec::new();
+        if let Some(q) = self.cpu_quota {
+            parts.push(format!("cpu {:.0}%{}", q * 100.0, tag(&self.cpu)));
+        }
+        if let Some(m) = self.memory_max {
+            parts.push(format!(
+                "mem {:.0}M{}",
+                m as f64 / (1024.0 * 1024.0),
+                tag(&self.memory)
+            ));
+        }
+        if let Some(p) = self.pids_max {
+            parts.push(format!("pids {p}{}", tag(&self.pids)));
+        }
+        parts.join(" ")
+    }
 }
 
 /// The last [`ModuleReport`] of a module's current process.
@@ -150,7 +267,15 @@ impl ModuleRow {
             restart_in_ms: s.restart_in.map(ms),
             manager: s.manager,
             report,
+            caps: None,
         }
+    }
+
+    /// Sets the caps.
+    #[must_use]
+    pub fn with_caps(mut self, caps: Option<CapsRow>) -> ModuleRow {
+        self.caps = caps;
+        self
     }
 }
 
@@ -168,83 +293,62 @@ impl StatusDoc {
 }
 
 /// A reader of the status document of the system under a prefix.
-pub struct StatusReader {
-    // Field order: ports before the node that owns them.
-    sub: SliceSubscriber<JsonInfo>,
-    waiter: Waiter,
-    node: Node,
-}
+pub type StatusReader = DocReader<StatusDoc>;
 
 /// Fails with a clear message when nothing has ever published a status under `prefix`
 /// (checked without creating any file of the prefix).
 pub fn ensure_system_exists(prefix: &str) -> Result<()> {
-    let config = iceoryx_config(prefix)?;
-    let name = iceoryx2::prelude::ServiceName::new(SUPERVISOR_STATUS)
-        .map_err(|e| anyhow::anyhow!("service name: {e:?}"))?;
-    let details = <Service as iceoryx2::service::Service>::details(
-        &name,
-        &config,
-        iceoryx2::service::messaging_pattern::MessagingPattern::PublishSubscribe,
+    ensure_channel_exists(
+        prefix,
+        SUPERVISOR_STATUS,
+        "hng system",
+        "start one with `hng run` or pass --prefix",
     )
-    .map_err(|e| anyhow::anyhow!("looking up the supervisor of prefix {prefix:?}: {e:?}"))?;
-    if details.is_none() {
-        bail!(
-            "no hng system runs under prefix {prefix:?} (no supervisor status channel); start one with `hng run` or pass --prefix"
-        );
-    }
-    Ok(())
 }
 
-impl StatusReader {
-    /// Opens the status channel of the system under `prefix` (which must exist).
-    pub fn open(prefix: &str, tool: &str) -> Result<StatusReader> {
-        ensure_system_exists(prefix)?;
-        let node =
-            Node::new(NodeOptions::new(&format!("{tool}-{}", std::process::id())).prefix(prefix))
-                .context("creating a node")?;
-        let sub = node
-            .slice_subscriber::<JsonInfo>(SUPERVISOR_STATUS)
-            .context("subscribing to the supervisor status")?;
-        let mut waiter = Waiter::new(WaitMode::Blocking {
-            max_spin: Duration::ZERO,
-        })?;
-        waiter.attach(&sub)?;
-        Ok(StatusReader { sub, waiter, node })
-    }
+/// Opens the status channel of the system under `prefix` (which must exist) as `tool`.
+pub fn status_reader(prefix: &str, tool: &str) -> Result<StatusReader> {
+    ensure_system_exists(prefix)?;
+    DocReader::open(prefix, SUPERVISOR_STATUS, tool, "the supervisor")
+}
 
-    /// The node (to open more ports).
-    pub fn node(&self) -> &Node {
-        &self.node
-    }
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use hng_rm::limits::{AppliedLimits, Cap};
+    use hng_watchdog::ResourceCaps;
 
-    /// The next document that satisfies `pred`, waiting up to `timeout`.
-    pub fn next_where(
-        &mut self,
-        timeout: Duration,
-        mut pred: impl FnMut(&StatusDoc) -> bool,
-    ) -> Result<StatusDoc> {
-        let deadline = Instant::now() + timeout;
-        loop {
-            while let Some(s) = self.sub.receive()? {
-                let doc: StatusDoc = serde_json::from_slice(s.data())
-                    .context("the supervisor's status document is not valid")?;
-                if pred(&doc) {
-                    return Ok(doc);
-                }
-            }
-            let left = deadline.saturating_duration_since(Instant::now());
-            if left.is_zero() {
-                bail!(
-                    "no answer from the supervisor of prefix {:?} within {timeout:?} (is `hng run` still running?)",
-                    self.node.prefix()
-                );
-            }
-            self.waiter.wait(Some(left))?;
-        }
-    }
-
-    /// The current document.
-    pub fn current(&mut self, timeout: Duration) -> Result<StatusDoc> {
-        self.next_where(timeout, |_| true)
+    #[test]
+    fn caps_row_names_who_enforces_each_cap_and_the_fallback() {
+        let caps = ResourceCaps {
+            cpu_quota: Some(0.0005),
+            memory_max: Some(64 << 20),
+            pids_max: Some(32),
+        };
+        let applied = AppliedLimits {
+            cpu: Cap::Software {
+                reason: "quota under the kernel's minimum".into(),
+            },
+            memory: Cap::Kernel,
+            pids: Cap::Unenforced {
+                reason: "no writable pids controller".into(),
+            },
+        };
+        let row = CapsRow::new(&caps, &applied, true).expect("caps asked for");
+        assert_eq!(row.cpu.as_deref(), Some("software"));
+        assert_eq!(row.memory.as_deref(), Some("kernel"));
+        assert_eq!(row.pids.as_deref(), Some("unenforced"));
+        assert_eq!(row.fallback.len(), 2, "{row:?}");
+        assert!(row.fallback[0].contains("resource manager"), "{row:?}");
+        assert_eq!(row.short(), "cpu 0%s mem 64Mk pids 32-");
+        // The RM reads cpu_quota and memory_max from the JSON.
+        let v = serde_json::to_value(&row).expect("json");
+        assert_eq!(v["cpu_quota"], 0.0005);
+        assert_eq!(v["memory_max"], 64 << 20);
+        // Without a resource manager the software caps are unenforced, and said so.
+        let row = CapsRow::new(&caps, &applied, false).expect("caps asked for");
+        assert_eq!(row.cpu.as_deref(), Some("unenforced"));
+        assert!(row.fallback[0].contains("no resource manager"), "{row:?}");
+        assert!(CapsRow::new(&ResourceCaps::default(), &applied, true).is_none());
     }
 }

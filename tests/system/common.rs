@@ -78,6 +78,18 @@ impl TestSystem {
         pid
     }
 
+    /// Starts `cmd` with this system's prefix; it is stopped with the system.
+    pub fn spawn(&mut self, cmd: &mut Command) -> u32 {
+        let child = cmd
+            .env("HNG_PREFIX", &self.prefix)
+            .stdin(Stdio::null())
+            .spawn()
+            .expect("spawn");
+        let pid = child.id();
+        self.children.push(child);
+        pid
+    }
+
     /// Sends SIGTERM to every child and waits for each; returns their exit statuses.
     pub fn stop_all(&mut self) -> Vec<std::process::ExitStatus> {
         let mut out = Vec::new();

@@ -537,3 +537,66 @@ period_ms = 10"#,
     let statuses = sys.stop_all();
     assert!(statuses.iter().all(|s| s.success()), "{statuses:?}");
 }
+
+/// A `ProviderInput` keeps the channel it leaves: following that provider again reuses the
+/// subscription (no channel opened), discards what was published while it followed another
+/// provider, and delivers what comes next.
+#[test]
+fn contracts_provider_input_reuses_left_channels() {
+    use hng_runtime::Context;
+    use hng_runtime::control::{ProviderInfo, ProviderInput};
+    use hng_runtime::msg::{Odometry, Pose2D};
+
+    let sys = TestSystem::new("ct_pinput");
+    let mut ctx = Context::new(test_node(&sys, "client"), WaitMode::default()).expect("context");
+    let nodes = [test_node(&sys, "prov_a"), test_node(&sys, "prov_b")];
+    let info: Vec<ProviderInfo> = nodes
+        .iter()
+        .map(|n| ProviderInfo {
+            module: ModuleId(n.id()),
+            channel: ServiceOffer::new("Localization", "").channel_for(ModuleId(n.id())),
+        })
+        .collect();
+    let pubs: Vec<_> = nodes
+        .iter()
+        .zip(&info)
+        .map(|(n, i)| n.publisher::<Odometry>(&i.channel).expect("publisher"))
+        .collect();
+    let send = |k: usize, x: f64| {
+        pubs[k].update_connections();
+        pubs[k]
+            .publish(Odometry {
+                pose: Pose2D {
+                    x,
+                    ..Default::default()
+                },
+                ..Default::default()
+            })
+            .expect("publish");
+    };
+    let mut input = ProviderInput::<Odometry>::new();
+    let next =
+        |input: &mut ProviderInput<Odometry>| input.receive().expect("receive").map(|s| s.pose.x);
+
+    input.follow(&mut ctx, Some(&info[0])).expect("follow A");
+    send(0, 1.0);
+    assert_eq!(next(&mut input), Some(1.0));
+    input.follow(&mut ctx, Some(&info[1])).expect("follow B");
+    send(0, 2.0); // A's data while B serves: not for us any more
+    send(1, 3.0);
+    assert_eq!(next(&mut input), Some(3.0));
+    assert_eq!(input.reused(), 0);
+
+    input.follow(&mut ctx, Some(&info[0])).expect("back to A");
+    assert_eq!(input.reused(), 1, "A's subscription was kept and reused");
+    assert_eq!(
+        next(&mut input),
+        None,
+        "the backlog of the former contract is discarded"
+    );
+    send(0, 4.0);
+    assert_eq!(next(&mut input), Some(4.0));
+    input.follow(&mut ctx, None).expect("no provider");
+    send(0, 5.0);
+    assert_eq!(next(&mut input), None, "no provider, no data");
+}

@@ -175,3 +175,39 @@ fn overflow_drops_are_counted_and_the_publisher_never_blocks() {
     assert_eq!(stats.dropped + stats.received, 101, "{stats:?}");
     assert!(stats.dropped > 0);
 }
+
+#[test]
+fn a_sample_the_waiter_saw_is_received_once_in_order() {
+    let sys = TestSystem::new("ahead");
+    let node = Node::new(NodeOptions::new("ahead").prefix(&sys.prefix)).expect("node");
+    let p = node.publisher::<Twist>("robot/cmd_vel").expect("publisher");
+    let s = node
+        .subscriber::<Twist>("robot/cmd_vel")
+        .expect("subscriber");
+    let mut waiter = Waiter::new(WaitMode::default()).expect("waiter");
+    waiter.attach(&s).expect("attach");
+    assert!(!s.has_samples());
+    for i in 1..=3 {
+        p.publish(Twist {
+            linear_x: f64::from(i),
+            ..Default::default()
+        })
+        .expect("publish");
+    }
+    // Looking for data (the waiter, then the subscriber itself) is not receiving it.
+    assert_eq!(
+        waiter.wait(Some(Duration::from_secs(5))).expect("wait"),
+        Wake::Data
+    );
+    assert_eq!(waiter.ready().collect::<Vec<_>>(), vec![s.id()]);
+    assert!(s.has_samples());
+    assert_eq!(s.stats().received, 0, "a look is not a receipt");
+    let mut got = Vec::new();
+    while let Some(m) = s.receive().expect("receive") {
+        got.push((m.linear_x, m.header.seq));
+    }
+    assert_eq!(got, vec![(1.0, 1), (2.0, 2), (3.0, 3)]);
+    assert_eq!(s.stats().received, 3);
+    assert_eq!(s.stats().dropped, 0);
+    assert!(!s.has_samples());
+}

@@ -6,6 +6,7 @@ mod dataplane;
 mod eval;
 mod faults;
 mod mission;
+mod mission_cmd;
 mod modules;
 mod rm;
 mod sdk;

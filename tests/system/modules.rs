@@ -1,16 +1,21 @@
 //! The HNG v1.0 modules as real processes: Security stops a teleoperated robot before a wall.
 //!
 //! `hng module simulator` (a 4.5 m room, the robot 3.3 m from the east wall facing it) +
-//! `robot` + `laser` + `security`, all on the simulation clock, under a unique prefix. The test
-//! plays a teleoperator pushing full speed (1 m/s) straight at the wall on `teleop/cmd_vel`,
-//! one command per ground-truth sample (the simulated time paces it, no sleeps), and checks on
-//! the ground truth and the simulator's own counters that the robot drove towards the wall,
-//! stopped short of it and never touched it.
+//! `manager` + `interface` + `robot` + `laser` + `security`, all on the simulation clock, under
+//! a unique prefix. The command path is the contract tree's (paper 5.8): the Manager's
+//! objectives "Robot integrity" (Security, whose "Robot control" contract is 1.1) and "Human
+//! control" (the Interface, 2.1); the Robot obeys Security, which limits the Interface's
+//! commands. The test plays an operator pushing full speed (1 m/s) straight at the wall on the
+//! Interface's `hng/teleop`, one command per ground-truth sample (the simulated time paces it,
+//! no sleeps), and checks on the ground truth and the simulator's own counters that the robot
+//! drove towards the wall, stopped short of it and never touched it, and on the Robot's
+//! contract table that the commands came by contract.
 
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use hng_runtime::msg::{PoseWithCovariance, Twist};
+use hng_runtime::system::{CONTRACTS, ContractRole, ContractTable};
 use hng_runtime::wait::{WaitMode, Waiter};
 use hng_runtime::{Node, NodeOptions};
 use hng_simulator::SimStatus;
@@ -124,6 +129,18 @@ impl Drop for Procs {
     }
 }
 
+/// Keeps the latest contract table of the Robot (who holds "Robot control", what it obeyed).
+fn read_robot_table(
+    tables: &hng_runtime::Subscriber<ContractTable>,
+    latest: &mut Option<ContractTable>,
+) {
+    while let Some(t) = tables.receive().expect("tables") {
+        if t.module() == "robot" {
+            *latest = Some(*t);
+        }
+    }
+}
+
 #[test]
 fn security_stops_a_robot_teleoperated_straight_at_a_wall() {
     let sys = TestSystem::new("secwall");
@@ -137,7 +154,10 @@ fn security_stops_a_robot_teleoperated_straight_at_a_wall() {
         dir,
     };
     let node = Node::new(NodeOptions::new("teleop").prefix(&p.sys.prefix)).expect("node");
-    let teleop = node.publisher::<Twist>("teleop/cmd_vel").expect("teleop");
+    let teleop = node.publisher::<Twist>("hng/teleop").expect("teleop");
+    let tables = node
+        .subscriber::<ContractTable>(CONTRACTS)
+        .expect("contract tables");
     let truth = node
         .subscriber::<PoseWithCovariance>("sim/ground_truth")
         .expect("ground truth");
@@ -148,6 +168,8 @@ fn security_stops_a_robot_teleoperated_straight_at_a_wall() {
     p.spawn("robot", "", true);
     p.spawn("laser", "", true);
     p.spawn("security", "", true);
+    p.spawn("interface", "", true);
+    p.spawn("manager", "", true);
     p.spawn(
         "simulator",
         &format!("world = {:?}\nspeed = 2\n", world.to_string_lossy()),
@@ -161,6 +183,7 @@ fn security_stops_a_robot_teleoperated_straight_at_a_wall() {
     let end_ns = 7_000_000_000u64; // 7 s of simulated time: 3.3 m at 1 m/s, then standing
     let deadline = Instant::now() + Duration::from_secs(90);
     let (mut x, mut max_x, mut t_ns) = (1.0_f64, 1.0_f64, 0u64);
+    let mut robot_table = None;
     let mut x_at_6s = None;
     while t_ns < end_ns {
         assert!(
@@ -184,7 +207,9 @@ fn security_stops_a_robot_teleoperated_straight_at_a_wall() {
             }
             teleop.publish(push).expect("teleop");
         }
+        read_robot_table(&tables, &mut robot_table);
     }
+    read_robot_table(&tables, &mut robot_table);
     let s = *status.latest().expect("status").expect("a status sample");
     p.stop_all();
 
@@ -210,4 +235,27 @@ fn security_stops_a_robot_teleoperated_straight_at_a_wall() {
     assert_eq!(s.collisions, 0, "no collision: {s:?}");
     assert!(s.min_clearance > 0.0, "never touched: {s:?}");
     assert!(s.accepted_commands > 0);
+    let t = robot_table.expect("the Robot published its contract table");
+    let mut clients: Vec<(String, Vec<u16>)> = t
+        .entries()
+        .iter()
+        .filter(|e| e.role() == Some(ContractRole::Provider) && e.service() == "Robot control")
+        .map(|e| (e.service().to_string(), e.priority().to_vec()))
+        .collect();
+    clients.sort_by(|a, b| a.1.cmp(&b.1));
+    let priorities: Vec<&[u16]> = clients.iter().map(|c| c.1.as_slice()).collect();
+    assert_eq!(
+        priorities,
+        [&[1u16, 1][..], &[2, 1][..]],
+        "Robot control held by Security (1.1) and the Interface (2.1)"
+    );
+    assert!(
+        t.commands_accepted > 0,
+        "the Robot obeyed a contract holder: {:?}",
+        t.commands_accepted
+    );
+    assert!(
+        t.commands_preempted > 0,
+        "the Interface's own commands were preempted by Security's"
+    );
 }

@@ -534,6 +534,20 @@ fraction = 0.6
         .expect("capped in hng ps");
     assert!(capped["resources"]["cpu_percent"].is_number(), "{ps:#}");
     assert!(capped["resources"]["rss_bytes"].is_number(), "{ps:#}");
+    // ... and the supervisor's caps: who enforces the 20% quota (kernel cgroup, or the
+    // RM's software check naming why the kernel does not).
+    assert_eq!(capped["caps"]["cpu_quota"].as_f64(), Some(0.2), "{ps:#}");
+    match capped["caps"]["cpu"].as_str() {
+        Some("kernel") => {}
+        Some("software") => assert!(
+            capped["caps"]["fallback"][0]
+                .as_str()
+                .is_some_and(|f| f.contains("resource manager")),
+            "{ps:#}"
+        ),
+        other => panic!("cpu cap enforced by {other:?}: {ps:#}"),
+    }
+    assert!(module(&ps, "hog")["caps"].is_null(), "{ps:#}");
     drop(obs);
     drop(sup);
     drop(node);

@@ -577,6 +577,11 @@ impl<H: SupervisorHooks> Supervisor<H> {
     }
 
     /// The caller's hooks.
+    pub fn hooks(&self) -> &H {
+        &self.hooks
+    }
+
+    /// The caller's hooks, mutable.
     pub fn hooks_mut(&mut self) -> &mut H {
         &mut self.hooks
     }

@@ -429,8 +429,12 @@ impl ContractAgent {
         self.inputs.cost = cost;
     }
 
-    /// The module lacks resources: new queries are refused with
-    /// [`Reason::NoResources`]; existing contracts are kept.
+    /// The RM's most severe degraded mode, "serve nothing" (paper 5.3: as the lack of
+    /// resources grows, fewer queries are answered, down to a global stop): every query is
+    /// refused with [`Reason::NoResources`] and every client contract is cancelled with the
+    /// same reason at the next tick, exactly as [`ContractAgent::set_min_priority`] does
+    /// with a minimum priority that admits nothing. `false` ends it; the clients then win
+    /// their contracts back by their retries.
     pub fn set_lacking_resources(&mut self, lacking: bool) {
         self.lacking_resources = lacking;
     }
@@ -583,6 +587,13 @@ impl ContractAgent {
         self.needs.iter().map(|s| &s.spec)
     }
 
+    /// True while a call for one of the needs is collecting proposals.
+    pub fn calling(&self) -> bool {
+        self.needs
+            .iter()
+            .any(|n| matches!(n.state, NeedState::Calling { .. }))
+    }
+
     /// True when a required need failed and the module refuses queries until
     /// a probe finds providers again.
     pub fn needs_unmet(&self) -> bool {
@@ -677,7 +688,7 @@ impl ContractAgent {
         if self.known_unmet {
             return Err(Reason::NeedsUnmet);
         }
-        if self.lacking_resources && !existing {
+        if self.lacking_resources {
             return Err(Reason::NoResources);
         }
         if let (Some(min), Some(p)) = (self.min_priority, priority)
@@ -1281,9 +1292,11 @@ impl ContractAgent {
         let t = self.cfg.timing;
         self.feedback.prune(now);
 
-        // Provider side: silent clients, degraded mode, lost aptitude.
+        // Provider side: silent clients, degraded mode (serve nothing included), lost
+        // aptitude.
         let unavailable = self.value(now).is_err();
         let min = self.min_priority;
+        let serve_nothing = self.lacking_resources;
         let drop: Vec<((ModuleId, u16), Option<Reason>)> = self
             .clients
             .iter()
@@ -1292,6 +1305,8 @@ impl ContractAgent {
                     Some((*k, Some(Reason::Timeout)))
                 } else if unavailable {
                     Some((*k, Some(Reason::Inactive)))
+                } else if serve_nothing {
+                    Some((*k, Some(Reason::NoResources)))
                 } else if min.is_some_and(|m| !c.priority.admitted_by(&m)) {
                     Some((*k, Some(Reason::Degraded)))
                 } else {

@@ -325,6 +325,41 @@ fn contract_scenario_degraded_mode_sheds_less_important_objectives() {
 }
 
 #[test]
+fn contract_scenario_serve_nothing_cancels_every_contract() {
+    // The RM's most severe degraded mode (5.3: "a global stop of the system"): no query
+    // of any priority is answered, so established contracts end too, not only new ones.
+    let mut s = navigation();
+    s.run_for(ms(2000));
+    assert_eq!(s.edges().len(), 12);
+    let ids: Vec<ModuleId> = s.agents().map(|a| a.id()).collect();
+    for &id in &ids {
+        s.with(id, |a, _| {
+            a.set_lacking_resources(true);
+            Vec::new()
+        });
+    }
+    s.run_for(ms(1000));
+    assert_eq!(s.edges(), Vec::new(), "contracts survived serve-nothing");
+    assert_eq!(s.provider_of(MANAGER, 1), None);
+    assert_eq!(s.provider_of(MANAGER, 2), None);
+    for &id in ids.iter().filter(|&&id| id != MANAGER) {
+        assert!(!s.agent(id).unwrap().is_active(), "{id} still active");
+    }
+
+    for &id in &ids {
+        s.with(id, |a, _| {
+            a.set_lacking_resources(false);
+            Vec::new()
+        });
+    }
+    s.run_for(ms(2000));
+    assert_eq!(s.provider_of(MANAGER, 1), Some(SECURITY));
+    assert_eq!(s.provider_of(MANAGER, 2), Some(INTERFACE));
+    assert_eq!(s.edges().len(), 12);
+    assert_eq!(s.edges(), s.agreed_edges());
+}
+
+#[test]
 fn contract_scenario_cycle_refused() {
     // A needs s2, B provides s2 and needs s1, which A provides: B must not
     // contract A (its ancestor) and takes C instead.
