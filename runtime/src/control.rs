@@ -132,6 +132,17 @@ pub const TABLE_PERIOD: Duration = Duration::from_millis(200);
 /// Freshness of a driver's commands when [`crate::Context::drive`] was not called.
 pub const DEFAULT_COMMAND_FRESHNESS: Duration = Duration::from_millis(300);
 
+/// The providers of `service` that listen now: the subscribers of its query channel, this
+/// module excluded (for the early close of calls and the retry when one appears).
+fn provider_count(agent: &ContractAgent, service: &str, s: &ServiceOut) -> usize {
+    let n = s.factory.dynamic_config().number_of_subscribers();
+    if agent.config().provides.iter().any(|p| p.service == service) {
+        n.saturating_sub(1)
+    } else {
+        n
+    }
+}
+
 struct ServiceOut {
     publisher: SlicePublisher<ControlInfo>,
     factory: iceoryx2::service::port_factory::publish_subscribe::PortFactory<
@@ -336,6 +347,11 @@ impl ControlPlane {
         self.read_control(now, &mut out);
         if now >= self.next_tick {
             self.next_tick = now + self.tick;
+            // A provider that started since the last call is called at once.
+            for (service, s) in &self.to_services {
+                let n = provider_count(&self.agent, service, s);
+                self.agent.set_provider_count(service, n);
+            }
             out.extend(self.agent.tick(now));
         }
         self.dispatch(node, out, now);
@@ -522,18 +538,7 @@ impl ControlPlane {
                 }
                 match self.to_services.get(service) {
                     Some(s) => {
-                        // Early close: the subscribers of the query channel are the
-                        // providers (this module excluded).
-                        let mut n = s.factory.dynamic_config().number_of_subscribers();
-                        if self
-                            .agent
-                            .config()
-                            .provides
-                            .iter()
-                            .any(|p| &p.service == service)
-                        {
-                            n = n.saturating_sub(1);
-                        }
+                        let n = provider_count(&self.agent, service, s);
                         self.agent.set_provider_count(service, n);
                         s.publisher.publish_copy(ControlInfo::default(), &bytes)
                     }

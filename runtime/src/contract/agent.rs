@@ -376,12 +376,33 @@ impl ContractAgent {
     /// refusal) instead of waiting for its whole reply window; a silent
     /// provider still delays the decision by the reply window at most.
     /// Without it (the default) every call waits for its deadline.
+    ///
+    /// A count that grows means a provider appeared: needs of that service waiting to
+    /// retry call again at the next tick, and an inactive module whose required needs
+    /// failed probes again, instead of waiting out their retry or probe period.
     pub fn set_provider_count(&mut self, service: &str, n: usize) {
-        match self.expected.get_mut(service) {
-            Some(v) => *v = n,
+        let old = match self.expected.get_mut(service) {
+            Some(v) => std::mem::replace(v, n),
             None => {
                 self.expected.insert(service.to_string(), n);
+                0
             }
+        };
+        if n <= old {
+            return;
+        }
+        let mut probe = false;
+        for slot in &mut self.needs {
+            if slot.spec.service != service {
+                continue;
+            }
+            if let NeedState::Waiting { retry_at } = &mut slot.state {
+                *retry_at = Duration::ZERO;
+            }
+            probe |= slot.spec.is_required();
+        }
+        if probe && self.known_unmet && self.probe.is_none() {
+            self.next_probe = Duration::ZERO;
         }
     }
 

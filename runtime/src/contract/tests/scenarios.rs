@@ -452,3 +452,32 @@ fn contract_scenario_deterministic() {
     };
     assert_eq!(run(), run());
 }
+
+/// A provider that starts after its client gave up (the usual order when a whole system
+/// starts at once) is called as soon as the transport sees it, not after the retry period.
+#[test]
+fn contract_scenario_new_provider_is_called_at_once() {
+    use crate::contract::{AgentConfig, ContractAgent, Message};
+    let queries = |out: &[crate::contract::Outgoing]| {
+        out.iter()
+            .filter(|o| matches!(o.envelope.body, Message::Query(_)))
+            .count()
+    };
+    let mut m = ContractAgent::new(AgentConfig::manager(MANAGER, &["Reach goal"])).unwrap();
+    assert_eq!(queries(&m.tick(ms(0))), 1, "the objective is called");
+    m.set_provider_count("Reach goal", 0);
+    assert_eq!(queries(&m.tick(ms(60))), 0, "no proposal: the call fails");
+    assert_eq!(queries(&m.tick(ms(100))), 0, "waiting for the retry period");
+    m.set_provider_count("Reach goal", 0);
+    assert_eq!(
+        queries(&m.tick(ms(110))),
+        0,
+        "no new provider: still waiting"
+    );
+    m.set_provider_count("Reach goal", 1);
+    assert_eq!(
+        queries(&m.tick(ms(120))),
+        1,
+        "a provider appeared: called at once"
+    );
+}
