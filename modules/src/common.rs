@@ -10,7 +10,7 @@ use hng_runtime::contract::{CommandArbiter, ModuleId, Priority, Verdict};
 use hng_runtime::control::ProviderInfo;
 use hng_runtime::msg::{Message, Pose2D, Twist};
 use hng_runtime::system::{ContractRole, ContractTable};
-use hng_runtime::{Error, Subscriber};
+use hng_runtime::{Error, Publisher, Subscriber};
 use serde::{Deserialize, Serialize};
 
 /// One client that may command a driver without contracts (static wiring for benches and
@@ -366,6 +366,29 @@ pub fn encode_state<T: Serialize>(state: &T) -> Option<Vec<u8>> {
 /// Decodes a checkpoint.
 pub fn decode_state<'a, T: Deserialize<'a>>(bytes: &'a [u8]) -> Result<T, postcard::Error> {
     postcard::from_bytes(bytes)
+}
+
+/// Points `out` at the data channel of a need's new provider (a command publisher following
+/// the contracted Robot, say): opens a publisher when the channel changes, none when the need
+/// has no provider.
+///
+/// # Errors
+/// Opening the publisher failed.
+pub fn follow_output<T: Message>(
+    ctx: &mut Context,
+    out: &mut Option<Publisher<T>>,
+    provider: Option<&ProviderInfo>,
+) -> Result<(), Error> {
+    let want = provider
+        .map(|p| p.channel.as_str())
+        .filter(|c| !c.is_empty());
+    if want != out.as_ref().map(|p| p.channel()) {
+        *out = match want {
+            Some(c) => Some(ctx.publisher(c)?),
+            None => None,
+        };
+    }
+    Ok(())
 }
 
 #[cfg(test)]

@@ -25,7 +25,7 @@ use hng_runtime::msg::{BeaconObservation, Twist};
 use hng_runtime::{Context, Module, ModuleResult, Publisher, Subscriber};
 use serde::{Deserialize, Serialize};
 
-use crate::common::{decode_state, encode_state, field_error};
+use crate::common::{decode_state, encode_state, field_error, follow_output};
 use crate::robot::ROBOT_CONTROL;
 
 /// Rank of the Interface's "Robot control" need (contract priority `P(interface).1`: 2.1).
@@ -135,17 +135,7 @@ impl Module for InterfaceModule {
         provider: Option<&ProviderInfo>,
     ) -> ModuleResult {
         match need {
-            ROBOT_CONTROL_NEED => {
-                let want = provider
-                    .map(|p| p.channel.as_str())
-                    .filter(|c| !c.is_empty());
-                if want != self.cmd_out.as_ref().map(|p| p.channel()) {
-                    self.cmd_out = match want {
-                        Some(c) => Some(ctx.publisher(c)?),
-                        None => None,
-                    };
-                }
-            }
+            ROBOT_CONTROL_NEED => follow_output(ctx, &mut self.cmd_out, provider)?,
             VIDEO_NEED => self.video.follow(ctx, provider)?,
             _ => {}
         }

@@ -25,7 +25,7 @@ use hng_runtime::msg::{FrameId, Header, Pose2D, PoseWithCovariance, Twist, Waypo
 use hng_runtime::{Context, Module, ModuleResult, Publisher, Subscriber, TimerId};
 use serde::{Deserialize, Serialize};
 
-use crate::common::{decode_state, encode_state, positive, relative, seconds};
+use crate::common::{decode_state, encode_state, follow_output, positive, relative, seconds};
 use crate::msgs::{GoalState, GoalStatus};
 
 /// Parameters of the controller.
@@ -347,15 +347,7 @@ impl Module for ServoModule {
         if need == LOCALIZATION_NEED {
             self.localization.follow(ctx, provider)?;
         } else if need == ROBOT_CONTROL_NEED {
-            let want = provider
-                .map(|p| p.channel.as_str())
-                .filter(|c| !c.is_empty());
-            if want != self.cmd_out.as_ref().map(|p| p.channel()) {
-                self.cmd_out = match want {
-                    Some(c) => Some(ctx.publisher(c)?),
-                    None => None,
-                };
-            }
+            follow_output(ctx, &mut self.cmd_out, provider)?;
         }
         Ok(())
     }
