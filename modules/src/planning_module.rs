@@ -48,7 +48,11 @@ pub struct PlanningParams {
     pub deviation_m: f64,
     /// Speed suggested in waypoints, m/s (default 0.5).
     pub speed: f64,
-    /// Plan through unknown cells (exploring with a SLAM map; default false).
+    /// Plan through unknown cells (default true, as Nav2's `allow_unknown`): a SLAM map is
+    /// mostly unknown at first, and a goal in its unexplored part is not a reason to refuse
+    /// (the "Mapping" provider may also be SLAM only until Maps' better offer arrives); the
+    /// robot explores, Security keeps it off what the lidar sees, and every new map replans.
+    /// A surveyed map (Maps) has no unknown cells inside the area it covers.
     pub unknown_is_free: bool,
 }
 
@@ -60,7 +64,7 @@ impl Default for PlanningParams {
             lookahead_m: 0.6,
             deviation_m: 0.5,
             speed: 0.5,
-            unknown_is_free: false,
+            unknown_is_free: true,
         }
     }
 }
