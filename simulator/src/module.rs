@@ -15,16 +15,24 @@
 //! [`msg::Clock`] samples go through the module's own node (stamped with the wall clock, as the
 //! message documents). The module itself runs on the wall clock: [`main`] ignores `HNG_CLOCK=sim`
 //! (which `hng run` sets for every module of a simulated system).
+//!
+//! Paused start: with `wait_for = ["laser", "robot", ...]` simulated time stays at its start
+//! until each of these modules has sent its first report on `hng/report` (it is up: configured,
+//! started, its contract agent running), so a system whose processes take a while to start
+//! (a loaded machine, an accelerated simulation) does not lose simulated seconds to it and
+//! runs repeat. After `wait_timeout_s` of wall time it starts anyway and names who is missing.
 
+use std::collections::BTreeSet;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
 use hng_runtime::channel::InputId;
 use hng_runtime::clock::{CLOCK_CHANNEL, Clock, ClockMode};
+use hng_runtime::module::REPORT_CHANNEL;
 use hng_runtime::msg::{
     self, Beacon as MsgBeacon, BeaconObservation, FrameId, GridInfo, Header, LaserScan,
-    MAX_BEACONS, MAX_BEAMS, PoseWithCovariance, Twist, Velocity2D,
+    MAX_BEACONS, MAX_BEAMS, ModuleReport, PoseWithCovariance, Twist, Velocity2D,
 };
 use hng_runtime::qos::ChannelKind;
 use hng_runtime::{
@@ -182,6 +190,10 @@ pub struct SimModuleConfig {
     pub max_steps_per_tick: u32,
     /// Publish the clock every this many steps (default 1), and always with sensor data.
     pub clock_every_steps: u32,
+    /// Modules whose first report simulated time waits for (default none: it starts at once).
+    pub wait_for: Vec<String>,
+    /// Longest wait for them, s of wall time (default 10).
+    pub wait_timeout_s: f64,
 }
 
 impl Default for SimModuleConfig {
@@ -197,6 +209,8 @@ impl Default for SimModuleConfig {
             map_resolution: 0.05,
             max_steps_per_tick: 10,
             clock_every_steps: 1,
+            wait_for: Vec::new(),
+            wait_timeout_s: 10.0,
         }
     }
 }
@@ -324,6 +338,8 @@ pub struct SimulatorModule {
     last_status: Instant,
     last_status_sim_ns: u64,
     cmd: Subscriber<Twist>,
+    /// Paused start: the modules not heard from yet, their reports, and the wall deadline.
+    waiting: Option<(BTreeSet<String>, Subscriber<ModuleReport>, Instant)>,
     clock_pub: Publisher<msg::Clock>,
     outputs: Outputs,
     sim_clock: Clock,
@@ -397,6 +413,16 @@ impl Module for SimulatorModule {
                 .transpose()?,
         };
         let cmd = ctx.subscribe::<Twist>(&ch.cmd_vel, None)?;
+        let waiting = if cfg.wait_for.is_empty() {
+            None
+        } else {
+            if !(cfg.wait_timeout_s.is_finite() && cfg.wait_timeout_s > 0.0) {
+                return Err(config_error("wait_timeout_s", "must be > 0"));
+            }
+            let reports = ctx.subscribe::<ModuleReport>(REPORT_CHANNEL, None)?;
+            let deadline = Instant::now() + Duration::from_secs_f64(cfg.wait_timeout_s);
+            Some((cfg.wait_for.iter().cloned().collect(), reports, deadline))
+        };
         let clock_pub = ctx.publisher::<msg::Clock>(CLOCK_CHANNEL)?;
         let dt = sim.dt_ns();
         let period_ns = match cfg.speed {
@@ -422,6 +448,7 @@ impl Module for SimulatorModule {
             last_status: Instant::now(),
             last_status_sim_ns: 0,
             cmd,
+            waiting,
             clock_pub,
             outputs,
             sim_clock,
@@ -465,7 +492,22 @@ impl Module for SimulatorModule {
         Ok(())
     }
 
-    fn on_input(&mut self, ctx: &mut Context, _input: InputId) -> ModuleResult {
+    fn on_input(&mut self, ctx: &mut Context, input: InputId) -> ModuleResult {
+        if let Some((missing, reports, _)) = &mut self.waiting
+            && reports.id() == input
+        {
+            while let Some(r) = reports.receive()? {
+                missing.remove(r.name());
+            }
+            if missing.is_empty() {
+                tracing::info!(
+                    module = ctx.name(),
+                    "every module is up: simulated time starts"
+                );
+                self.end_wait(ctx)?;
+            }
+            return Ok(());
+        }
         let mut rejected = false;
         while let Some(t) = self.cmd.receive()? {
             match self.sim.set_cmd_vel(t.linear_x, t.angular_z) {
@@ -480,6 +522,18 @@ impl Module for SimulatorModule {
     }
 
     fn on_tick(&mut self, ctx: &mut Context, _timer: TimerId) -> ModuleResult {
+        if let Some((missing, _, deadline)) = &self.waiting {
+            if Instant::now() < *deadline {
+                return Ok(());
+            }
+            let missing: Vec<&str> = missing.iter().map(String::as_str).collect();
+            tracing::warn!(
+                module = ctx.name(),
+                ?missing,
+                "modules still not up after wait_timeout_s: simulated time starts anyway"
+            );
+            self.end_wait(ctx)?;
+        }
         let started = Instant::now();
         for _ in 0..self.max_steps {
             if self.end_ns.is_some_and(|end| self.sim.now_ns() >= end) {
@@ -564,6 +618,15 @@ fn diag(a: f64, b: f64, c: f64) -> [f64; 9] {
 }
 
 impl SimulatorModule {
+    /// Ends the paused start: simulated time runs from now on.
+    fn end_wait(&mut self, ctx: &mut Context) -> ModuleResult {
+        if let Some((_, reports, _)) = self.waiting.take() {
+            ctx.unsubscribe(reports.id())?;
+        }
+        self.pacer = Pacer::new(self.speed, self.sim.now_ns());
+        Ok(())
+    }
+
     /// The simulator (tests drive the module by hand).
     #[must_use]
     pub fn simulator(&self) -> &Simulator {

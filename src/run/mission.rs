@@ -17,6 +17,21 @@ use hng_simulator::{Pose2D, World};
 /// south-east.
 pub const DEFAULT_GOALS: [(f64, f64); 3] = [(5.5, 3.0), (3.0, 11.0), (6.0, 6.5)];
 
+/// The modules of the mission besides the simulator (whose start it waits for).
+const MISSION_MODULES: [&str; 11] = [
+    "laser",
+    "camera",
+    "robot",
+    "security",
+    "interface",
+    "gps",
+    "maps",
+    "slam",
+    "planning",
+    "servo",
+    "manager",
+];
+
 /// Default limit of simulated time for a mission, s.
 pub const DEFAULT_DURATION_S: f64 = 240.0;
 
@@ -249,6 +264,16 @@ give_up_window = "60s"
     if let Some(seed) = opts.seed {
         let _ = writeln!(s, "seed = {seed}");
     }
+    // Paused start: simulated time waits until every module is up.
+    let _ = writeln!(
+        s,
+        "wait_for = [{}]",
+        MISSION_MODULES
+            .iter()
+            .map(|m| quoted(m))
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
     let _ = writeln!(s);
     for (name, cmd) in [
         ("laser", "laser"),
@@ -309,6 +334,18 @@ mod tests {
         let plan = plan.unwrap_or_else(|e| panic!("{e}\n{}", m.plan));
         assert!(plan.sim_clock);
         assert_eq!(plan.modules.len(), 12);
+        // The simulator's paused start waits for every other module of the plan.
+        let mut others: Vec<&str> = plan
+            .modules
+            .iter()
+            .map(|m| m.name.as_str())
+            .filter(|n| *n != "simulator")
+            .collect();
+        others.sort_unstable();
+        let mut waited = MISSION_MODULES.to_vec();
+        waited.sort_unstable();
+        assert_eq!(others, waited);
+        assert!(m.plan.contains("wait_for = [\"laser\""), "{}", m.plan);
     }
 
     #[test]

@@ -509,3 +509,33 @@ fn sigterm_stops_a_simulator_running_as_fast_as_possible() {
         "SIGTERM handled at once"
     );
 }
+
+/// Paused start: simulated time stays at 0 while a module it waits for is not up, and runs
+/// once that module has sent its first report.
+#[test]
+fn simulated_time_waits_for_the_modules_it_waits_for() {
+    use hng_runtime::module::REPORT_CHANNEL;
+    use hng_runtime::msg::ModuleReport;
+    let mut s = SimSystem::new("sim-wait");
+    let mut clock = s.watch::<msg::Clock>(CLOCK_CHANNEL);
+    let mut reports = s.watch::<ModuleReport>(REPORT_CHANNEL);
+    s.spawn_sim(
+        "speed = \"max\"\nwait_for = [\"late\"]\nwait_timeout_s = 600",
+        &[("HNG_REPORT_PERIOD_MS", "50")],
+    );
+    // The simulator runs (three of its reports: its ticks have come many times at `max`)...
+    let mut seen = 0;
+    reports.until(deadline(), "the simulator's reports", |r| {
+        seen += usize::from(r.name() == "simulator");
+        seen >= 3
+    });
+    // ...but simulated time has not moved.
+    let first = clock.next(deadline(), "the clock");
+    assert_eq!(first.sim_time_ns, 0, "{first:?}");
+    while let Some(c) = clock.sub.receive().expect("receive") {
+        assert_eq!(c.sim_time_ns, 0, "time moved before `late` was up: {c:?}");
+    }
+    s.sys.spawn_testmod("counter", "late", "");
+    clock.until(deadline(), "the clock", |c| c.sim_time_ns >= SEC);
+    assert_clean_exit(&s.stop_sims());
+}
