@@ -4,7 +4,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context as _, Result, bail};
 use clap::Subcommand;
-use hng_runtime::channel::{Node, NodeOptions, Service, iceoryx_config};
+use hng_runtime::channel::{Kind, Node, NodeOptions, Receiver, Service, iceoryx_config};
 use hng_runtime::msg::{self, Message, SliceMessage};
 use hng_runtime::system;
 use hng_runtime::wait::{WaitMode, Waiter, Wake};
@@ -334,32 +334,30 @@ fn watch_fixed<T: Message>(node: &Node, name: &str, mode: Mode) -> Result<()> {
     let sub = node
         .subscriber::<T>(name)
         .with_context(|| format!("subscribing to {name}"))?;
-    let mut waiter = Waiter::new(WaitMode::default())?;
-    waiter.attach(&sub)?;
-    run_loop(
-        mode,
-        &mut waiter,
-        |rate| {
-            let mut n = 0;
-            while let Some(s) = sub.receive()? {
-                n += 1;
-                rate.tick();
-                if let Mode::Echo { json, .. } = mode {
-                    print_json(&*s, json)?;
-                }
-            }
-            Ok(n)
-        },
-        name,
-    )
+    watch(&sub, name, mode, |s, json| print_json(&**s, json))
 }
 
 fn watch_slice<H: SliceMessage>(node: &Node, name: &str, mode: Mode) -> Result<()> {
     let sub = node
         .slice_subscriber::<H>(name)
         .with_context(|| format!("subscribing to {name}"))?;
+    watch(&sub, name, mode, |s, json| {
+        print_json(
+            &serde_json::json!({"header": s.header(), "len": s.data().len()}),
+            json,
+        )
+    })
+}
+
+/// Counts (and, for `echo`, prints with `echo`) every sample of `sub` until the mode ends.
+fn watch<K: Kind>(
+    sub: &Receiver<K>,
+    name: &str,
+    mode: Mode,
+    echo: impl Fn(&K::Sample, bool) -> Result<()>,
+) -> Result<()> {
     let mut waiter = Waiter::new(WaitMode::default())?;
-    waiter.attach(&sub)?;
+    waiter.attach(sub)?;
     run_loop(
         mode,
         &mut waiter,
@@ -369,10 +367,7 @@ fn watch_slice<H: SliceMessage>(node: &Node, name: &str, mode: Mode) -> Result<(
                 n += 1;
                 rate.tick();
                 if let Mode::Echo { json, .. } = mode {
-                    print_json(
-                        &serde_json::json!({"header": s.header(), "len": s.data().len()}),
-                        json,
-                    )?;
+                    echo(&s, json)?;
                 }
             }
             Ok(n)
