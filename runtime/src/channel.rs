@@ -490,6 +490,7 @@ struct Outlet {
 }
 
 impl Outlet {
+    #[inline]
     fn stamp(&self, h: &mut Header) {
         let seq = self.seq.get() + 1;
         self.seq.set(seq);
@@ -498,10 +499,12 @@ impl Outlet {
         h.source = self.source;
     }
 
+    #[inline]
     fn sent(&self) -> Result<(), Error> {
         Counters::add(&self.counters.msgs_out, 1);
         if self.wake.has_waiters() {
             self.notified.set(self.notified.get() + 1);
+            crate::cpus::note_woken();
             self.notifier
                 .notify()
                 .map_err(|e| Error::channel(&self.channel, "notify", e))?;

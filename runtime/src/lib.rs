@@ -4,6 +4,7 @@
 //! - [`msg`]: fixed-size robotics messages (REP-103 units and frames) and slice headers.
 //! - [`channel`]: typed publish/subscribe over iceoryx2 shared memory.
 //! - [`wait`]: waiting on many inputs without polling (adaptive spin, then sleep).
+//! - [`cpus`]: sharing the CPUs between the spinning waiters of one system.
 //! - [`module`]: the [`Module`] trait and [`run_module`].
 //! - [`clock`]: the common clock (wall or simulated).
 //! - [`contract`]: the Contract-Net protocol logic.
@@ -15,6 +16,7 @@ pub mod checkpoint;
 pub mod clock;
 pub mod contract;
 pub mod control;
+pub mod cpus;
 mod error;
 pub mod module;
 pub mod msg;

@@ -164,9 +164,13 @@ impl Context {
     /// A context on a fresh node (used by [`run_module`], and by tests that drive a module
     /// by hand).
     pub fn new(node: Node, wait: WaitMode) -> Result<Context, Error> {
+        let mut waiter = Waiter::new(wait)?;
+        if let Err(e) = waiter.share_cpus(node.prefix()) {
+            tracing::warn!(module = %node.name(), "spinning without regard to other modules: {e}");
+        }
         Ok(Context {
             node,
-            waiter: Waiter::new(wait)?,
+            waiter,
             timers: Vec::new(),
             deadlines: Vec::new(),
             aptitude: true,

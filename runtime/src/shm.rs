@@ -2,7 +2,7 @@
 //!
 //! iceoryx2 keeps data segments and management files in `/dev/shm` and service, node and
 //! event files under `/tmp/iceoryx2`, all named with the system's prefix; hng's wake segments
-//! ([`crate::wake`]) live in `/dev/shm` too. A clean stop of every process removes almost all
+//! ([`crate::wake`]) and CPU register ([`crate::cpus`]) live in `/dev/shm` too. A clean stop of every process removes almost all
 //! of it; what a crash leaves behind is reclaimed by iceoryx2's dead-node cleanup when a node
 //! starts, and what is left at the very end (for example the prefix's global management file)
 //! by [`remove_prefix_files`], which the supervisor calls after its last module has stopped.
@@ -44,6 +44,28 @@ pub fn prefix_files(prefix: &str) -> Vec<PathBuf> {
     walk(Path::new(IOX_ROOT), prefix, &mut out);
     out.sort();
     out
+}
+
+/// Files that belong to the system as a whole rather than to one process, and so outlive a
+/// clean stop of every module until [`remove_prefix_files`]: iceoryx2's management file of
+/// the prefix, hng's wake segments and CPU register.
+pub fn is_system_file(path: &Path) -> bool {
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy())
+        .unwrap_or_default();
+    name.ends_with(".global_mgmt")
+        || name.contains(crate::wake::WAKE_TAG)
+        || name.contains(crate::cpus::CPUS_TAG)
+}
+
+/// What a prefix leaves behind that no clean stop should: [`prefix_files`] less
+/// [`is_system_file`]s.
+pub fn leftovers(prefix: &str) -> Vec<PathBuf> {
+    prefix_files(prefix)
+        .into_iter()
+        .filter(|p| !is_system_file(p))
+        .collect()
 }
 
 /// Removes every file or folder that [`prefix_files`] lists; returns how many were removed.

@@ -14,6 +14,9 @@
 //!   otherwise (an idle input, or a machine so loaded that peers are descheduled) it sleeps at
 //!   once, and one wait in sixteen probes with a short spin. Publishers only send an event when a subscriber really sleeps
 //!   ([`crate::wake`]), so a spinning or busy subscriber costs its publishers nothing.
+//!   With [`Waiter::share_cpus`] (the module executor does it), the waiters of one system
+//!   also spin only while the awake ones fit the CPUs ([`crate::cpus`]): a spinner never keeps
+//!   a core from a process that has work to do.
 //! - [`WaitMode::Spin`]: poll continuously (lowest latency, one core busy). Never spin on
 //!   both ends of a pipeline on a machine with fewer cores than spinners.
 
@@ -28,6 +31,7 @@ use nix::sys::signalfd::{SfdFlags, SignalFd};
 
 use crate::channel::{Input, InputId, Waitable};
 use crate::clock::monotonic_ns;
+use crate::cpus::CpuShare;
 use crate::error::Error;
 
 /// How a [`Waiter`] waits.
@@ -97,6 +101,10 @@ pub struct WaitStats {
     pub spin_misses: u64,
     /// Times the waiter slept in epoll.
     pub sleeps: u64,
+    /// Spins cut short to give the core to a process that had work ([`crate::cpus`]).
+    pub gave_way: u64,
+    /// Waits that slept at once because spinning would have crowded the CPUs.
+    pub crowded: u64,
 }
 
 /// Waits on several inputs; see the module documentation.
@@ -109,6 +117,7 @@ pub struct Waiter {
     probe: u32,
     events: Vec<EpollEvent>,
     stats: WaitStats,
+    cpus: Option<CpuShare>,
 }
 
 impl std::fmt::Debug for Waiter {
@@ -140,7 +149,16 @@ impl Waiter {
             probe: 0,
             events: vec![EpollEvent::empty(); 16],
             stats: WaitStats::default(),
+            cpus: None,
         })
+    }
+
+    /// Shares the CPUs with the other waiters of system `prefix` (see [`crate::cpus`]): in
+    /// blocking mode this waiter then spins only while the awake waiters of the system fit
+    /// the CPUs, and gives its core up when another one wakes and needs it.
+    pub fn share_cpus(&mut self, prefix: &str) -> Result<(), Error> {
+        self.cpus = Some(CpuShare::join(prefix)?);
+        Ok(())
     }
 
     /// What this waiter did so far.
@@ -233,8 +251,9 @@ impl Waiter {
     /// Waits until an input has data, a termination signal arrives, or `timeout` passes
     /// (`None`: no timeout).
     pub fn wait(&mut self, timeout: Option<Duration>) -> Result<Wake, Error> {
-        // Poll a little before reading the clock: data that is about to arrive (the common case
-        // on a busy pipeline) then costs no clock read at all.
+        // Poll a little (a few microseconds) before reading the clock: data that is about to
+        // arrive (the common case on a busy pipeline) then costs no clock read at all. Kept
+        // even when the CPUs are crowded: it measured faster than sleeping at once.
         for i in 0..64 {
             if self.any_ready() {
                 if i == 0 {
@@ -246,13 +265,19 @@ impl Waiter {
             }
             std::hint::spin_loop();
         }
+        let crowded = matches!(self.mode, WaitMode::Blocking { .. }) && self.crowded();
         let start = monotonic_ns();
         let end = timeout.map(|t| start.saturating_add(t.as_nanos() as u64));
         match self.mode {
             WaitMode::Spin => self.spin(end),
             WaitMode::Blocking { max_spin } => {
                 let max = max_spin.as_nanos() as u64;
-                let budget = self.spin_budget(max);
+                let budget = if crowded {
+                    self.stats.crowded += 1;
+                    0
+                } else {
+                    self.spin_budget(max)
+                };
                 let spin_end = end.map_or(start + budget, |e| e.min(start + budget));
                 let wake = match (budget > 0).then(|| self.spin_until(spin_end)).flatten() {
                     Some(wake) => {
@@ -293,15 +318,28 @@ impl Waiter {
         }
     }
 
-    fn spin_until(&self, end: u64) -> Option<Wake> {
+    /// True when the system's awake waiters, with the processes this thread woke since its
+    /// last wait, would outnumber the CPUs if this one spun.
+    fn crowded(&self) -> bool {
+        let woken = crate::cpus::take_woken();
+        self.cpus.as_ref().is_some_and(|c| !c.may_spin(woken))
+    }
+
+    fn spin_until(&mut self, end: u64) -> Option<Wake> {
         let mut n: u32 = 0;
         loop {
             if self.any_ready() {
                 return Some(Wake::Data);
             }
             n = n.wrapping_add(1);
-            if n.is_multiple_of(64) && monotonic_ns() >= end {
-                return None;
+            if n.is_multiple_of(64) {
+                if monotonic_ns() >= end {
+                    return None;
+                }
+                if self.cpus.as_ref().is_some_and(CpuShare::give_way) {
+                    self.stats.gave_way += 1;
+                    return None;
+                }
             }
             std::hint::spin_loop();
         }
@@ -349,8 +387,15 @@ impl Waiter {
                         EpollTimeout::try_from(ms).unwrap_or(EpollTimeout::MAX)
                     }
                 };
+                if let Some(c) = &self.cpus {
+                    c.sleep();
+                }
                 self.epoll.wait(&mut self.events, timeout)
             };
+            // Awake again (also after a spin that gave its core up and then found data).
+            if let Some(c) = &self.cpus {
+                c.wake();
+            }
             for (_, i) in &self.inputs {
                 i.inlet().wake.end_wait();
             }

@@ -77,6 +77,7 @@ impl WakeFlag {
         Ok(WakeFlag { ptr: ptr.cast() })
     }
 
+    #[inline]
     fn counter(&self) -> &AtomicU32 {
         // SAFETY: the mapping is at least 64 bytes, page-aligned, lives as long as self, and is
         // only ever accessed atomically.
@@ -97,6 +98,7 @@ impl WakeFlag {
     }
 
     /// Publisher side, after sending: does anyone need a notification?
+    #[inline]
     pub(crate) fn has_waiters(&self) -> bool {
         self.counter().fetch_add(0, Ordering::SeqCst) > 0
     }

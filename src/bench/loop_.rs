@@ -3,17 +3,25 @@
 //! Case `lidar_to_command`: this process publishes a lidar scan; the Security module (its own
 //! process, `hng module security`) decides a safe command from it and the desired command of
 //! a client; the Robot module (`hng module robot`) obeys Security (its most important client)
-//! and forwards the command to its output channel, which this process subscribes to. Measured:
-//! from just before the scan is published to the receipt of the forwarded command, i.e. two
-//! process hops and both modules' work. Scans alternate between a wall far ahead (command
-//! passed through) and a wall close ahead (command slowed), and every answer is checked to be
-//! the one for its scan.
+//! and forwards the command to its output channel, which this process subscribes to.
+//!
+//! Measured from just before the scan is published (CLOCK_MONOTONIC, which every process
+//! shares):
+//! - `lidar_to_command`: to the Robot's time stamp on the command it forwards, which it takes
+//!   after receiving and arbitrating the command: the path the issue names (scan published,
+//!   Security decision, command received by Robot), two process hops and both modules' work;
+//! - `lidar_to_command_roundtrip`: to the receipt of that command back in this process, one
+//!   hop more.
+//!
+//! Scans alternate between a wall far ahead (command passed through) and a wall close ahead
+//! (command slowed), and every answer is checked to be the one for its scan.
 
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context as _, Result, bail};
 use clap::Args;
+use hng_runtime::clock::monotonic_ns;
 use hng_runtime::msg::{LaserScan, Twist};
 use hng_runtime::shm;
 use hng_runtime::stats::{BenchRow, Percentiles};
@@ -137,8 +145,8 @@ impl Drop for Modules {
     }
 }
 
-/// Runs the `lidar_to_command` case; returns its row.
-pub fn lidar_to_command(a: &LoopArgs) -> Result<BenchRow> {
+/// Runs the loop; returns the rows of `lidar_to_command` and `lidar_to_command_roundtrip`.
+pub fn lidar_to_command(a: &LoopArgs) -> Result<Vec<BenchRow>> {
     let mode = WaitMode::parse(&a.wait).context("--wait")?;
     let prefix = shm::unique_prefix("loop");
     let mut modules = Modules {
@@ -149,7 +157,9 @@ pub fn lidar_to_command(a: &LoopArgs) -> Result<BenchRow> {
     let scan_pub = node.publisher::<LaserScan>(SCAN)?;
     let teleop = node.publisher::<Twist>(TELEOP)?;
     let out = node.subscriber::<Twist>(OUT)?;
+    // This process takes part like a module: it shares the CPUs with the two modules.
     let mut waiter = Waiter::new(mode)?;
+    waiter.share_cpus(&prefix)?;
     waiter.attach(&out)?;
 
     // Freshness and timeouts far beyond the run: the loop is measured, not the fail-safes.
@@ -201,6 +211,7 @@ pub fn lidar_to_command(a: &LoopArgs) -> Result<BenchRow> {
         while out.receive()?.is_some() {}
     }
 
+    let mut to_robot = Vec::with_capacity(a.samples);
     let mut samples = Vec::with_capacity(a.samples);
     let limit = Duration::from_secs_f64(a.max_seconds.max(0.1));
     let begin = Instant::now();
@@ -224,6 +235,7 @@ pub fn lidar_to_command(a: &LoopArgs) -> Result<BenchRow> {
         let is_near = i % 2 == 1;
         let scan = if is_near { &near } else { &far };
         let t0 = Instant::now();
+        let t0_ns = monotonic_ns();
         scan_pub.publish(*scan)?;
         let cmd = loop {
             if let Some(c) = out.receive()? {
@@ -236,7 +248,7 @@ pub fn lidar_to_command(a: &LoopArgs) -> Result<BenchRow> {
             }
             waiter.wait(Some(left))?;
         };
-        let dt = t0.elapsed();
+        let back_ns = monotonic_ns();
         let slowed = cmd.linear_x < DESIRED_V - 1e-9;
         if slowed != is_near {
             bail!(
@@ -245,26 +257,32 @@ pub fn lidar_to_command(a: &LoopArgs) -> Result<BenchRow> {
                 if is_near { "near" } else { "far" }
             );
         }
+        let stamp = cmd.header.stamp_ns;
+        if stamp < t0_ns || stamp > back_ns {
+            bail!("loop {i}: the Robot's stamp {stamp} ns lies outside [{t0_ns}, {back_ns}] ns");
+        }
         limited += u64::from(slowed);
-        samples.push(dt.as_nanos() as u64);
+        to_robot.push(stamp - t0_ns);
+        samples.push(back_ns - t0_ns);
     }
-    let p = Percentiles::of(&mut samples);
-    let mean_ns = if samples.is_empty() {
-        0
-    } else {
-        samples.iter().sum::<u64>() / samples.len() as u64
+    let row = |case: &str, samples: &mut Vec<u64>, hops: u64| {
+        let mean_ns = samples.iter().sum::<u64>() / (samples.len() as u64).max(1);
+        BenchRow::new("loop", case, Percentiles::of(samples))
+            .with("mean_ns", mean_ns)
+            .with("wait", a.wait.clone())
+            .with("rate_hz", a.rate)
+            .with("processes", 3)
+            .with("hops", hops)
+            .with("limited_commands", limited)
     };
-    Ok(BenchRow::new("loop", "lidar_to_command", p)
-        .with("mean_ns", mean_ns)
-        .with("wait", a.wait.clone())
-        .with("rate_hz", a.rate)
-        .with("processes", 3)
-        .with("hops", 2)
-        .with("limited_commands", limited))
+    Ok(vec![
+        row("lidar_to_command", &mut to_robot, 2),
+        row("lidar_to_command_roundtrip", &mut samples, 3),
+    ])
 }
 
 pub fn run(a: &LoopArgs) -> Result<()> {
-    let row = lidar_to_command(a)?;
-    super::print_rows(&[row], a.json);
+    let rows = lidar_to_command(a)?;
+    super::print_rows(&rows, a.json);
     Ok(())
 }

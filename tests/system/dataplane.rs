@@ -83,16 +83,9 @@ fn two_processes_ping_pong_64_bytes_and_1_mib_with_content_verified() {
         "echo exited badly: {statuses:?}"
     );
 
-    // After a clean stop only the prefix's management file and hng's wake segments remain;
-    // the system's final clean-up removes them.
-    let left = shm::prefix_files(&sys.prefix);
-    let unexpected: Vec<_> = left
-        .iter()
-        .filter(|p| {
-            let n = p.to_string_lossy();
-            !(n.ends_with(".global_mgmt") || n.contains("hngwake_"))
-        })
-        .collect();
+    // After a clean stop only the system's own files remain (the prefix's management file,
+    // hng's wake segments and CPU register); the system's final clean-up removes them.
+    let unexpected = shm::leftovers(&sys.prefix);
     assert!(
         unexpected.is_empty(),
         "left behind after a clean stop: {unexpected:?}"

@@ -195,14 +195,9 @@ fn sim_scans_come_at_their_rate_in_simulated_time_and_the_clock_advances() {
     assert_clean_exit(&s.stop_sims());
     drop((scans, clock));
     s.observer = None;
-    // After a clean stop only the prefix's management file and hng's wake segments remain.
-    let left: Vec<_> = hng_runtime::shm::prefix_files(&s.sys.prefix)
-        .into_iter()
-        .filter(|p| {
-            let n = p.to_string_lossy();
-            !(n.ends_with(".global_mgmt") || n.contains("hngwake_"))
-        })
-        .collect();
+    // After a clean stop only the system's own files remain (management file, wake
+    // segments, CPU register).
+    let left = hng_runtime::shm::leftovers(&s.sys.prefix);
     assert!(left.is_empty(), "left behind after a clean stop: {left:?}");
 }
 
