@@ -62,6 +62,8 @@ pub struct Counters {
     pub msgs_out: Cell<u64>,
     /// Messages lost (sequence gaps).
     pub msgs_dropped: Cell<u64>,
+    /// Publishes that had to wake a sleeping subscriber (see [`crate::cpus`]).
+    pub wakeups: Cell<u64>,
 }
 
 impl Counters {
@@ -235,6 +237,10 @@ impl Node {
     /// Message counters summed over this node's ports.
     pub fn counters(&self) -> &Counters {
         &self.counters
+    }
+
+    pub(crate) fn shared_counters(&self) -> Rc<Counters> {
+        self.counters.clone()
     }
 
     /// The underlying iceoryx2 node (for tools that need raw access).
@@ -504,7 +510,7 @@ impl Outlet {
         Counters::add(&self.counters.msgs_out, 1);
         if self.wake.has_waiters() {
             self.notified.set(self.notified.get() + 1);
-            crate::cpus::note_woken();
+            Counters::add(&self.counters.wakeups, 1);
             self.notifier
                 .notify()
                 .map_err(|e| Error::channel(&self.channel, "notify", e))?;

@@ -26,9 +26,9 @@
 //! ping-pong keeps its sub-microsecond blocking-mode latency (`hng bench ipc`).
 //!
 //! A process woken from `epoll` can only mark itself awake once it runs, which is too late
-//! when every core is held by a spinner. Its publisher knows sooner: a publish that had to
-//! notify a sleeper counts as a process woken ([`note_woken`]), and the publisher's next wait
-//! counts it as awake when deciding whether to spin.
+//! when every core is held by a spinner. Its publisher knows sooner: the node counts the
+//! publishes that had to notify a sleeper ([`crate::channel::Counters::wakeups`]), and the
+//! publisher's next wait counts those processes as awake when deciding whether to spin.
 //!
 //! A process killed while awake leaves its bit set; every waiter that joins clears the bits
 //! of slots whose process no longer exists, so a crash costs at most some spinning until the
@@ -44,22 +44,6 @@ use nix::sys::stat::Mode;
 use nix::unistd::Pid;
 
 use crate::error::Error;
-
-thread_local! {
-    static WOKEN: std::cell::Cell<u32> = const { std::cell::Cell::new(0) };
-}
-
-/// A publish of this thread woke a sleeping subscriber.
-#[inline]
-pub(crate) fn note_woken() {
-    WOKEN.with(|w| w.set(w.get().saturating_add(1)));
-}
-
-/// Processes this thread woke since the last call.
-#[inline]
-pub(crate) fn take_woken() -> u32 {
-    WOKEN.with(|w| w.replace(0))
-}
 
 /// Slots in the register: waiters beyond that many never spin.
 pub const SLOTS: usize = 64;

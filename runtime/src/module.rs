@@ -165,7 +165,7 @@ impl Context {
     /// by hand).
     pub fn new(node: Node, wait: WaitMode) -> Result<Context, Error> {
         let mut waiter = Waiter::new(wait)?;
-        if let Err(e) = waiter.share_cpus(node.prefix()) {
+        if let Err(e) = waiter.share_cpus(&node) {
             tracing::warn!(module = %node.name(), "spinning without regard to other modules: {e}");
         }
         Ok(Context {

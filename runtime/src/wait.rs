@@ -29,7 +29,7 @@ use nix::sys::epoll::{Epoll, EpollCreateFlags, EpollEvent, EpollFlags, EpollTime
 use nix::sys::signal::{SigSet, Signal};
 use nix::sys::signalfd::{SfdFlags, SignalFd};
 
-use crate::channel::{Input, InputId, Waitable};
+use crate::channel::{Counters, Input, InputId, Node, Waitable};
 use crate::clock::monotonic_ns;
 use crate::cpus::CpuShare;
 use crate::error::Error;
@@ -117,7 +117,14 @@ pub struct Waiter {
     probe: u32,
     events: Vec<EpollEvent>,
     stats: WaitStats,
-    cpus: Option<CpuShare>,
+    cpus: Option<Shared>,
+}
+
+/// A waiter's place among the CPUs of its system, and its node's count of sleepers woken.
+struct Shared {
+    share: CpuShare,
+    counters: Rc<Counters>,
+    wakeups_seen: u64,
 }
 
 impl std::fmt::Debug for Waiter {
@@ -153,11 +160,17 @@ impl Waiter {
         })
     }
 
-    /// Shares the CPUs with the other waiters of system `prefix` (see [`crate::cpus`]): in
+    /// Shares the CPUs with the other waiters of `node`'s system (see [`crate::cpus`]): in
     /// blocking mode this waiter then spins only while the awake waiters of the system fit
-    /// the CPUs, and gives its core up when another one wakes and needs it.
-    pub fn share_cpus(&mut self, prefix: &str) -> Result<(), Error> {
-        self.cpus = Some(CpuShare::join(prefix)?);
+    /// the CPUs, and gives its core up when another one wakes and needs it. The sleepers
+    /// that `node`'s publishes woke count as awake.
+    pub fn share_cpus(&mut self, node: &Node) -> Result<(), Error> {
+        let counters = node.shared_counters();
+        self.cpus = Some(Shared {
+            share: CpuShare::join(node.prefix())?,
+            wakeups_seen: counters.wakeups.get(),
+            counters,
+        });
         Ok(())
     }
 
@@ -318,11 +331,16 @@ impl Waiter {
         }
     }
 
-    /// True when the system's awake waiters, with the processes this thread woke since its
+    /// True when the system's awake waiters, with the processes the node woke since the
     /// last wait, would outnumber the CPUs if this one spun.
-    fn crowded(&self) -> bool {
-        let woken = crate::cpus::take_woken();
-        self.cpus.as_ref().is_some_and(|c| !c.may_spin(woken))
+    fn crowded(&mut self) -> bool {
+        let Some(c) = self.cpus.as_mut() else {
+            return false;
+        };
+        let wakeups = c.counters.wakeups.get();
+        let woken = wakeups.wrapping_sub(c.wakeups_seen);
+        c.wakeups_seen = wakeups;
+        !c.share.may_spin(u32::try_from(woken).unwrap_or(u32::MAX))
     }
 
     fn spin_until(&mut self, end: u64) -> Option<Wake> {
@@ -336,7 +354,7 @@ impl Waiter {
                 if monotonic_ns() >= end {
                     return None;
                 }
-                if self.cpus.as_ref().is_some_and(CpuShare::give_way) {
+                if self.cpus.as_ref().is_some_and(|c| c.share.give_way()) {
                     self.stats.gave_way += 1;
                     return None;
                 }
@@ -388,13 +406,13 @@ impl Waiter {
                     }
                 };
                 if let Some(c) = &self.cpus {
-                    c.sleep();
+                    c.share.sleep();
                 }
                 self.epoll.wait(&mut self.events, timeout)
             };
             // Awake again (also after a spin that gave its core up and then found data).
             if let Some(c) = &self.cpus {
-                c.wake();
+                c.share.wake();
             }
             for (_, i) in &self.inputs {
                 i.inlet().wake.end_wait();

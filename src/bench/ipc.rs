@@ -165,7 +165,7 @@ impl HngEnd {
         let tx = node.slice_publisher::<BytesInfo>(tx, size)?;
         let rx = node.slice_subscriber::<BytesInfo>(rx)?;
         let mut waiter = Waiter::new(wait_mode(mode))?;
-        waiter.share_cpus(prefix)?;
+        waiter.share_cpus(&node)?;
         waiter.attach(&rx)?;
         Ok(HngEnd {
             _node: node,

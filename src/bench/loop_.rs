@@ -159,7 +159,7 @@ pub fn lidar_to_command(a: &LoopArgs) -> Result<Vec<BenchRow>> {
     let out = node.subscriber::<Twist>(OUT)?;
     // This process takes part like a module: it shares the CPUs with the two modules.
     let mut waiter = Waiter::new(mode)?;
-    waiter.share_cpus(&prefix)?;
+    waiter.share_cpus(&node)?;
     waiter.attach(&out)?;
 
     // Freshness and timeouts far beyond the run: the loop is measured, not the fail-safes.
