@@ -14,6 +14,10 @@ pub const SHM_DIR: &str = "/dev/shm";
 /// iceoryx2's root folder for service, node and event files.
 pub const IOX_ROOT: &str = "/tmp/iceoryx2";
 
+/// iceoryx2's folder of per-node folders: each is named by the node's id (not by the prefix)
+/// and holds only that node's files, which are named with the prefix.
+const NODE_DIR: &str = "/tmp/iceoryx2/nodes";
+
 fn walk(dir: &Path, prefix: &str, out: &mut Vec<PathBuf>) {
     let Ok(entries) = std::fs::read_dir(dir) else {
         return;
@@ -25,6 +29,10 @@ fn walk(dir: &Path, prefix: &str, out: &mut Vec<PathBuf>) {
         if e.file_type().is_ok_and(|t| t.is_dir()) {
             if name.starts_with(prefix) {
                 out.push(path);
+            } else if dir == Path::new(NODE_DIR) && holds_only(&path, prefix) {
+                // A node of this prefix that died: the folder goes with its files, or an
+                // empty folder would stay behind.
+                out.push(path);
             } else {
                 walk(&path, prefix, out);
             }
@@ -32,6 +40,21 @@ fn walk(dir: &Path, prefix: &str, out: &mut Vec<PathBuf>) {
             out.push(path);
         }
     }
+}
+
+/// True if `dir` is not empty and every entry in it is named with `prefix`.
+fn holds_only(dir: &Path, prefix: &str) -> bool {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return false;
+    };
+    let mut any = false;
+    for e in entries.flatten() {
+        if !e.file_name().to_string_lossy().starts_with(prefix) {
+            return false;
+        }
+        any = true;
+    }
+    any
 }
 
 /// Every file or folder in `/dev/shm` and `/tmp/iceoryx2` whose name starts with `prefix`.
@@ -90,4 +113,38 @@ pub fn unique_prefix(tag: &str) -> String {
     static N: AtomicU32 = AtomicU32::new(0);
     let n = N.fetch_add(1, Ordering::Relaxed);
     format!("hng{tag}_{}_{n}_", std::process::id())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_dead_node_folder_of_the_prefix_is_removed_with_its_files() {
+        let prefix = unique_prefix("shm");
+        let other = unique_prefix("shmother");
+        let nodes = Path::new(NODE_DIR);
+        std::fs::create_dir_all(nodes).expect("node folder");
+        let mine = nodes.join(format!("9{}", std::process::id()));
+        let shared = nodes.join(format!("8{}", std::process::id()));
+        for d in [&mine, &shared] {
+            std::fs::create_dir_all(d).expect("node folder");
+        }
+        std::fs::write(mine.join(format!("{prefix}a.node_monitor")), b"").expect("file");
+        std::fs::write(mine.join(format!("{prefix}b.details")), b"").expect("file");
+        std::fs::write(shared.join(format!("{prefix}c.details")), b"").expect("file");
+        std::fs::write(shared.join(format!("{other}d.details")), b"").expect("file");
+
+        let listed = prefix_files(&prefix);
+        assert!(listed.contains(&mine), "{listed:?}");
+        assert!(
+            !listed.contains(&shared),
+            "a folder with another prefix's file is kept"
+        );
+        remove_prefix_files(&prefix);
+        assert!(!mine.exists());
+        assert!(shared.exists() && !shared.join(format!("{prefix}c.details")).exists());
+        assert!(shared.join(format!("{other}d.details")).exists());
+        let _ = std::fs::remove_dir_all(&shared);
+    }
 }

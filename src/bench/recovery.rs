@@ -97,7 +97,10 @@ config = {{ output = "bench/probe", period_ms = 10 }}
             .arg(&dir)
             .arg(&file)
             .env("HNG_PREFIX", &prefix)
-            .env("HNG_LOG", "warn")
+            .env(
+                "HNG_LOG",
+                std::env::var("HNG_LOG").unwrap_or_else(|_| "warn".into()),
+            )
             .stdin(Stdio::null())
             .stdout(Stdio::null())
             .spawn()
