@@ -35,15 +35,12 @@
 //! next (re)start. Processes that do not join (tools, other programs) are not counted.
 
 use std::num::NonZeroUsize;
-use std::ptr::NonNull;
 use std::sync::atomic::{AtomicI32, AtomicU64, Ordering};
 
-use nix::fcntl::OFlag;
-use nix::sys::mman::{MapFlags, ProtFlags, mmap, munmap, shm_open};
-use nix::sys::stat::Mode;
 use nix::unistd::Pid;
 
 use crate::error::Error;
+use crate::shm::Segment;
 
 /// Slots in the register: waiters beyond that many never spin.
 pub const SLOTS: usize = 64;
@@ -61,7 +58,7 @@ struct Register {
 
 /// One waiter's place in its system's register (see the module documentation).
 pub struct CpuShare {
-    ptr: NonNull<Register>,
+    segment: Segment,
     /// The slot's bit, or 0 when every slot was taken (then this waiter never spins).
     bit: u64,
     slot: usize,
@@ -96,35 +93,9 @@ impl CpuShare {
     /// Joins the register of system `prefix`, counting `cpus` CPUs.
     pub fn join_with(prefix: &str, cpus: u32) -> Result<CpuShare, Error> {
         let name = format!("/{prefix}{CPUS_TAG}");
-        let ctx = || format!("CPU register {name}");
-        let fd = shm_open(
-            name.as_str(),
-            OFlag::O_CREAT | OFlag::O_RDWR,
-            Mode::S_IRUSR | Mode::S_IWUSR,
-        )
-        .map_err(|e| Error::io(ctx(), e))?;
-        let len = std::mem::size_of::<Register>();
-        let st = nix::sys::stat::fstat(&fd).map_err(|e| Error::io(ctx(), e))?;
-        if (st.st_size as usize) < len {
-            // A fresh segment reads as zeros: no slot taken, nobody awake.
-            nix::unistd::ftruncate(&fd, len as i64).map_err(|e| Error::io(ctx(), e))?;
-        }
-        let size = NonZeroUsize::new(len).ok_or_else(|| Error::Config("zero".into()))?;
-        // SAFETY: a fresh shared mapping of a file at least `len` long; only accessed
-        // through atomics.
-        let ptr = unsafe {
-            mmap(
-                None,
-                size,
-                ProtFlags::PROT_READ | ProtFlags::PROT_WRITE,
-                MapFlags::MAP_SHARED,
-                &fd,
-                0,
-            )
-        }
-        .map_err(|e| Error::io(ctx(), e))?;
+        let segment = Segment::open(&name, std::mem::size_of::<Register>(), "CPU register")?;
         let mut share = CpuShare {
-            ptr: ptr.cast(),
+            segment,
             bit: 0,
             slot: 0,
             cpus: cpus.max(1),
@@ -144,8 +115,8 @@ impl CpuShare {
         }
         if share.bit == 0 {
             tracing::warn!(
-                "{}: all {SLOTS} slots are taken; this waiter will sleep without spinning",
-                ctx()
+                "CPU register {name}: all {SLOTS} slots are taken; this waiter will sleep \
+                 without spinning"
             );
         }
         share.wake();
@@ -153,8 +124,9 @@ impl CpuShare {
     }
 
     fn reg(&self) -> &Register {
-        // SAFETY: the mapping lives as long as self and is only accessed through atomics.
-        unsafe { self.ptr.as_ref() }
+        // SAFETY: the segment is a Register long, lives as long as self and is only accessed
+        // through atomics (a new one is all zeros: no slot taken, nobody awake).
+        unsafe { self.segment.get() }
     }
 
     /// Frees the slots of processes that no longer exist.
@@ -239,8 +211,6 @@ impl Drop for CpuShare {
             reg.members.fetch_and(!self.bit, Ordering::AcqRel);
             reg.pids[self.slot].store(0, Ordering::Release);
         }
-        // SAFETY: mapped in `join_with` with this length and not used after drop.
-        let _ = unsafe { munmap(self.ptr.cast(), std::mem::size_of::<Register>()) };
     }
 }
 

@@ -7,7 +7,75 @@
 //! starts, and what is left at the very end (for example the prefix's global management file)
 //! by [`remove_prefix_files`], which the supervisor calls after its last module has stopped.
 
+use std::num::NonZeroUsize;
 use std::path::{Path, PathBuf};
+use std::ptr::NonNull;
+
+use nix::fcntl::OFlag;
+use nix::sys::mman::{MapFlags, ProtFlags, mmap, munmap, shm_open};
+use nix::sys::stat::Mode;
+
+use crate::error::Error;
+
+/// A small segment in `/dev/shm` shared by the processes of a system, mapped read-write (a
+/// new one reads as zeros); unmapped on drop, removed with the prefix.
+pub(crate) struct Segment {
+    ptr: NonNull<std::ffi::c_void>,
+    len: NonZeroUsize,
+}
+
+impl Segment {
+    /// Opens segment `name` (`/` and the system's prefix first), creating it `len` bytes
+    /// long if it is new or shorter; `what` names it in errors.
+    pub(crate) fn open(name: &str, len: usize, what: &str) -> Result<Segment, Error> {
+        let ctx = || format!("{what}: shared segment {name}");
+        let len =
+            NonZeroUsize::new(len).ok_or_else(|| Error::Config(format!("{}: empty", ctx())))?;
+        let fd = shm_open(
+            name,
+            OFlag::O_CREAT | OFlag::O_RDWR,
+            Mode::S_IRUSR | Mode::S_IWUSR,
+        )
+        .map_err(|e| Error::io(ctx(), e))?;
+        let st = nix::sys::stat::fstat(&fd).map_err(|e| Error::io(ctx(), e))?;
+        let want = i64::try_from(len.get()).map_err(|_| Error::Config(ctx()))?;
+        if st.st_size < want {
+            nix::unistd::ftruncate(&fd, want).map_err(|e| Error::io(ctx(), e))?;
+        }
+        // SAFETY: a shared mapping of a file at least `len` long; the callers access it only
+        // through atomics.
+        let ptr = unsafe {
+            mmap(
+                None,
+                len,
+                ProtFlags::PROT_READ | ProtFlags::PROT_WRITE,
+                MapFlags::MAP_SHARED,
+                &fd,
+                0,
+            )
+        }
+        .map_err(|e| Error::io(ctx(), e))?;
+        Ok(Segment { ptr, len })
+    }
+
+    /// The mapping as a `T` (page-aligned).
+    ///
+    /// # Safety
+    /// `T` must fit the segment's length, be valid for any bit pattern another process may
+    /// write (atomics), and only be used while `self` lives.
+    pub(crate) unsafe fn get<T>(&self) -> &T {
+        debug_assert!(std::mem::size_of::<T>() <= self.len.get());
+        // SAFETY: forwarded to the caller; the mapping is page-aligned and at least `len`.
+        unsafe { self.ptr.cast::<T>().as_ref() }
+    }
+}
+
+impl Drop for Segment {
+    fn drop(&mut self) {
+        // SAFETY: mapped in `open` with this length; no reference outlives self.
+        let _ = unsafe { munmap(self.ptr, self.len.get()) };
+    }
+}
 
 /// Folders where iceoryx2 and hng put files.
 pub const SHM_DIR: &str = "/dev/shm";

@@ -15,8 +15,8 @@
 //!   once, and one wait in sixteen probes with a short spin. Publishers only send an event when a subscriber really sleeps
 //!   ([`crate::wake`]), so a spinning or busy subscriber costs its publishers nothing.
 //!   With [`Waiter::share_cpus`] (the module executor does it), the waiters of one system
-//!   also spin only while the awake ones fit the CPUs ([`crate::cpus`]): a spinner never keeps
-//!   a core from a process that has work to do.
+//!   also spin only with a core to spare ([`crate::cpus`]): a spinner never keeps a core from
+//!   a process that has work to do.
 //! - [`WaitMode::Spin`]: poll continuously (lowest latency, one core busy). Never spin on
 //!   both ends of a pipeline on a machine with fewer cores than spinners.
 
@@ -160,10 +160,10 @@ impl Waiter {
         })
     }
 
-    /// Shares the CPUs with the other waiters of `node`'s system (see [`crate::cpus`]): in
-    /// blocking mode this waiter then spins only while the awake waiters of the system fit
-    /// the CPUs, and gives its core up when another one wakes and needs it. The sleepers
-    /// that `node`'s publishes woke count as awake.
+    /// Shares the CPUs with the other waiters of `node`'s system (see [`crate::cpus`] for the
+    /// rule): in blocking mode this waiter then spins only with a core to spare, and gives its
+    /// core up when another one wakes and needs it. The sleepers that `node`'s publishes woke
+    /// count as awake.
     pub fn share_cpus(&mut self, node: &Node) -> Result<(), Error> {
         let counters = node.shared_counters();
         self.cpus = Some(Shared {

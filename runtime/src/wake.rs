@@ -18,15 +18,10 @@
 //! raised; publishers then merely notify when they need not. The segments live in `/dev/shm`
 //! under the system's prefix and are removed with the prefix ([`crate::cleanup_prefix`]).
 
-use std::num::NonZeroUsize;
-use std::ptr::NonNull;
 use std::sync::atomic::{AtomicU32, Ordering};
 
-use nix::fcntl::OFlag;
-use nix::sys::mman::{MapFlags, ProtFlags, mmap, munmap, shm_open};
-use nix::sys::stat::Mode;
-
 use crate::error::Error;
+use crate::shm::Segment;
 
 const SEGMENT_LEN: usize = 64;
 
@@ -34,7 +29,7 @@ const SEGMENT_LEN: usize = 64;
 pub(crate) const WAKE_TAG: &str = "hngwake_";
 
 pub(crate) struct WakeFlag {
-    ptr: NonNull<AtomicU32>,
+    segment: Segment,
 }
 
 fn fnv64(s: &str) -> u64 {
@@ -49,39 +44,15 @@ fn fnv64(s: &str) -> u64 {
 impl WakeFlag {
     pub(crate) fn open(prefix: &str, channel: &str) -> Result<WakeFlag, Error> {
         let name = format!("/{prefix}{WAKE_TAG}{:016x}", fnv64(channel));
-        let ctx = || format!("channel {channel:?}: wake segment {name}");
-        let fd = shm_open(
-            name.as_str(),
-            OFlag::O_CREAT | OFlag::O_RDWR,
-            Mode::S_IRUSR | Mode::S_IWUSR,
-        )
-        .map_err(|e| Error::io(ctx(), e))?;
-        let len = SEGMENT_LEN as i64;
-        let st = nix::sys::stat::fstat(&fd).map_err(|e| Error::io(ctx(), e))?;
-        if st.st_size < len {
-            nix::unistd::ftruncate(&fd, len).map_err(|e| Error::io(ctx(), e))?;
-        }
-        let size = NonZeroUsize::new(SEGMENT_LEN).ok_or_else(|| Error::Config("zero".into()))?;
-        // SAFETY: a fresh shared mapping of a file we just sized; no other Rust object aliases it.
-        let ptr = unsafe {
-            mmap(
-                None,
-                size,
-                ProtFlags::PROT_READ | ProtFlags::PROT_WRITE,
-                MapFlags::MAP_SHARED,
-                &fd,
-                0,
-            )
-        }
-        .map_err(|e| Error::io(ctx(), e))?;
-        Ok(WakeFlag { ptr: ptr.cast() })
+        let segment = Segment::open(&name, SEGMENT_LEN, &format!("channel {channel:?}"))?;
+        Ok(WakeFlag { segment })
     }
 
     #[inline]
     fn counter(&self) -> &AtomicU32 {
-        // SAFETY: the mapping is at least 64 bytes, page-aligned, lives as long as self, and is
-        // only ever accessed atomically.
-        unsafe { self.ptr.as_ref() }
+        // SAFETY: the segment is 64 bytes, page-aligned, lives as long as self, and is only
+        // ever accessed atomically.
+        unsafe { self.segment.get() }
     }
 
     /// Subscriber side: announce that we are about to block. Check for samples after this.
@@ -101,12 +72,5 @@ impl WakeFlag {
     #[inline]
     pub(crate) fn has_waiters(&self) -> bool {
         self.counter().fetch_add(0, Ordering::SeqCst) > 0
-    }
-}
-
-impl Drop for WakeFlag {
-    fn drop(&mut self) {
-        // SAFETY: the mapping was created in `open` with this length and is not used after drop.
-        let _ = unsafe { munmap(self.ptr.cast(), SEGMENT_LEN) };
     }
 }
