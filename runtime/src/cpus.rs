@@ -143,11 +143,6 @@ impl CpuShare {
         }
     }
 
-    /// The CPUs counted.
-    pub fn cpus(&self) -> u32 {
-        self.cpus
-    }
-
     /// How many waiters of the system are awake now.
     pub fn awake(&self) -> u32 {
         self.reg().awake.load(Ordering::Acquire).count_ones()

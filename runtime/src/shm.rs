@@ -82,14 +82,17 @@ pub const SHM_DIR: &str = "/dev/shm";
 /// iceoryx2's root folder for service, node and event files.
 pub const IOX_ROOT: &str = "/tmp/iceoryx2";
 
-/// iceoryx2's folder of per-node folders: each is named by the node's id (not by the prefix)
-/// and holds only that node's files, which are named with the prefix.
-const NODE_DIR: &str = "/tmp/iceoryx2/nodes";
+/// iceoryx2's folder of per-node folders (under [`IOX_ROOT`]): each is named by the node's id
+/// (not by the prefix) and holds only that node's files, which are named with the prefix.
+fn node_dir() -> PathBuf {
+    Path::new(IOX_ROOT).join("nodes")
+}
 
 fn walk(dir: &Path, prefix: &str, out: &mut Vec<PathBuf>) {
     let Ok(entries) = std::fs::read_dir(dir) else {
         return;
     };
+    let in_node_dir = dir == node_dir();
     for e in entries.flatten() {
         let path = e.path();
         let name = e.file_name();
@@ -97,7 +100,7 @@ fn walk(dir: &Path, prefix: &str, out: &mut Vec<PathBuf>) {
         if e.file_type().is_ok_and(|t| t.is_dir()) {
             if name.starts_with(prefix) {
                 out.push(path);
-            } else if dir == Path::new(NODE_DIR) && holds_only(&path, prefix) {
+            } else if in_node_dir && holds_only(&path, prefix) {
                 // A node of this prefix that died: the folder goes with its files, or an
                 // empty folder would stay behind.
                 out.push(path);
@@ -191,8 +194,8 @@ mod tests {
     fn a_dead_node_folder_of_the_prefix_is_removed_with_its_files() {
         let prefix = unique_prefix("shm");
         let other = unique_prefix("shmother");
-        let nodes = Path::new(NODE_DIR);
-        std::fs::create_dir_all(nodes).expect("node folder");
+        let nodes = node_dir();
+        std::fs::create_dir_all(&nodes).expect("node folder");
         let mine = nodes.join(format!("9{}", std::process::id()));
         let shared = nodes.join(format!("8{}", std::process::id()));
         for d in [&mine, &shared] {

@@ -278,14 +278,13 @@ impl Waiter {
             }
             std::hint::spin_loop();
         }
-        let crowded = matches!(self.mode, WaitMode::Blocking { .. }) && self.crowded();
         let start = monotonic_ns();
         let end = timeout.map(|t| start.saturating_add(t.as_nanos() as u64));
         match self.mode {
             WaitMode::Spin => self.spin(end),
             WaitMode::Blocking { max_spin } => {
                 let max = max_spin.as_nanos() as u64;
-                let budget = if crowded {
+                let budget = if self.crowded() {
                     self.stats.crowded += 1;
                     0
                 } else {

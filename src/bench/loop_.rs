@@ -234,14 +234,14 @@ pub fn lidar_to_command(a: &LoopArgs) -> Result<Vec<BenchRow>> {
         }
         let is_near = i % 2 == 1;
         let scan = if is_near { &near } else { &far };
-        let t0 = Instant::now();
         let t0_ns = monotonic_ns();
         scan_pub.publish(*scan)?;
         let cmd = loop {
             if let Some(c) = out.receive()? {
                 break *c;
             }
-            let left = Duration::from_secs(5).saturating_sub(t0.elapsed());
+            let elapsed = Duration::from_nanos(monotonic_ns().saturating_sub(t0_ns));
+            let left = Duration::from_secs(5).saturating_sub(elapsed);
             if left.is_zero() {
                 modules.check_alive()?;
                 bail!("no command for scan {i} within 5 s");
