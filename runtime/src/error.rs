@@ -53,6 +53,12 @@ pub enum Error {
         /// Largest length.
         max: usize,
     },
+    /// A termination signal arrived while waiting (see [`crate::wait::Waiter::wait_for`]).
+    #[error("interrupted by signal {signal}")]
+    Interrupted {
+        /// The signal's number.
+        signal: i32,
+    },
     /// The module's configuration or environment is invalid.
     #[error("configuration: {0}")]
     Config(String),

@@ -363,25 +363,76 @@ impl Waiter {
     }
 
     fn spin(&self, end: Option<u64>) -> Result<Wake, Error> {
-        let mut n: u64 = 0;
+        match self.spin_on(end, || Ok(self.any_ready().then_some(()))) {
+            Ok(Some(())) => Ok(Wake::Data),
+            Ok(None) => Ok(Wake::Timeout),
+            Err(Error::Interrupted { signal }) => Ok(Wake::Signal(signal)),
+            Err(e) => Err(e),
+        }
+    }
+
+    /// Polls `poll` until it yields a value; `None` when the deadline passed, and
+    /// [`Error::Interrupted`] when a termination signal arrived.
+    #[inline]
+    fn spin_on<T>(
+        &self,
+        end: Option<u64>,
+        mut poll: impl FnMut() -> Result<Option<T>, Error>,
+    ) -> Result<Option<T>, Error> {
+        let mut n: u32 = 0;
         loop {
-            if self.any_ready() {
-                return Ok(Wake::Data);
+            if let Some(x) = poll()? {
+                return Ok(Some(x));
             }
-            n += 1;
+            n = n.wrapping_add(1);
             if n.is_multiple_of(256) {
-                let now = monotonic_ns();
-                if end.is_some_and(|e| now >= e) {
-                    return Ok(Wake::Timeout);
+                if end.is_some_and(|e| monotonic_ns() >= e) {
+                    return Ok(None);
                 }
                 // A read() of the signalfd is a syscall: check about every 64 K spins.
                 if n.is_multiple_of(65_536)
-                    && let Some(sig) = self.pending_signal()
+                    && let Some(signal) = self.pending_signal()
                 {
-                    return Ok(Wake::Signal(sig));
+                    return Err(Error::Interrupted { signal });
                 }
             }
             std::hint::spin_loop();
+        }
+    }
+
+    /// Waits until `poll` yields a value, polling it after every wake-up, for at most
+    /// `timeout`; `None` when the time ran out. In spin mode `poll` itself is what spins, so
+    /// the value is taken the moment it is there, with no second look (the waiter's own
+    /// readiness check followed by the caller's receive): [`Receiver::receive_timeout`] uses
+    /// this. A termination signal caught by this waiter is returned as
+    /// [`Error::Interrupted`].
+    ///
+    /// [`Receiver::receive_timeout`]: crate::channel::Receiver::receive_timeout
+    pub fn wait_for<T>(
+        &mut self,
+        timeout: Duration,
+        mut poll: impl FnMut() -> Result<Option<T>, Error>,
+    ) -> Result<Option<T>, Error> {
+        if let Some(x) = poll()? {
+            return Ok(Some(x));
+        }
+        let end = monotonic_ns().saturating_add(timeout.as_nanos() as u64);
+        if self.mode == WaitMode::Spin {
+            return self.spin_on(Some(end), poll);
+        }
+        loop {
+            let left = end.saturating_sub(monotonic_ns());
+            let wake = self.wait(Some(Duration::from_nanos(left)))?;
+            if let Wake::Signal(signal) = wake {
+                return Err(Error::Interrupted { signal });
+            }
+            // Data, or the time ran out: either way one more look.
+            if let Some(x) = poll()? {
+                return Ok(Some(x));
+            }
+            if wake == Wake::Timeout || monotonic_ns() >= end {
+                return Ok(None);
+            }
         }
     }
 

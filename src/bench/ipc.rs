@@ -21,7 +21,7 @@ use hng_runtime::channel::{
 use hng_runtime::msg::BytesInfo;
 use hng_runtime::shm;
 use hng_runtime::stats::{BenchRow, Percentiles};
-use hng_runtime::wait::{WaitMode, Waiter, Wake};
+use hng_runtime::wait::{WaitMode, Waiter};
 use iceoryx2::prelude::*;
 
 /// Transports compared.
@@ -72,9 +72,13 @@ pub struct IpcArgs {
     /// Round trips measured per case (fewer if --max-seconds runs out first).
     #[arg(long, default_value_t = 10_000)]
     pub samples: usize,
-    /// Time limit per case, seconds.
+    /// Time limit per case and transport, seconds (shared by its rounds).
     #[arg(long, default_value_t = 3.0)]
     pub max_seconds: f64,
+    /// Sessions per case and transport, run in turn with the other transports' (see
+    /// `run_cases`); the samples are pooled.
+    #[arg(long, default_value_t = 5)]
+    pub rounds: usize,
     /// Transports (comma separated).
     #[arg(long, value_delimiter = ',', default_values_t = [Transport::Hng, Transport::Iceoryx2, Transport::Uds])]
     pub transport: Vec<Transport>,
@@ -201,24 +205,8 @@ impl Endpoint for HngEnd {
     }
 
     fn recv(&mut self, timeout: Duration) -> Result<Option<u64>> {
-        if let Some(s) = self.rx.receive()? {
-            return Ok(Some(read_stamp(s.data())));
-        }
-        // Read the clock only once the first look found nothing.
-        let end = Instant::now() + timeout;
-        let mut left = timeout;
-        loop {
-            if let Wake::Signal(_) = self.waiter.wait(Some(left))? {
-                bail!("interrupted");
-            }
-            if let Some(s) = self.rx.receive()? {
-                return Ok(Some(read_stamp(s.data())));
-            }
-            left = end.saturating_duration_since(Instant::now());
-            if left.is_zero() {
-                return Ok(None);
-            }
-        }
+        let sample = self.rx.receive_timeout(&mut self.waiter, timeout)?;
+        Ok(sample.map(|s| read_stamp(s.data())))
     }
 }
 
@@ -628,32 +616,100 @@ pub fn peer(a: &PeerArgs) -> Result<()> {
     }
 }
 
-/// Runs one case and returns its row.
-pub fn run_case(
+/// Measures one (size, mode) for every transport and returns one row per transport.
+///
+/// The samples of each transport are collected in `rounds` sessions, run in turn with the
+/// other transports' (hng, iceoryx2, uds, hng, iceoryx2, uds, ...), each session with fresh
+/// processes. Where the two processes land (which cores, which host CPUs under a VM) moves
+/// the floor by 10-20 % from one session to the next on this project's machine; taking
+/// turns gives every transport the same share of good and bad placements, so the ratios
+/// between transports measure the transports, not the luck of one placement.
+pub fn run_cases(
     exe: &std::path::Path,
-    t: Transport,
+    transports: &[Transport],
     size: usize,
     mode: Mode,
     samples: usize,
+    rounds: usize,
     max: Duration,
-) -> Result<BenchRow> {
-    let mut s = Session::start(exe, t, size, mode)?;
-    for _ in 0..samples.clamp(10, 200) / 10 {
-        s.round_trip()?;
+) -> Result<Vec<BenchRow>> {
+    let rounds = rounds.clamp(1, samples.max(1));
+    let per_round = samples.div_ceil(rounds);
+    let max_round = max / rounds as u32;
+    let mut pooled: Vec<Vec<u64>> = vec![Vec::with_capacity(samples); transports.len()];
+    let mut round_p50: Vec<Vec<u64>> = vec![Vec::with_capacity(rounds); transports.len()];
+    for round in 0..rounds {
+        // Every other round in reverse order, so no transport always runs first.
+        let order: Vec<usize> = if round % 2 == 0 {
+            (0..transports.len()).collect()
+        } else {
+            (0..transports.len()).rev().collect()
+        };
+        for i in order {
+            let t = transports[i];
+            let mut s = Session::start(exe, t, size, mode)?;
+            for _ in 0..per_round.clamp(10, 200) / 10 {
+                s.round_trip()?;
+            }
+            let mut one_way = Vec::with_capacity(per_round);
+            let start = Instant::now();
+            while one_way.len() < per_round && start.elapsed() < max_round {
+                one_way.push(s.round_trip()?.as_nanos() as u64 / 2);
+            }
+            s.finish()?;
+            round_p50[i].push(Percentiles::of(&mut one_way).p50_ns);
+            pooled[i].extend(one_way);
+        }
     }
-    let mut one_way = Vec::with_capacity(samples);
-    let start = Instant::now();
-    while one_way.len() < samples && start.elapsed() < max {
-        one_way.push(s.round_trip()?.as_nanos() as u64 / 2);
-    }
-    s.finish()?;
-    let p = Percentiles::of(&mut one_way);
-    Ok(
-        BenchRow::new("ipc", &format!("{}/{}/{}", t.name(), size, mode.name()), p)
+    let stats: Vec<Percentiles> = pooled.iter_mut().map(|v| Percentiles::of(v)).collect();
+    let floor = transports.iter().position(|&t| t == Transport::Iceoryx2);
+    let mut rows = Vec::with_capacity(transports.len());
+    for (i, &t) in transports.iter().enumerate() {
+        let p = stats[i];
+        let mut row = BenchRow::new("ipc", &format!("{}/{}/{}", t.name(), size, mode.name()), p)
             .with("transport", t.name())
             .with("size", size as u64)
-            .with("mode", mode.name()),
-    )
+            .with("mode", mode.name())
+            .with("rounds", rounds as u64)
+            .with(
+                "round_p50_min_ns",
+                round_p50[i].iter().copied().min().unwrap_or(0),
+            )
+            .with(
+                "round_p50_max_ns",
+                round_p50[i].iter().copied().max().unwrap_or(0),
+            );
+        if let Some(f) = floor.filter(|&f| f != i) {
+            row = row.with(
+                "p50_vs_iceoryx2",
+                paired_ratio(&round_p50[i], &round_p50[f]),
+            );
+        }
+        rows.push(row);
+    }
+    Ok(rows)
+}
+
+/// The median over rounds of `a`'s p50 divided by `b`'s p50 in the same round: sessions of
+/// one round run back to back, so each ratio compares the transports under the same
+/// conditions, and the median ignores a round in which the conditions changed midway.
+fn paired_ratio(a: &[u64], b: &[u64]) -> f64 {
+    let mut r: Vec<f64> = a
+        .iter()
+        .zip(b)
+        .filter(|&(_, &b)| b > 0)
+        .map(|(&a, &b)| a as f64 / b as f64)
+        .collect();
+    if r.is_empty() {
+        return f64::NAN;
+    }
+    r.sort_by(f64::total_cmp);
+    let n = r.len();
+    if n % 2 == 1 {
+        r[n / 2]
+    } else {
+        (r[n / 2 - 1] + r[n / 2]) / 2.0
+    }
 }
 
 pub fn run(a: &IpcArgs) -> Result<()> {
@@ -662,17 +718,32 @@ pub fn run(a: &IpcArgs) -> Result<()> {
     let mut rows = Vec::new();
     for &mode in &a.mode {
         for &size in &a.sizes {
-            for &t in &a.transport {
-                let row = run_case(&exe, t, size, mode, a.samples, max)?;
-                if a.json {
+            let case = run_cases(&exe, &a.transport, size, mode, a.samples, a.rounds, max)?;
+            if a.json {
+                for row in &case {
                     println!("{}", row.to_json());
                 }
-                rows.push(row);
             }
+            rows.extend(case);
         }
     }
     if !a.json {
         super::print_rows(&rows, false);
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::paired_ratio;
+
+    #[test]
+    fn paired_ratio_compares_rounds_and_ignores_one_odd_round() {
+        // Conditions changed between rounds (the floor doubled) and within round 3.
+        let hng = [110, 220, 500, 110, 220];
+        let raw = [100, 200, 100, 100, 200];
+        assert!((paired_ratio(&hng, &raw) - 1.1).abs() < 1e-9);
+        assert!((paired_ratio(&hng[..2], &raw[..2]) - 1.1).abs() < 1e-9);
+        assert!(paired_ratio(&[1], &[0]).is_nan());
+    }
 }

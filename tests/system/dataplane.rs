@@ -204,3 +204,49 @@ fn a_sample_the_waiter_saw_is_received_once_in_order() {
     assert_eq!(s.stats().dropped, 0);
     assert!(!s.has_samples());
 }
+
+#[test]
+fn a_slice_publisher_grows_to_any_size_and_its_unread_samples_still_arrive_in_order() {
+    let sys = TestSystem::new("grow");
+    let node = Node::new(NodeOptions::new("grower").prefix(&sys.prefix)).expect("node");
+    let p = node
+        .slice_publisher::<BytesInfo>("test/grow", 8)
+        .expect("publisher");
+    let s = node
+        .slice_subscriber::<BytesInfo>("test/grow")
+        .expect("subscriber");
+    let send = |len: usize| {
+        p.loan_uninit(len)
+            .expect("loan")
+            .write_from_fn(|i| pattern(len as u64, i))
+            .publish()
+            .expect("publish");
+    };
+    let receive_all = || {
+        let mut got = Vec::new();
+        while let Some(m) = s.receive().expect("receive") {
+            let len = m.data().len();
+            assert!(
+                m.data()
+                    .iter()
+                    .enumerate()
+                    .all(|(i, b)| *b == pattern(len as u64, i)),
+                "content of the {len}-byte sample"
+            );
+            got.push((m.header().header.seq, len));
+        }
+        got
+    };
+    // The second send does not fit: the publisher moves to a larger segment while the
+    // first sample is still unread.
+    send(8);
+    send(100);
+    assert_eq!(p.capacity(), 128);
+    assert_eq!(receive_all(), vec![(1, 8), (2, 100)]);
+    send(1 << 20);
+    assert_eq!(p.capacity(), 1 << 20);
+    send(10);
+    assert_eq!(receive_all(), vec![(3, 1 << 20), (4, 10)]);
+    let stats = s.stats();
+    assert_eq!((stats.received, stats.dropped, stats.restarts), (4, 0, 0));
+}
