@@ -41,7 +41,7 @@ pub struct Clock {
 /// (see [`tsc`]): about 10 ns, against 28 ns for the vDSO's `clock_gettime`, and without
 /// the vDSO's serialising TSC read, which waits for every load before it (the shared-memory
 /// loads of the receive that came just before, on a hop). Elsewhere, or with
-/// `HNG_CLOCK=os`, it calls `clock_gettime` (the vDSO) directly.
+/// `HNG_TSC=off`, it calls `clock_gettime` (the vDSO) directly.
 #[inline]
 pub fn monotonic_ns() -> u64 {
     #[cfg(target_arch = "x86_64")]

@@ -18,6 +18,7 @@ use clap::{Args, ValueEnum};
 use hng_runtime::channel::{
     Node, NodeOptions, Service, SlicePublisher, SliceSubscriber, iceoryx_config,
 };
+use hng_runtime::clock::monotonic_ns;
 use hng_runtime::msg::BytesInfo;
 use hng_runtime::shm;
 use hng_runtime::stats::{BenchRow, Percentiles};
@@ -31,6 +32,10 @@ pub enum Transport {
     Hng,
     /// Raw iceoryx2.
     Iceoryx2,
+    /// Raw iceoryx2 carrying hng's message header (sequence number, time stamp, source) as
+    /// its user header, written on send and read on receive: what the header itself costs
+    /// (not in the default list).
+    Iceoryx2Header,
     /// Unix domain stream socket with postcard framing.
     Uds,
 }
@@ -49,6 +54,7 @@ impl Transport {
         match self {
             Transport::Hng => "hng",
             Transport::Iceoryx2 => "iceoryx2",
+            Transport::Iceoryx2Header => "iceoryx2-header",
             Transport::Uds => "uds",
         }
     }
@@ -210,20 +216,43 @@ impl Endpoint for HngEnd {
     }
 }
 
-type RawPub = iceoryx2::port::publisher::Publisher<Service, [u8], ()>;
-type RawSub = iceoryx2::port::subscriber::Subscriber<Service, [u8], ()>;
+/// The user header of a raw iceoryx2 end: none, or hng's.
+trait RawHeader: std::fmt::Debug + Default + ZeroCopySend + 'static {
+    /// Fills the header of the sample for `round`.
+    fn stamp(&mut self, round: u64);
+    /// What a receiver reads of it.
+    fn seq(&self) -> u64;
+}
 
-struct RawEnd {
+impl RawHeader for () {
+    fn stamp(&mut self, _: u64) {}
+    fn seq(&self) -> u64 {
+        0
+    }
+}
+
+impl RawHeader for BytesInfo {
+    fn stamp(&mut self, round: u64) {
+        self.header.seq = round;
+        self.header.stamp_ns = monotonic_ns();
+        self.header.source = 1;
+    }
+    fn seq(&self) -> u64 {
+        self.header.seq ^ u64::from(self.header.source)
+    }
+}
+
+struct RawEnd<U: RawHeader> {
     _node: iceoryx2::node::Node<Service>,
-    tx: RawPub,
-    rx: RawSub,
+    tx: iceoryx2::port::publisher::Publisher<Service, [u8], U>,
+    rx: iceoryx2::port::subscriber::Subscriber<Service, [u8], U>,
     notifier: iceoryx2::port::notifier::Notifier<Service>,
     listener: iceoryx2::port::listener::Listener<Service>,
     size: usize,
     mode: Mode,
 }
 
-impl RawEnd {
+impl<U: RawHeader> RawEnd<U> {
     fn new(
         prefix: &str,
         name: &str,
@@ -231,7 +260,7 @@ impl RawEnd {
         rx: &str,
         size: usize,
         mode: Mode,
-    ) -> Result<RawEnd> {
+    ) -> Result<RawEnd<U>> {
         let config = iceoryx_config(prefix)?;
         let node = NodeBuilder::new()
             .name(&NodeName::new(name).map_err(|e| anyhow!("{e:?}"))?)
@@ -244,6 +273,7 @@ impl RawEnd {
             let ps = node
                 .service_builder(&sn)
                 .publish_subscribe::<[u8]>()
+                .user_header::<U>()
                 .enable_safe_overflow(true)
                 .subscriber_max_buffer_size(2)
                 .open_or_create()
@@ -286,7 +316,7 @@ impl RawEnd {
     }
 }
 
-impl Endpoint for RawEnd {
+impl<U: RawHeader> Endpoint for RawEnd<U> {
     fn send(&mut self, round: u64) -> Result<()> {
         let loan = self
             .tx
@@ -295,6 +325,7 @@ impl Endpoint for RawEnd {
         // SAFETY: plain bytes; only the stamp is meaningful to the reader.
         let mut s = unsafe { loan.assume_init() };
         stamp(s.payload_mut(), round);
+        s.user_header_mut().stamp(round);
         s.send().map_err(|e| anyhow!("send: {e:?}"))?;
         if self.mode == Mode::Blocking {
             self.notifier
@@ -309,6 +340,7 @@ impl Endpoint for RawEnd {
         let mut n: u32 = 0;
         loop {
             if let Some(s) = self.rx.receive().map_err(|e| anyhow!("receive: {e:?}"))? {
+                std::hint::black_box(s.user_header().seq());
                 return Ok(Some(read_stamp(s.payload())));
             }
             if self.mode == Mode::Blocking {
@@ -487,17 +519,11 @@ impl Session {
             socket: socket.clone(),
             round: 0,
         };
-        session.end = match transport {
-            Transport::Hng => Box::new(HngEnd::new(&prefix, "bench-ping", PING, PONG, size, mode)?),
-            Transport::Iceoryx2 => {
-                Box::new(RawEnd::new(&prefix, "bench-ping", PING, PONG, size, mode)?)
-            }
-            Transport::Uds => {
-                let l = listener.ok_or_else(|| anyhow!("no socket"))?;
-                let (stream, _) = l.accept().context("accepting the peer's connection")?;
-                Box::new(UdsEnd::new(stream, size, mode)?)
-            }
+        let stream = match listener {
+            Some(l) => Some(l.accept().context("accepting the peer's connection")?.0),
+            None => None,
         };
+        session.end = endpoint(transport, &prefix, Side::Ping, size, mode, stream)?;
         // Handshake: the peer may not be subscribed yet, so ping until it answers.
         let mut ok = false;
         for _ in 0..1000 {
@@ -560,6 +586,40 @@ impl Drop for Session {
     }
 }
 
+/// Which end of the ping-pong.
+#[derive(Debug, Clone, Copy)]
+enum Side {
+    Ping,
+    Pong,
+}
+
+/// The local end of a session for `transport` (`stream`: the connected socket for `uds`).
+fn endpoint(
+    transport: Transport,
+    prefix: &str,
+    side: Side,
+    size: usize,
+    mode: Mode,
+    stream: Option<UnixStream>,
+) -> Result<Box<dyn Endpoint>> {
+    let (name, tx, rx) = match side {
+        Side::Ping => ("bench-ping", PING, PONG),
+        Side::Pong => ("bench-pong", PONG, PING),
+    };
+    Ok(match transport {
+        Transport::Hng => Box::new(HngEnd::new(prefix, name, tx, rx, size, mode)?),
+        Transport::Iceoryx2 => Box::new(RawEnd::<()>::new(prefix, name, tx, rx, size, mode)?),
+        Transport::Iceoryx2Header => {
+            Box::new(RawEnd::<BytesInfo>::new(prefix, name, tx, rx, size, mode)?)
+        }
+        Transport::Uds => Box::new(UdsEnd::new(
+            stream.ok_or_else(|| anyhow!("uds needs a connected socket"))?,
+            size,
+            mode,
+        )?),
+    })
+}
+
 struct NoEnd;
 impl Endpoint for NoEnd {
     fn send(&mut self, _: u64) -> Result<()> {
@@ -572,35 +632,13 @@ impl Endpoint for NoEnd {
 
 /// The peer process: echo stamps until STOP.
 pub fn peer(a: &PeerArgs) -> Result<()> {
-    let mut end: Box<dyn Endpoint> = match a.transport {
-        Transport::Hng => Box::new(HngEnd::new(
-            &a.prefix,
-            "bench-pong",
-            PONG,
-            PING,
-            a.size,
-            a.mode,
-        )?),
-        Transport::Iceoryx2 => Box::new(RawEnd::new(
-            &a.prefix,
-            "bench-pong",
-            PONG,
-            PING,
-            a.size,
-            a.mode,
-        )?),
-        Transport::Uds => {
-            let path = a
-                .socket
-                .as_deref()
-                .ok_or_else(|| anyhow!("--socket is required for uds"))?;
-            Box::new(UdsEnd::new(
-                UnixStream::connect(path).with_context(|| format!("connecting {path}"))?,
-                a.size,
-                a.mode,
-            )?)
+    let stream = match &a.socket {
+        Some(path) => {
+            Some(UnixStream::connect(path).with_context(|| format!("connecting {path}"))?)
         }
+        None => None,
     };
+    let mut end = endpoint(a.transport, &a.prefix, Side::Pong, a.size, a.mode, stream)?;
     let idle_limit = Duration::from_secs(30);
     let mut idle = Instant::now();
     loop {

@@ -22,7 +22,7 @@
 //!   time re-anchors, the others go on with the current line.
 //!
 //! It is used only when `/sys/devices/system/clocksource/clocksource0/current_clocksource`
-//! is `tsc` and `HNG_CLOCK` is not `os`. No crate did this: `quanta` and `minstant`
+//! is `tsc` and `HNG_TSC` is not `off`. No crate did this: `quanta` and `minstant`
 //! calibrate once per process, so two processes' stamps drift apart by the calibration
 //! error (ppm) for as long as they run, which breaks latencies measured across processes.
 
@@ -212,7 +212,7 @@ fn slow_path() -> Option<u64> {
     match s.enabled.load(Ordering::Relaxed) {
         OFF => return None,
         UNKNOWN => {
-            let on = tsc_is_the_clocksource() && std::env::var("HNG_CLOCK").as_deref() != Ok("os");
+            let on = tsc_is_the_clocksource() && std::env::var("HNG_TSC").as_deref() != Ok("off");
             s.enabled
                 .store(if on { ON } else { OFF }, Ordering::Relaxed);
             if !on {
@@ -415,7 +415,7 @@ mod tests {
     #[test]
     fn the_tsc_clock_stays_within_microseconds_of_the_os_clock_and_never_goes_back() {
         if !in_use() {
-            eprintln!("skipped: the kernel's clocksource is not the TSC (or HNG_CLOCK=os)");
+            eprintln!("skipped: the kernel's clocksource is not the TSC (or HNG_TSC=off)");
             return;
         }
         let check = || {
