@@ -44,16 +44,10 @@ fn ping_pong(node: &Node, size: usize, rounds: u64) {
         loan.write_from_fn(|i| pattern(round, i))
             .publish()
             .expect("publish");
-        let sample = loop {
-            match waiter.wait(Some(Duration::from_secs(5))).expect("wait") {
-                Wake::Data => {
-                    if let Some(s) = pong.receive().expect("receive") {
-                        break s;
-                    }
-                }
-                other => panic!("no echo for round {round} of {size} bytes: {other:?}"),
-            }
-        };
+        let sample = pong
+            .receive_timeout(&mut waiter, Duration::from_secs(5))
+            .expect("receive")
+            .unwrap_or_else(|| panic!("no echo for round {round} of {size} bytes"));
         let data = sample.data();
         assert_eq!(data.len(), size, "echoed length, round {round}");
         let bad = data
@@ -249,4 +243,36 @@ fn a_slice_publisher_grows_to_any_size_and_its_unread_samples_still_arrive_in_or
     assert_eq!(receive_all(), vec![(3, 1 << 20), (4, 10)]);
     let stats = s.stats();
     assert_eq!((stats.received, stats.dropped, stats.restarts), (4, 0, 0));
+}
+
+#[test]
+fn receive_timeout_gives_the_next_message_or_none_when_the_time_is_up_in_both_modes() {
+    let sys = TestSystem::new("rto");
+    let node = Node::new(NodeOptions::new("rto").prefix(&sys.prefix)).expect("node");
+    let p = node.publisher::<Twist>("robot/cmd_vel").expect("publisher");
+    let s = node
+        .subscriber::<Twist>("robot/cmd_vel")
+        .expect("subscriber");
+    for mode in [WaitMode::default(), WaitMode::Spin] {
+        let mut waiter = Waiter::new(mode).expect("waiter");
+        waiter.attach(&s).expect("attach");
+        let none = s
+            .receive_timeout(&mut waiter, Duration::from_millis(5))
+            .expect("receive");
+        assert!(none.is_none(), "{mode:?}: nothing was published");
+        for x in [1.0, 2.0] {
+            p.publish(Twist {
+                linear_x: x,
+                ..Default::default()
+            })
+            .expect("publish");
+        }
+        for x in [1.0, 2.0] {
+            let m = s
+                .receive_timeout(&mut waiter, Duration::from_secs(5))
+                .expect("receive")
+                .expect("a message");
+            assert_eq!(m.linear_x, x, "{mode:?}: in order");
+        }
+    }
 }

@@ -169,6 +169,19 @@ fn rdtsc() -> u64 {
     unsafe { core::arch::x86_64::_rdtsc() }
 }
 
+/// A TSC read that neither starts before the instructions ahead of it nor lets those after
+/// it start first (for pairings, where the order matters more than the cost).
+fn ordered_rdtsc() -> u64 {
+    // SAFETY: LFENCE (SSE2, part of x86_64) and RDTSC only order execution and read the
+    // time-stamp counter.
+    unsafe {
+        core::arch::x86_64::_mm_lfence();
+        let t = core::arch::x86_64::_rdtsc();
+        core::arch::x86_64::_mm_lfence();
+        t
+    }
+}
+
 /// Now on the TSC line, or `None` when the TSC is not used (then read the OS clock).
 #[inline]
 pub fn now_ns() -> Option<u64> {
@@ -289,13 +302,9 @@ fn pairing() -> Option<Pairing> {
     };
     let mut best: Option<(u64, Pairing)> = None;
     for _ in 0..3 {
-        let mut aux = 0u32;
-        // SAFETY: RDTSCP exists wherever the kernel's clocksource is the TSC on x86_64 (the
-        // vDSO uses it) and only reads the counter and TSC_AUX.
-        let t0 = unsafe { core::arch::x86_64::__rdtscp(&mut aux) };
+        let t0 = ordered_rdtsc();
         let ns = os_monotonic_ns();
-        // SAFETY: as above.
-        let t1 = unsafe { core::arch::x86_64::__rdtscp(&mut aux) };
+        let t1 = ordered_rdtsc();
         let Some(width) = t1.checked_sub(t0) else {
             continue;
         };
