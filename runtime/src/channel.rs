@@ -546,6 +546,7 @@ pub(crate) struct Inlet {
 }
 
 impl Inlet {
+    #[inline]
     fn account(&self, h: &Header) {
         let mut stats = self.stats.get();
         stats.received += 1;
@@ -600,6 +601,7 @@ impl<T: Message> Publisher<T> {
     }
 
     /// Stamps `msg`'s header and publishes a copy of it.
+    #[inline]
     pub fn publish(&self, mut msg: T) -> Result<(), Error> {
         self.out.stamp(msg.header_mut());
         self.port
@@ -609,6 +611,7 @@ impl<T: Message> Publisher<T> {
     }
 
     /// Loans a sample in shared memory, initialised to `T::default()`, to fill in place.
+    #[inline]
     pub fn loan(&self) -> Result<Loan<'_, T>, Error> {
         let sample = self
             .port
@@ -645,6 +648,7 @@ pub struct Loan<'a, T: Message> {
 
 impl<T: Message> Loan<'_, T> {
     /// Stamps the header and publishes the sample.
+    #[inline]
     pub fn publish(mut self) -> Result<(), Error> {
         self.out.stamp(self.sample.payload_mut().header_mut());
         self.sample
@@ -724,6 +728,7 @@ impl<T: Message> Kind for Fixed<T> {
     type Port = IoxSubscriber<Service, T, ()>;
     type Sample = Sample<T>;
     const NAME: &'static str = "Subscriber";
+    #[inline]
     fn receive(port: &Self::Port) -> Result<Option<Sample<T>>, ReceiveError> {
         Ok(port.receive()?.map(|inner| Sample { inner }))
     }
@@ -742,6 +747,7 @@ impl<H: SliceMessage> Kind for Slice<H> {
     type Port = IoxSubscriber<Service, [H::Elem], H>;
     type Sample = SliceSample<H>;
     const NAME: &'static str = "SliceSubscriber";
+    #[inline]
     fn receive(port: &Self::Port) -> Result<Option<SliceSample<H>>, ReceiveError> {
         Ok(port.receive()?.map(|inner| SliceSample { inner }))
     }
@@ -798,6 +804,7 @@ impl<K: Kind> Receiver<K> {
     }
 
     /// The next message, or `None` when there is none.
+    #[inline]
     pub fn receive(&self) -> Result<Option<K::Sample>, Error> {
         let r = &*self.reader;
         let next =
@@ -813,6 +820,7 @@ impl<K: Kind> Receiver<K> {
     /// alone ([`Waiter::attach`]); another watched input with unread data would make every
     /// wait return at once. In spin mode it polls this receiver directly and takes the
     /// message the moment it lands (see [`Waiter::wait_for`]).
+    #[inline]
     pub fn receive_timeout(
         &self,
         waiter: &mut Waiter,
@@ -965,6 +973,7 @@ impl<H: SliceMessage> SlicePublisher<H> {
     }
 
     /// Loans `len` uninitialised elements in shared memory.
+    #[inline]
     pub fn loan_uninit(&self, len: usize) -> Result<SliceLoanUninit<'_, H>, Error> {
         let sample = self.port.loan(&self.out.channel, len)?;
         Ok(SliceLoanUninit {
@@ -1020,6 +1029,7 @@ impl<'a, H: SliceMessage> SliceLoanUninit<'a, H> {
     /// # Safety
     /// Every element must have been written through [`SliceLoanUninit::payload_mut`] (or the
     /// reader must not care about stale contents, as in a latency benchmark of plain bytes).
+    #[inline]
     pub unsafe fn assume_init(self) -> SliceLoan<'a, H> {
         SliceLoan {
             // SAFETY: forwarded to the caller.
@@ -1047,6 +1057,7 @@ impl<H: SliceMessage> SliceLoan<'_, H> {
     }
 
     /// Stamps the header and publishes.
+    #[inline]
     pub fn publish(mut self) -> Result<(), Error> {
         self.out.stamp(self.sample.user_header_mut().header_mut());
         self.sample

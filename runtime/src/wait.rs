@@ -408,6 +408,7 @@ impl Waiter {
     /// [`Error::Interrupted`].
     ///
     /// [`Receiver::receive_timeout`]: crate::channel::Receiver::receive_timeout
+    #[inline]
     pub fn wait_for<T>(
         &mut self,
         timeout: Duration,
