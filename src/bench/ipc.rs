@@ -78,11 +78,11 @@ pub struct IpcArgs {
     /// Round trips measured per case (fewer if --max-seconds runs out first).
     #[arg(long, default_value_t = 10_000)]
     pub samples: usize,
-    /// Time limit per case and transport, seconds (shared by its rounds).
+    /// Time limit per case (transport, size, mode), seconds, shared by its rounds.
     #[arg(long, default_value_t = 3.0)]
     pub max_seconds: f64,
-    /// Sessions per case and transport, run in turn with the other transports' (see
-    /// `run_cases`); the samples are pooled.
+    /// Sessions per case, each round running every case of a mode once (see `run_mode`);
+    /// the samples are pooled.
     #[arg(long, default_value_t = 5)]
     pub rounds: usize,
     /// Transports (comma separated).
@@ -654,18 +654,22 @@ pub fn peer(a: &PeerArgs) -> Result<()> {
     }
 }
 
-/// Measures one (size, mode) for every transport and returns one row per transport.
+/// Measures one mode for every size and transport and returns one row per (size,
+/// transport), sizes first.
 ///
-/// The samples of each transport are collected in `rounds` sessions, run in turn with the
-/// other transports' (hng, iceoryx2, uds, hng, iceoryx2, uds, ...), each session with fresh
-/// processes. Where the two processes land (which cores, which host CPUs under a VM) moves
-/// the floor by 10-20 % from one session to the next on this project's machine; taking
-/// turns gives every transport the same share of good and bad placements, so the ratios
-/// between transports measure the transports, not the luck of one placement.
-pub fn run_cases(
+/// The samples of each case are collected in `rounds` sessions, each with fresh processes;
+/// a round runs every case once, the transports of a size back to back (in reverse order
+/// every other round). Where the two processes land (which cores, which host CPUs under a
+/// VM) moves the floor by 10-20 % from one session to the next on this project's machine,
+/// and the host moves it by up to 2x for minutes: taking turns gives every case the same
+/// share of good and bad conditions, so the ratios between transports and between sizes
+/// measure the transports and the sizes, not the luck of one placement. The ratios are
+/// paired: `p50_vs_iceoryx2` compares with raw iceoryx2 at the same size in the same round,
+/// `p50_vs_smallest` with the same transport at the smallest size in the same round.
+pub fn run_mode(
     exe: &std::path::Path,
     transports: &[Transport],
-    size: usize,
+    sizes: &[usize],
     mode: Mode,
     samples: usize,
     rounds: usize,
@@ -674,56 +678,69 @@ pub fn run_cases(
     let rounds = rounds.clamp(1, samples.max(1));
     let per_round = samples.div_ceil(rounds);
     let max_round = max / rounds as u32;
-    let mut pooled: Vec<Vec<u64>> = vec![Vec::with_capacity(samples); transports.len()];
-    let mut round_p50: Vec<Vec<u64>> = vec![Vec::with_capacity(rounds); transports.len()];
+    let cases = sizes.len() * transports.len();
+    let case = |si: usize, ti: usize| si * transports.len() + ti;
+    let mut pooled: Vec<Vec<u64>> = vec![Vec::with_capacity(samples); cases];
+    let mut round_p50: Vec<Vec<u64>> = vec![Vec::with_capacity(rounds); cases];
     for round in 0..rounds {
-        // Every other round in reverse order, so no transport always runs first.
-        let order: Vec<usize> = if round % 2 == 0 {
-            (0..transports.len()).collect()
-        } else {
-            (0..transports.len()).rev().collect()
-        };
-        for i in order {
-            let t = transports[i];
-            let mut s = Session::start(exe, t, size, mode)?;
-            for _ in 0..per_round.clamp(10, 200) / 10 {
-                s.round_trip()?;
+        for (si, &size) in sizes.iter().enumerate() {
+            let order: Vec<usize> = if round % 2 == 0 {
+                (0..transports.len()).collect()
+            } else {
+                (0..transports.len()).rev().collect()
+            };
+            for ti in order {
+                let mut s = Session::start(exe, transports[ti], size, mode)?;
+                for _ in 0..per_round.clamp(10, 200) / 10 {
+                    s.round_trip()?;
+                }
+                let mut one_way = Vec::with_capacity(per_round);
+                let start = Instant::now();
+                while one_way.len() < per_round && start.elapsed() < max_round {
+                    one_way.push(s.round_trip()?.as_nanos() as u64 / 2);
+                }
+                s.finish()?;
+                round_p50[case(si, ti)].push(Percentiles::of(&mut one_way).p50_ns);
+                pooled[case(si, ti)].extend(one_way);
             }
-            let mut one_way = Vec::with_capacity(per_round);
-            let start = Instant::now();
-            while one_way.len() < per_round && start.elapsed() < max_round {
-                one_way.push(s.round_trip()?.as_nanos() as u64 / 2);
-            }
-            s.finish()?;
-            round_p50[i].push(Percentiles::of(&mut one_way).p50_ns);
-            pooled[i].extend(one_way);
         }
     }
-    let stats: Vec<Percentiles> = pooled.iter_mut().map(|v| Percentiles::of(v)).collect();
     let floor = transports.iter().position(|&t| t == Transport::Iceoryx2);
-    let mut rows = Vec::with_capacity(transports.len());
-    for (i, &t) in transports.iter().enumerate() {
-        let p = stats[i];
-        let mut row = BenchRow::new("ipc", &format!("{}/{}/{}", t.name(), size, mode.name()), p)
+    let smallest = sizes
+        .iter()
+        .enumerate()
+        .min_by_key(|&(_, &size)| size)
+        .map(|(si, _)| si);
+    let mut rows = Vec::with_capacity(cases);
+    for (si, &size) in sizes.iter().enumerate() {
+        for (ti, &t) in transports.iter().enumerate() {
+            let c = case(si, ti);
+            let p50s = &round_p50[c];
+            let mut row = BenchRow::new(
+                "ipc",
+                &format!("{}/{}/{}", t.name(), size, mode.name()),
+                Percentiles::of(&mut pooled[c]),
+            )
             .with("transport", t.name())
             .with("size", size as u64)
             .with("mode", mode.name())
             .with("rounds", rounds as u64)
-            .with(
-                "round_p50_min_ns",
-                round_p50[i].iter().copied().min().unwrap_or(0),
-            )
-            .with(
-                "round_p50_max_ns",
-                round_p50[i].iter().copied().max().unwrap_or(0),
-            );
-        if let Some(f) = floor.filter(|&f| f != i) {
-            row = row.with(
-                "p50_vs_iceoryx2",
-                paired_ratio(&round_p50[i], &round_p50[f]),
-            );
+            .with("round_p50_min_ns", p50s.iter().copied().min().unwrap_or(0))
+            .with("round_p50_max_ns", p50s.iter().copied().max().unwrap_or(0));
+            if let Some(f) = floor.filter(|&f| f != ti) {
+                row = row.with(
+                    "p50_vs_iceoryx2",
+                    paired_ratio(p50s, &round_p50[case(si, f)]),
+                );
+            }
+            if let Some(m) = smallest.filter(|&m| m != si) {
+                row = row.with(
+                    "p50_vs_smallest",
+                    paired_ratio(p50s, &round_p50[case(m, ti)]),
+                );
+            }
+            rows.push(row);
         }
-        rows.push(row);
     }
     Ok(rows)
 }
@@ -755,15 +772,13 @@ pub fn run(a: &IpcArgs) -> Result<()> {
     let max = Duration::from_secs_f64(a.max_seconds.max(0.01));
     let mut rows = Vec::new();
     for &mode in &a.mode {
-        for &size in &a.sizes {
-            let case = run_cases(&exe, &a.transport, size, mode, a.samples, a.rounds, max)?;
-            if a.json {
-                for row in &case {
-                    println!("{}", row.to_json());
-                }
+        let mode_rows = run_mode(&exe, &a.transport, &a.sizes, mode, a.samples, a.rounds, max)?;
+        if a.json {
+            for row in &mode_rows {
+                println!("{}", row.to_json());
             }
-            rows.extend(case);
         }
+        rows.extend(mode_rows);
     }
     if !a.json {
         super::print_rows(&rows, false);
