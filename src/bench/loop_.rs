@@ -236,18 +236,11 @@ pub fn lidar_to_command(a: &LoopArgs) -> Result<Vec<BenchRow>> {
         let scan = if is_near { &near } else { &far };
         let t0_ns = monotonic_ns();
         scan_pub.publish(*scan)?;
-        let cmd = loop {
-            if let Some(c) = out.receive()? {
-                break *c;
-            }
-            let elapsed = Duration::from_nanos(monotonic_ns().saturating_sub(t0_ns));
-            let left = Duration::from_secs(5).saturating_sub(elapsed);
-            if left.is_zero() {
-                modules.check_alive()?;
-                bail!("no command for scan {i} within 5 s");
-            }
-            waiter.wait(Some(left))?;
+        let Some(cmd) = out.receive_timeout(&mut waiter, Duration::from_secs(5))? else {
+            modules.check_alive()?;
+            bail!("no command for scan {i} within 5 s");
         };
+        let cmd = *cmd;
         let back_ns = monotonic_ns();
         let slowed = cmd.linear_x < DESIRED_V - 1e-9;
         if slowed != is_near {
