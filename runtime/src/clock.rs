@@ -38,7 +38,7 @@ pub struct Clock {
 /// Called for every message published (the header stamp). Where the kernel itself keeps
 /// time with the TSC (clocksource `tsc`, synchronised across CPUs), this reads the TSC and
 /// converts it with a line kept within a few tens of nanoseconds of `CLOCK_MONOTONIC`
-/// (see [`tsc`]): about 10 ns, against 28 ns for the vDSO's `clock_gettime`, and without
+/// (see [`tsc`]): about 12 ns, against 28 ns for the vDSO's `clock_gettime`, and without
 /// the vDSO's serialising TSC read, which waits for every load before it (the shared-memory
 /// loads of the receive that came just before, on a hop). Elsewhere, or with
 /// `HNG_TSC=off`, it calls `clock_gettime` (the vDSO) directly.

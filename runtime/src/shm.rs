@@ -2,10 +2,11 @@
 //!
 //! iceoryx2 keeps data segments and management files in `/dev/shm` and service, node and
 //! event files under `/tmp/iceoryx2`, all named with the system's prefix; hng's wake segments
-//! ([`crate::wake`]) and CPU register ([`crate::cpus`]) live in `/dev/shm` too. A clean stop of every process removes almost all
-//! of it; what a crash leaves behind is reclaimed by iceoryx2's dead-node cleanup when a node
-//! starts, and what is left at the very end (for example the prefix's global management file)
-//! by [`remove_prefix_files`], which the supervisor calls after its last module has stopped.
+//! ([`crate::wake`]) and CPU register ([`crate::cpus`]) live in `/dev/shm` too. A clean stop
+//! of every process removes almost all of it; what a crash leaves behind is reclaimed by
+//! iceoryx2's dead-node cleanup when a node starts, and what is left at the very end (for
+//! example the prefix's global management file) by [`remove_prefix_files`], which the
+//! supervisor calls after its last module has stopped.
 
 use std::num::NonZeroUsize;
 use std::path::{Path, PathBuf};

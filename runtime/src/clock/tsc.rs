@@ -13,11 +13,11 @@
 //!   the old one is (no step, so the clock never goes back) and is steered to meet the OS
 //!   clock one period later, as NTP slews; after that period (a process that read no time
 //!   for a while) it goes on at the rate measured from the origin, so the longer the process
-//!   runs the closer it is. The distance to the OS clock stays within
-//!   the pairing's uncertainty: half the best of three brackets of TSC reads around
-//!   `clock_gettime`, discarded when wider than 250 ns (an interrupt came between). On this
-//!   project's machine it measured -16 to +5 ns (p1 to p99). Distances over 1 ms (suspend, a
-//!   migrated VM) reset the line.
+//!   runs the closer it is. The distance to the OS clock stays within the pairing's
+//!   uncertainty: half the best of three brackets of TSC reads around `clock_gettime`,
+//!   discarded when wider than 250 ns (an interrupt came between). On this project's machine
+//!   it measured -17 to +4 ns (p1 to p99). Distances over 1 ms (suspend, a migrated VM) reset
+//!   the line.
 //! - Readers take the line under a sequence lock, so any thread may read; one thread at a
 //!   time re-anchors, the others go on with the current line.
 //!
