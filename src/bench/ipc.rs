@@ -1,8 +1,10 @@
 //! `hng bench ipc`: one-way latency (round trip / 2) of a ping-pong between two processes.
 //!
 //! Transports: `hng` (hng channels: loan, write the sequence number in place, publish),
-//! `iceoryx2` (the raw iceoryx2 API doing the same: the floor), `uds` (a Unix stream socket
-//! with postcard framing: the classic socket IPC, which must copy every byte). Modes:
+//! `iceoryx2` (the raw iceoryx2 API doing the same: the floor), `iceoryx2-header` (the same
+//! carrying hng's message header: what the header costs; not in the default list), `uds` (a
+//! Unix stream socket with postcard framing: the classic socket IPC, which must copy every
+//! byte). Cases run in rounds and ratios are paired (see [`run_mode`]). Modes:
 //! `blocking` (hng: adaptive spin then sleep; iceoryx2: its event listener; uds: blocking
 //! reads) and `spin` (busy polling on both sides). The payload is not touched beyond its
 //! first eight bytes (the round number, checked on the way back), as in iceoryx2's own
