@@ -246,6 +246,71 @@ fn a_slice_publisher_grows_to_any_size_and_its_unread_samples_still_arrive_in_or
 }
 
 #[test]
+fn the_spare_sample_a_publisher_loans_ahead_costs_no_loan_and_fits_any_length() {
+    let sys = TestSystem::new("spare");
+    let node = Node::new(NodeOptions::new("spare").prefix(&sys.prefix)).expect("node");
+    let p = node.publisher::<Twist>("robot/cmd_vel").expect("publisher");
+    let s = node
+        .subscriber::<Twist>("robot/cmd_vel")
+        .expect("subscriber");
+    let twist = |x: f64| Twist {
+        linear_x: x,
+        ..Twist::default()
+    };
+    let received = || {
+        let mut got = Vec::new();
+        while let Some(m) = s.receive().expect("receive") {
+            got.push((m.header.seq, m.linear_x));
+        }
+        got
+    };
+    // After a publish the publisher holds a spare; a module may still hold iceoryx2's two
+    // loans at once, because the spare is the first one handed out.
+    p.publish(twist(1.0)).expect("publish");
+    let mut a = p.loan().expect("first loan");
+    let mut b = p.loan().expect("second loan, beside the spare");
+    assert_eq!(a.linear_x, 0.0, "a loan starts from the default");
+    a.linear_x = 2.0;
+    b.linear_x = 3.0;
+    b.publish().expect("publish b");
+    a.publish().expect("publish a");
+    p.publish(twist(4.0)).expect("publish");
+    assert_eq!(
+        received(),
+        vec![(1, 1.0), (2, 3.0), (3, 2.0), (4, 4.0)],
+        "sequence numbers follow the publish order"
+    );
+
+    // Slices: the spare is loaned for a steady length and dropped for any other.
+    let p = node
+        .slice_publisher::<BytesInfo>("test/spare", 64)
+        .expect("slice publisher");
+    let s = node
+        .slice_subscriber::<BytesInfo>("test/spare")
+        .expect("slice subscriber");
+    for (round, len) in [16, 16, 16, 32, 32, 8, 8, 500, 500, 0, 0, 16].into_iter().enumerate() {
+        let round = round as u64 + 1;
+        p.loan_uninit(len)
+            .expect("loan")
+            .write_from_fn(|i| pattern(round, i))
+            .publish()
+            .expect("publish");
+        let m = s.receive().expect("receive").expect("a sample");
+        assert_eq!(m.header().header.seq, round);
+        assert_eq!(m.data().len(), len, "length of sample {round}");
+        assert!(
+            m.data()
+                .iter()
+                .enumerate()
+                .all(|(i, b)| *b == pattern(round, i)),
+            "content of sample {round}"
+        );
+    }
+    assert_eq!(p.capacity(), 512, "grew once, with a spare held");
+    assert_eq!(s.stats().dropped, 0);
+}
+
+#[test]
 fn receive_timeout_gives_the_next_message_or_none_when_the_time_is_up_in_both_modes() {
     let sys = TestSystem::new("rto");
     let node = Node::new(NodeOptions::new("rto").prefix(&sys.prefix)).expect("node");
