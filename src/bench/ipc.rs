@@ -2,7 +2,8 @@
 //!
 //! Transports: `hng` (hng channels: loan, write the sequence number in place, publish),
 //! `iceoryx2` (the raw iceoryx2 API doing the same: the floor), `iceoryx2-header` (the same
-//! carrying hng's message header: what the header costs; not in the default list), `uds` (a
+//! carrying hng's message header: what the header costs), `iceoryx2-spare` (that, loaning
+//! the next sample ahead as hng's publishers do; these two are not in the default list), `uds` (a
 //! Unix stream socket with postcard framing: the classic socket IPC, which must copy every
 //! byte). Cases run in rounds and ratios are paired (see [`run_mode`]). Modes:
 //! `blocking` (hng: adaptive spin then sleep; iceoryx2: its event listener; uds: blocking
@@ -11,6 +12,7 @@
 //! benchmark: zero-copy transports are then flat in size, sockets are not.
 
 use std::io::{Read, Write};
+use std::mem::MaybeUninit;
 use std::os::unix::net::{UnixListener, UnixStream};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
@@ -38,6 +40,10 @@ pub enum Transport {
     /// its user header, written on send and read on receive: what the header itself costs
     /// (not in the default list).
     Iceoryx2Header,
+    /// Raw iceoryx2 carrying hng's header and loaning the sample for its next message right
+    /// after each send, as hng's publishers do (their spare sample): hng's data path
+    /// without hng (not in the default list).
+    Iceoryx2Spare,
     /// Unix domain stream socket with postcard framing.
     Uds,
 }
@@ -57,6 +63,7 @@ impl Transport {
             Transport::Hng => "hng",
             Transport::Iceoryx2 => "iceoryx2",
             Transport::Iceoryx2Header => "iceoryx2-header",
+            Transport::Iceoryx2Spare => "iceoryx2-spare",
             Transport::Uds => "uds",
         }
     }
@@ -252,6 +259,9 @@ struct RawEnd<U: RawHeader> {
     listener: iceoryx2::port::listener::Listener<Service>,
     size: usize,
     mode: Mode,
+    /// Loan the next sample right after a send (`iceoryx2-spare`).
+    loan_ahead: bool,
+    spare: Option<iceoryx2::sample_mut_uninit::SampleMutUninit<Service, [MaybeUninit<u8>], U>>,
 }
 
 impl<U: RawHeader> RawEnd<U> {
@@ -262,6 +272,7 @@ impl<U: RawHeader> RawEnd<U> {
         rx: &str,
         size: usize,
         mode: Mode,
+        loan_ahead: bool,
     ) -> Result<RawEnd<U>> {
         let config = iceoryx_config(prefix)?;
         let node = NodeBuilder::new()
@@ -314,16 +325,21 @@ impl<U: RawHeader> RawEnd<U> {
             listener,
             size,
             mode,
+            loan_ahead,
+            spare: None,
         })
     }
 }
 
 impl<U: RawHeader> Endpoint for RawEnd<U> {
     fn send(&mut self, round: u64) -> Result<()> {
-        let loan = self
-            .tx
-            .loan_slice_uninit(self.size)
-            .map_err(|e| anyhow!("loan: {e:?}"))?;
+        let loan = match self.spare.take() {
+            Some(loan) => loan,
+            None => self
+                .tx
+                .loan_slice_uninit(self.size)
+                .map_err(|e| anyhow!("loan: {e:?}"))?,
+        };
         // SAFETY: plain bytes; only the stamp is meaningful to the reader.
         let mut s = unsafe { loan.assume_init() };
         stamp(s.payload_mut(), round);
@@ -333,6 +349,9 @@ impl<U: RawHeader> Endpoint for RawEnd<U> {
             self.notifier
                 .notify()
                 .map_err(|e| anyhow!("notify: {e:?}"))?;
+        }
+        if self.loan_ahead {
+            self.spare = self.tx.loan_slice_uninit(self.size).ok();
         }
         Ok(())
     }
@@ -610,10 +629,18 @@ fn endpoint(
     };
     Ok(match transport {
         Transport::Hng => Box::new(HngEnd::new(prefix, name, tx, rx, size, mode)?),
-        Transport::Iceoryx2 => Box::new(RawEnd::<()>::new(prefix, name, tx, rx, size, mode)?),
-        Transport::Iceoryx2Header => {
-            Box::new(RawEnd::<BytesInfo>::new(prefix, name, tx, rx, size, mode)?)
+        Transport::Iceoryx2 => {
+            Box::new(RawEnd::<()>::new(prefix, name, tx, rx, size, mode, false)?)
         }
+        Transport::Iceoryx2Header | Transport::Iceoryx2Spare => Box::new(RawEnd::<BytesInfo>::new(
+            prefix,
+            name,
+            tx,
+            rx,
+            size,
+            mode,
+            transport == Transport::Iceoryx2Spare,
+        )?),
         Transport::Uds => Box::new(UdsEnd::new(
             stream.ok_or_else(|| anyhow!("uds needs a connected socket"))?,
             size,

@@ -288,7 +288,10 @@ fn the_spare_sample_a_publisher_loans_ahead_costs_no_loan_and_fits_any_length() 
     let s = node
         .slice_subscriber::<BytesInfo>("test/spare")
         .expect("slice subscriber");
-    for (round, len) in [16, 16, 16, 32, 32, 8, 8, 500, 500, 0, 0, 16].into_iter().enumerate() {
+    for (round, len) in [16, 16, 16, 32, 32, 8, 8, 500, 500, 0, 0, 16]
+        .into_iter()
+        .enumerate()
+    {
         let round = round as u64 + 1;
         p.loan_uninit(len)
             .expect("loan")
