@@ -1006,7 +1006,7 @@ impl<H: SliceMessage> UpdateConnections for SlicePort<H> {
 /// writes its headers and so takes ownership of its cache lines from the core that read
 /// them last; done at send time, the publish waits for that. Done ahead, while the
 /// publisher waits anyway, it is off the message's path: in `hng bench ipc` spin mode one
-/// hop went from 526-536 ns to 446-466 ns, below raw iceoryx2 loaning at send time (see
+/// hop went from 521-536 ns to 416-436 ns, below raw iceoryx2 loaning at send time (see
 /// `docs/data-plane.md`). The spare is one of iceoryx2's loans per publisher (two by
 /// default) and is always handed out first, so a module can still hold as many loans at
 /// once as before.
