@@ -73,24 +73,16 @@ pub fn msg_from_grid(grid: &OccupancyGrid) -> GridInfo {
 
 /// Loads a map_server map as a planning grid.
 pub fn load_map(path: &std::path::Path) -> ModuleResult<OccupancyGrid> {
-    let m = hng_simulator::OccupancyGrid::load(path)?;
-    if m.origin[2] != 0.0 {
+    let m = OccupancyGrid::load(path)?;
+    if m.origin_yaw() != 0.0 {
         return Err(format!(
             "{}: field `origin`: a yaw of {} is not supported (rotated maps); use 0",
             path.display(),
-            m.origin[2]
+            m.origin_yaw()
         )
         .into());
     }
-    let w = u32::try_from(m.width)?;
-    let h = u32::try_from(m.height)?;
-    Ok(OccupancyGrid::from_data(
-        w,
-        h,
-        m.resolution,
-        [m.origin[0], m.origin[1]],
-        m.data,
-    )?)
+    Ok(m)
 }
 
 #[derive(Debug, Clone, Copy, Default, Serialize, Deserialize, PartialEq)]

@@ -193,15 +193,28 @@ macro_rules! impl_slice_message {
 }
 
 /// A planar pose: position in metres, heading in radians (counter-clockwise from x).
+///
+/// The one pose type of hng: messages, world files (`theta` may be left out there: 0) and the
+/// simulator all use it.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Pose2D {
     /// x in metres.
     pub x: f64,
     /// y in metres.
     pub y: f64,
     /// Heading in radians.
+    #[serde(default)]
     pub theta: f64,
+}
+
+impl Pose2D {
+    /// A pose from its parts.
+    #[must_use]
+    pub const fn new(x: f64, y: f64, theta: f64) -> Self {
+        Self { x, y, theta }
+    }
 }
 
 /// A planar velocity in the body frame: m/s and rad/s.

@@ -50,6 +50,43 @@ pub enum SimError {
     },
 }
 
+impl From<hng_runtime::map::MapFileError> for SimError {
+    fn from(e: hng_runtime::map::MapFileError) -> Self {
+        use hng_runtime::map::MapFileError as M;
+        match e {
+            M::Io {
+                path,
+                action,
+                source,
+            } => SimError::Io {
+                path,
+                action,
+                source,
+            },
+            M::Parse {
+                path,
+                line,
+                column,
+                field,
+                message,
+            } => SimError::Parse {
+                path,
+                line,
+                column,
+                field,
+                message,
+            },
+            M::Grid { path, source } => SimError::Parse {
+                path,
+                line: 1,
+                column: 1,
+                field: "image".to_owned(),
+                message: source.to_string(),
+            },
+        }
+    }
+}
+
 impl SimError {
     pub(crate) fn invalid(field: impl Into<String>, message: impl Into<String>) -> Self {
         SimError::Invalid {

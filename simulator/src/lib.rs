@@ -27,7 +27,7 @@ mod snapshot;
 mod world;
 
 pub use error::{Result, SimError};
-pub use map::OccupancyGrid;
+pub use map::{OccupancyGrid, grid_boxes, grid_from_world};
 pub use module::{SimModuleConfig, SimStatus, SimulatorModule};
 pub use pacing::{Pacer, Speed};
 pub use sensors::{

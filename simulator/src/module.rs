@@ -42,7 +42,7 @@ use hng_runtime::{
 use iceoryx2::prelude::ZeroCopySend;
 use serde::{Deserialize, Deserializer, Serialize};
 
-use crate::map::OccupancyGrid;
+use crate::map::{OccupancyGrid, grid_from_world};
 use crate::pacing::{Pacer, Speed};
 use crate::sensors::{GpsStatus, SensorKind, SensorOutput};
 use crate::sim::{Simulator, secs_to_ns};
@@ -372,7 +372,7 @@ impl Module for SimulatorModule {
         let map_grid = if cfg.channels.map.is_empty() {
             None
         } else {
-            match OccupancyGrid::from_world(&world, cfg.map_resolution) {
+            match grid_from_world(&world, cfg.map_resolution) {
                 Ok(g) => Some(g),
                 Err(e) => {
                     tracing::warn!("ground-truth map not published: {e}");
@@ -409,7 +409,7 @@ impl Module for SimulatorModule {
             status: node.publisher(&ch.status)?,
             map: map_grid
                 .as_ref()
-                .map(|g| node.slice_publisher::<GridInfo>(&ch.map, g.data.len()))
+                .map(|g| node.slice_publisher::<GridInfo>(&ch.map, g.data().len()))
                 .transpose()?,
         };
         let cmd = ctx.subscribe::<Twist>(&ch.cmd_vel, None)?;
@@ -469,16 +469,16 @@ impl Module for SimulatorModule {
                     frame_id: FrameId::MAP,
                     ..Header::default()
                 },
-                resolution: grid.resolution as f32,
-                width: u32::try_from(grid.width)?,
-                height: u32::try_from(grid.height)?,
+                resolution: grid.resolution() as f32,
+                width: grid.width(),
+                height: grid.height(),
                 origin: msg::Pose2D {
-                    x: grid.origin[0],
-                    y: grid.origin[1],
-                    theta: grid.origin[2],
+                    x: grid.origin()[0],
+                    y: grid.origin()[1],
+                    theta: grid.origin_yaw(),
                 },
             };
-            publisher.publish_copy(info, &grid.data)?;
+            publisher.publish_copy(info, grid.data())?;
         }
         self.publish_status(ctx)?;
         tracing::info!(

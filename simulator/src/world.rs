@@ -12,28 +12,9 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Result, SimError, line_col};
-use crate::map::OccupancyGrid;
+use crate::map::{OccupancyGrid, grid_boxes, grid_from_world};
 
-/// A planar pose: position in metres and heading in radians.
-#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct Pose2D {
-    /// x in metres.
-    pub x: f64,
-    /// y in metres.
-    pub y: f64,
-    /// Heading in radians, counter-clockwise from the x axis.
-    #[serde(default)]
-    pub theta: f64,
-}
-
-impl Pose2D {
-    /// A pose from its parts.
-    #[must_use]
-    pub const fn new(x: f64, y: f64, theta: f64) -> Self {
-        Self { x, y, theta }
-    }
-}
+pub use hng_runtime::msg::Pose2D;
 
 /// The whole simulated world. See the crate documentation for a complete TOML example.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -571,7 +552,7 @@ impl World {
         let base = path.parent().unwrap_or(Path::new("."));
         for map in &world.maps {
             let grid = OccupancyGrid::load(base.join(&map.yaml))?;
-            world.map_boxes.extend(grid.to_boxes());
+            world.map_boxes.extend(grid_boxes(&grid));
         }
         Ok(world)
     }
@@ -586,7 +567,7 @@ impl World {
         world.maps.push(MapRef {
             yaml: yaml.to_path_buf(),
         });
-        world.map_boxes = grid.to_boxes();
+        world.map_boxes = grid_boxes(&grid);
         Ok(world)
     }
 
@@ -609,7 +590,7 @@ impl World {
     /// Writes the ground-truth occupancy map of this world (map_server PGM + YAML) at
     /// `resolution` metres per pixel. The image goes next to `yaml` with the extension `pgm`.
     pub fn write_occupancy_map(&self, yaml: impl AsRef<Path>, resolution: f64) -> Result<()> {
-        OccupancyGrid::from_world(self, resolution)?.save(yaml)
+        Ok(grid_from_world(self, resolution)?.save(yaml)?)
     }
 
     /// Checks every value; errors name the field.

@@ -9,7 +9,7 @@ use hng_runtime::clock::CLOCK_CHANNEL;
 use hng_runtime::msg::{self, GridInfo, LaserScan, Message, PoseWithCovariance, Twist};
 use hng_runtime::wait::{WaitMode, Waiter};
 use hng_runtime::{Node, NodeOptions, SliceSubscriber, Subscriber};
-use hng_simulator::{OccupancyGrid, SimStatus, World};
+use hng_simulator::{SimStatus, World};
 
 use crate::common::TestSystem;
 
@@ -364,19 +364,16 @@ fn a_late_subscriber_gets_the_ground_truth_map() {
         assert!(!left.is_zero(), "no map for the late subscriber");
         waiter.wait(Some(left)).expect("wait");
     };
-    let want = OccupancyGrid::from_world(&World::default_world(), 0.05).expect("grid");
+    let want = hng_simulator::grid_from_world(&World::default_world(), 0.05).expect("grid");
     let info = sample.header();
     assert_eq!(info.header.frame_id, msg::FrameId::MAP);
-    assert_eq!(
-        (info.width as usize, info.height as usize),
-        (want.width, want.height)
-    );
+    assert_eq!((info.width, info.height), (want.width(), want.height()));
     assert!((f64::from(info.resolution) - 0.05).abs() < 1e-9);
     assert_eq!(
         (info.origin.x, info.origin.y),
-        (want.origin[0], want.origin[1])
+        (want.origin()[0], want.origin()[1])
     );
-    assert_eq!(sample.data(), &want.data[..]);
+    assert_eq!(sample.data(), want.data());
     assert_clean_exit(&s.stop_sims());
 }
 

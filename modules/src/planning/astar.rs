@@ -3,7 +3,7 @@
 use std::cmp::Ordering;
 use std::collections::BinaryHeap;
 
-use super::grid::{OccupancyGrid, UNKNOWN};
+use hng_runtime::map::{OccupancyGrid, UNKNOWN};
 
 /// √2, the cost of a diagonal move in cells.
 pub const SQRT_2: f64 = std::f64::consts::SQRT_2;
@@ -378,7 +378,7 @@ pub fn path_length_cells(cells: &[(u32, u32)]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::planning::grid::{FREE, OCCUPIED};
+    use hng_runtime::map::{FREE, OCCUPIED};
 
     fn grid_from(rows: &[&str]) -> OccupancyGrid {
         // rows[0] is the top row (largest y).

@@ -1,6 +1,6 @@
 //! Obstacle inflation by a robot radius with an exact Euclidean distance transform.
 
-use super::grid::{OCCUPIED, OccupancyGrid, UNKNOWN};
+use hng_runtime::map::{OCCUPIED, OccupancyGrid, UNKNOWN};
 
 /// Which cells count as obstacles when inflating.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -137,7 +137,7 @@ pub fn inflate(grid: &OccupancyGrid, cfg: &InflationConfig) -> OccupancyGrid {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::planning::grid::FREE;
+    use hng_runtime::map::FREE;
 
     #[test]
     fn distance_transform_matches_brute_force() {

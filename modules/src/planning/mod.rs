@@ -15,7 +15,6 @@
 //! grid path into waypoints for the controller.
 
 mod astar;
-mod grid;
 mod inflate;
 pub mod movingai;
 mod smooth;
@@ -23,7 +22,7 @@ mod smooth;
 pub use astar::{
     GridPath, GridPlanner, Path, PlanError, PlannerConfig, SQRT_2, octile, path_length_cells,
 };
-pub use grid::{FREE, GridError, OCCUPIED, OccupancyGrid, UNKNOWN};
+pub use hng_runtime::map::{FREE, GridError, OCCUPIED, OccupancyGrid, UNKNOWN};
 pub use inflate::{InflationConfig, inflate, squared_distance_transform};
 pub use movingai::{MovingAiError, PlannerEval, eval_movingai};
 pub use smooth::{line_of_sight, simplify};

@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use super::astar::{GridPlanner, PlanError, PlannerConfig};
-use super::grid::{FREE, OCCUPIED, OccupancyGrid};
+use hng_runtime::map::{FREE, OCCUPIED, OccupancyGrid};
 
 /// A parse or I/O error, naming the file, line (1-based) and field.
 #[derive(Debug, thiserror::Error)]

@@ -1,7 +1,7 @@
 //! Path simplification: greedy line-of-sight shortcutting of a grid path.
 
 use super::astar::{GridPath, PlannerConfig};
-use super::grid::OccupancyGrid;
+use hng_runtime::map::OccupancyGrid;
 
 /// Whether the straight segment between the centres of cells `a` and `b`
 /// crosses only passable cells. Conservative: every cell the segment touches
@@ -86,7 +86,7 @@ pub fn simplify(grid: &OccupancyGrid, cfg: &PlannerConfig, path: &GridPath) -> V
 mod tests {
     use super::*;
     use crate::planning::astar::GridPlanner;
-    use crate::planning::grid::{FREE, OCCUPIED};
+    use hng_runtime::map::{FREE, OCCUPIED};
 
     #[test]
     fn open_field_collapses_to_two_points() {

@@ -1,4 +1,5 @@
-//! The occupancy grid shared by planning and SLAM, laid out like ROS `nav_msgs/OccupancyGrid`.
+//! The occupancy grid shared by the simulator, maps, planning and SLAM, laid out like ROS
+//! `nav_msgs/OccupancyGrid`.
 
 use serde::{Deserialize, Serialize};
 
@@ -14,13 +15,17 @@ pub const OCCUPIED: i8 = 100;
 /// Layout follows ROS `nav_msgs/OccupancyGrid`: `data` is row-major, row 0 is
 /// the row with the smallest y, cell `(x, y)` is `data[y * width + x]`, and
 /// `origin` is the map-frame position of the lower-left corner of cell
-/// `(0, 0)`. Values: `-1` unknown, `0..=100` occupancy probability in percent.
+/// `(0, 0)`; the grid's x axis points along `origin_yaw` (0 for every grid hng builds; a
+/// map_server map may be rotated). Values: `-1` unknown, `0..=100` occupancy probability in
+/// percent.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct OccupancyGrid {
     width: u32,
     height: u32,
     resolution: f64,
     origin: [f64; 2],
+    #[serde(default)]
+    origin_yaw: f64,
     data: Vec<i8>,
 }
 
@@ -79,6 +84,7 @@ impl OccupancyGrid {
             height,
             resolution,
             origin,
+            origin_yaw: 0.0,
             data: vec![fill; n],
         })
     }
@@ -110,6 +116,7 @@ impl OccupancyGrid {
             height,
             resolution,
             origin,
+            origin_yaw: 0.0,
             data,
         })
     }
@@ -140,6 +147,17 @@ impl OccupancyGrid {
     /// Map-frame position (m) of the lower-left corner of cell (0, 0).
     pub fn origin(&self) -> [f64; 2] {
         self.origin
+    }
+    /// Heading (rad) of the grid's x axis in the map frame; 0 unless the grid came from a
+    /// rotated map_server map.
+    pub fn origin_yaw(&self) -> f64 {
+        self.origin_yaw
+    }
+    /// The same grid with its x axis turned by `yaw` radians about `origin`.
+    #[must_use]
+    pub fn with_origin_yaw(mut self, yaw: f64) -> Self {
+        self.origin_yaw = if yaw.is_finite() { yaw } else { 0.0 };
+        self
     }
     /// Row-major cells, row 0 = lowest y.
     pub fn data(&self) -> &[i8] {
@@ -176,18 +194,63 @@ impl OccupancyGrid {
     /// Cell containing the map-frame point `(wx, wy)` (may be outside the grid).
     #[inline]
     pub fn world_to_cell(&self, wx: f64, wy: f64) -> (i64, i64) {
+        let (mut dx, mut dy) = (wx - self.origin[0], wy - self.origin[1]);
+        if self.origin_yaw != 0.0 {
+            let (s, c) = self.origin_yaw.sin_cos();
+            (dx, dy) = (c * dx + s * dy, -s * dx + c * dy);
+        }
         (
-            ((wx - self.origin[0]) / self.resolution).floor() as i64,
-            ((wy - self.origin[1]) / self.resolution).floor() as i64,
+            (dx / self.resolution).floor() as i64,
+            (dy / self.resolution).floor() as i64,
         )
     }
 
     /// Map-frame centre of cell `(x, y)`.
     #[inline]
     pub fn cell_to_world(&self, x: i64, y: i64) -> [f64; 2] {
+        let u = (x as f64 + 0.5) * self.resolution;
+        let v = (y as f64 + 0.5) * self.resolution;
+        if self.origin_yaw == 0.0 {
+            return [self.origin[0] + u, self.origin[1] + v];
+        }
+        let (s, c) = self.origin_yaw.sin_cos();
         [
-            self.origin[0] + (x as f64 + 0.5) * self.resolution,
-            self.origin[1] + (y as f64 + 0.5) * self.resolution,
+            self.origin[0] + c * u - s * v,
+            self.origin[1] + s * u + c * v,
         ]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn cells_and_points_round_trip_on_a_rotated_grid() -> Result<(), GridError> {
+        let g = OccupancyGrid::new(10, 8, 0.5, [1.0, -2.0], FREE)?
+            .with_origin_yaw(std::f64::consts::FRAC_PI_2);
+        // Rotated by 90 degrees: the grid's x axis points along the map's y axis.
+        let c = g.cell_to_world(0, 0);
+        assert!(
+            (c[0] - 0.75).abs() < 1e-12 && (c[1] - -1.75).abs() < 1e-12,
+            "{c:?}"
+        );
+        for (x, y) in [(0, 0), (3, 5), (9, 7)] {
+            let w = g.cell_to_world(x, y);
+            assert_eq!(g.world_to_cell(w[0], w[1]), (x, y));
+        }
+        Ok(())
+    }
+
+    #[test]
+    fn bad_grids_are_refused_with_the_reason() {
+        assert!(matches!(
+            OccupancyGrid::new(0, 3, 1.0, [0.0; 2], FREE),
+            Err(GridError::BadSize { .. })
+        ));
+        assert!(matches!(
+            OccupancyGrid::from_data(2, 1, 1.0, [0.0; 2], vec![0, 101]),
+            Err(GridError::BadCellValue { index: 1, .. })
+        ));
     }
 }
