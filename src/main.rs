@@ -4,7 +4,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
-mod bench;
+use hng::bench;
 mod contracts;
 mod doc;
 mod eval;
