@@ -40,6 +40,9 @@ pub enum SimError {
         /// Commanded turn rate.
         angular_z: f64,
     },
+    /// A map_server map (YAML or PGM) could not be read or written.
+    #[error(transparent)]
+    Map(#[from] hng_runtime::map::MapFileError),
     /// A world built in code (not parsed from a file) has an invalid value.
     #[error("invalid world: field `{field}`: {message}")]
     Invalid {
@@ -48,43 +51,6 @@ pub enum SimError {
         /// What is wrong.
         message: String,
     },
-}
-
-impl From<hng_runtime::map::MapFileError> for SimError {
-    fn from(e: hng_runtime::map::MapFileError) -> Self {
-        use hng_runtime::map::MapFileError as M;
-        match e {
-            M::Io {
-                path,
-                action,
-                source,
-            } => SimError::Io {
-                path,
-                action,
-                source,
-            },
-            M::Parse {
-                path,
-                line,
-                column,
-                field,
-                message,
-            } => SimError::Parse {
-                path,
-                line,
-                column,
-                field,
-                message,
-            },
-            M::Grid { path, source } => SimError::Parse {
-                path,
-                line: 1,
-                column: 1,
-                field: "image".to_owned(),
-                message: source.to_string(),
-            },
-        }
-    }
 }
 
 impl SimError {
