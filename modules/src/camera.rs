@@ -40,19 +40,13 @@ struct CameraState {
 }
 
 /// The Camera driver module.
+#[derive(Debug)]
 pub struct CameraModule {
     input: Subscriber<BeaconObservation>,
     output: Publisher<BeaconObservation>,
     state: CameraState,
 }
 
-impl std::fmt::Debug for CameraModule {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("CameraModule")
-            .field("state", &self.state)
-            .finish_non_exhaustive()
-    }
-}
 
 impl Module for CameraModule {
     type Config = CameraModuleConfig;

@@ -71,6 +71,7 @@ struct GpsState {
 }
 
 /// The GPS/IMU localization module.
+#[derive(Debug)]
 pub struct GpsModule {
     fix_in: Subscriber<PoseWithCovariance>,
     pose_out: Publisher<PoseWithCovariance>,
@@ -79,13 +80,6 @@ pub struct GpsModule {
     state: GpsState,
 }
 
-impl std::fmt::Debug for GpsModule {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("GpsModule")
-            .field("state", &self.state)
-            .finish_non_exhaustive()
-    }
-}
 
 impl Module for GpsModule {
     type Config = GpsModuleConfig;

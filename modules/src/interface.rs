@@ -66,6 +66,7 @@ struct InterfaceState {
 }
 
 /// The Interface module.
+#[derive(Debug)]
 pub struct InterfaceModule {
     teleop_in: Subscriber<Twist>,
     /// Commands to the contracted Robot's channel.
@@ -74,13 +75,6 @@ pub struct InterfaceModule {
     state: InterfaceState,
 }
 
-impl std::fmt::Debug for InterfaceModule {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("InterfaceModule")
-            .field("state", &self.state)
-            .finish_non_exhaustive()
-    }
-}
 
 impl Module for InterfaceModule {
     type Config = InterfaceConfig;

@@ -61,19 +61,13 @@ struct LaserState {
 }
 
 /// The Laser driver module.
+#[derive(Debug)]
 pub struct LaserModule {
     scan_in: Subscriber<LaserScan>,
     scan_out: Publisher<LaserScan>,
     state: LaserState,
 }
 
-impl std::fmt::Debug for LaserModule {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("LaserModule")
-            .field("state", &self.state)
-            .finish_non_exhaustive()
-    }
-}
 
 impl Module for LaserModule {
     type Config = LaserModuleConfig;

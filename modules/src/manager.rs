@@ -333,6 +333,7 @@ pub fn mission_goals(goals: &[GoalConfig]) -> Result<Vec<MissionGoal>, crate::co
 }
 
 /// The Manager module.
+#[derive(Debug)]
 pub struct ManagerModule {
     core: MissionCore,
     goal_out: Publisher<Goal>,
@@ -344,13 +345,6 @@ pub struct ManagerModule {
     mission_in: Subscriber<Mission>,
 }
 
-impl std::fmt::Debug for ManagerModule {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("ManagerModule")
-            .field("core", &self.core)
-            .finish_non_exhaustive()
-    }
-}
 
 impl ManagerModule {
     fn publish(&mut self, ctx: &Context) -> ModuleResult {

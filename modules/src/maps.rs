@@ -91,6 +91,7 @@ struct MapsState {
 }
 
 /// The Maps module.
+#[derive(Debug)]
 pub struct MapsModule {
     path: PathBuf,
     grid: OccupancyGrid,
@@ -98,13 +99,6 @@ pub struct MapsModule {
     state: MapsState,
 }
 
-impl std::fmt::Debug for MapsModule {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("MapsModule")
-            .field("path", &self.path)
-            .finish_non_exhaustive()
-    }
-}
 
 impl MapsModule {
     fn publish(&mut self) -> ModuleResult {

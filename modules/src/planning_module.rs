@@ -468,6 +468,7 @@ pub const MAPPING_NEED: u16 = 2;
 pub const LOCALIZATION_NEED: u16 = 3;
 
 /// The Planning module.
+#[derive(Debug)]
 pub struct PlanningModule {
     core: PlanningCore,
     /// The configured map channel: read until a "Mapping" provider is known, and for the
@@ -492,13 +493,6 @@ pub struct PlanningModule {
     state: PlanningState,
 }
 
-impl std::fmt::Debug for PlanningModule {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("PlanningModule")
-            .field("state", &self.state)
-            .finish_non_exhaustive()
-    }
-}
 
 impl PlanningModule {
     /// Reads the map inputs: the provider's maps only once it is known (the configured

@@ -94,6 +94,7 @@ struct RobotState {
 pub const ROBOT_CONTROL: &str = "Robot control";
 
 /// The Robot driver module.
+#[derive(Debug)]
 pub struct RobotModule {
     cmd_in: Subscriber<Twist>,
     /// When the last contracted command was obeyed (`None`: nobody in control).
@@ -110,13 +111,6 @@ pub struct RobotModule {
     odom_ok: bool,
 }
 
-impl std::fmt::Debug for RobotModule {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("RobotModule")
-            .field("state", &self.state)
-            .finish_non_exhaustive()
-    }
-}
 
 impl RobotModule {
     fn send(&mut self, cmd: &Twist) -> ModuleResult {

@@ -281,6 +281,7 @@ struct SecurityState {
 }
 
 /// Where Security's commands go and where the desired ones come from.
+#[derive(Debug)]
 enum Wiring {
     /// `sources` configured: a mux keyed by source index, output on `cmd_out`.
     Static {
@@ -298,6 +299,7 @@ enum Wiring {
 }
 
 /// The Security module.
+#[derive(Debug)]
 pub struct SecurityModule {
     scan: ContractedInput<LaserScan>,
     wiring: Wiring,
@@ -309,13 +311,6 @@ pub struct SecurityModule {
     was_limited: bool,
 }
 
-impl std::fmt::Debug for SecurityModule {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("SecurityModule")
-            .field("state", &self.state)
-            .finish_non_exhaustive()
-    }
-}
 
 impl SecurityModule {
     /// Sends a command to the Robot (nothing before a "Robot control" contract).

@@ -195,6 +195,7 @@ pub const ROBOT_CONTROL_NEED: u16 = 1;
 pub const LOCALIZATION_NEED: u16 = 2;
 
 /// The Servo-controller module.
+#[derive(Debug)]
 pub struct ServoModule {
     core: ServoCore,
     waypoint: Subscriber<Waypoint>,
@@ -212,13 +213,6 @@ pub struct ServoModule {
     state: ServoState,
 }
 
-impl std::fmt::Debug for ServoModule {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("ServoModule")
-            .field("state", &self.state)
-            .finish_non_exhaustive()
-    }
-}
 
 impl ServoModule {
     fn act(&mut self, ctx: &mut Context) -> ModuleResult {

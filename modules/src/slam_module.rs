@@ -254,6 +254,7 @@ pub const ODOMETRY_NEED: u16 = 1;
 pub const LIDAR_NEED: u16 = 2;
 
 /// The SLAM module.
+#[derive(Debug)]
 pub struct SlamModule {
     tracker: SlamTracker,
     scan: ContractedInput<LaserScan>,
@@ -263,13 +264,6 @@ pub struct SlamModule {
     restored_scans: u64,
 }
 
-impl std::fmt::Debug for SlamModule {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("SlamModule")
-            .field("scans", &self.tracker.scans())
-            .finish_non_exhaustive()
-    }
-}
 
 impl SlamModule {
     fn publish_pose(&mut self) -> ModuleResult {
