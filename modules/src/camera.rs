@@ -47,7 +47,6 @@ pub struct CameraModule {
     state: CameraState,
 }
 
-
 impl Module for CameraModule {
     type Config = CameraModuleConfig;
 

@@ -80,7 +80,6 @@ pub struct GpsModule {
     state: GpsState,
 }
 
-
 impl Module for GpsModule {
     type Config = GpsModuleConfig;
 

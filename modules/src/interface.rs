@@ -75,7 +75,6 @@ pub struct InterfaceModule {
     state: InterfaceState,
 }
 
-
 impl Module for InterfaceModule {
     type Config = InterfaceConfig;
 

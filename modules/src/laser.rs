@@ -68,7 +68,6 @@ pub struct LaserModule {
     state: LaserState,
 }
 
-
 impl Module for LaserModule {
     type Config = LaserModuleConfig;
 

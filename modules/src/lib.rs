@@ -24,6 +24,8 @@ pub mod security;
 pub mod servo;
 pub mod slam;
 pub mod slam_module;
+pub mod wall_follow;
+pub mod walls;
 
 /// Re-exported so users of the SLAM API (poses are `nalgebra` types) need not
 /// depend on a matching version themselves.

@@ -345,7 +345,6 @@ pub struct ManagerModule {
     mission_in: Subscriber<Mission>,
 }
 
-
 impl ManagerModule {
     fn publish(&mut self, ctx: &Context) -> ModuleResult {
         let g = self.core.goal_msg();

@@ -99,7 +99,6 @@ pub struct MapsModule {
     state: MapsState,
 }
 
-
 impl MapsModule {
     fn publish(&mut self) -> ModuleResult {
         self.out

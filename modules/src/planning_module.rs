@@ -493,7 +493,6 @@ pub struct PlanningModule {
     state: PlanningState,
 }
 
-
 impl PlanningModule {
     /// Reads the map inputs: the provider's maps only once it is known (the configured
     /// channel's, from any publisher, before).

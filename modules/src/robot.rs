@@ -111,7 +111,6 @@ pub struct RobotModule {
     odom_ok: bool,
 }
 
-
 impl RobotModule {
     fn send(&mut self, cmd: &Twist) -> ModuleResult {
         let out = clamp_command(cmd, self.max_linear, self.max_angular);

@@ -311,7 +311,6 @@ pub struct SecurityModule {
     was_limited: bool,
 }
 
-
 impl SecurityModule {
     /// Sends a command to the Robot (nothing before a "Robot control" contract).
     fn send(&self, cmd: Twist) -> ModuleResult {

@@ -213,7 +213,6 @@ pub struct ServoModule {
     state: ServoState,
 }
 
-
 impl ServoModule {
     fn act(&mut self, ctx: &mut Context) -> ModuleResult {
         let now = ctx.now();

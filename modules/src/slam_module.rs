@@ -264,7 +264,6 @@ pub struct SlamModule {
     restored_scans: u64,
 }
 
-
 impl SlamModule {
     fn publish_pose(&mut self) -> ModuleResult {
         self.pose_out.publish(PoseWithCovariance {
