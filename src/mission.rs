@@ -125,7 +125,7 @@ fn parse_goal(s: &str, tolerance: f64) -> Result<GoalConfig> {
     if !(2..=3).contains(&parts.len()) {
         bail!("goal {s:?}: expected X,Y or X,Y,THETA (metres, radians)");
     }
-    Ok(GoalConfig {
+    let goal = GoalConfig {
         x: num(0, "x")?,
         y: num(1, "y")?,
         theta: if parts.len() == 3 {
@@ -134,7 +134,14 @@ fn parse_goal(s: &str, tolerance: f64) -> Result<GoalConfig> {
             None
         },
         tolerance: Some(tolerance),
-    })
+    };
+    if let Err(e) = mission_goals(&[goal]) {
+        // The field is the goal itself here, not the index in a list.
+        let why = e.to_string();
+        let why = why.split_once(": ").map_or(why.as_str(), |(_, w)| w);
+        bail!("goal {s:?}: {why}");
+    }
+    Ok(goal)
 }
 
 #[derive(Debug, Deserialize)]
@@ -185,19 +192,20 @@ fn print_plan(p: &MissionPlan, json: bool) -> Result<()> {
         return Ok(());
     }
     println!(
-        "{:>4}  {:<8} {:>8} {:>8} {:>7} {:>6}",
+        "{:>4}  {:<8} {:>8} {:>8} {:>7} {:>6}  REASON",
         "ID", "STATE", "X", "Y", "THETA", "TOL"
     );
     for g in &p.goals {
         println!(
-            "{:>4}  {:<8} {:>8.2} {:>8.2} {:>7} {:>6.2}",
+            "{:>4}  {:<8} {:>8.2} {:>8.2} {:>7} {:>6.2}  {}",
             g.id,
             g.state,
             g.x,
             g.y,
             g.theta
                 .map_or_else(|| "-".to_owned(), |t| format!("{t:.2}")),
-            g.tolerance_m
+            g.tolerance_m,
+            g.reason.as_deref().unwrap_or("")
         );
     }
     Ok(())
@@ -215,6 +223,13 @@ mod tests {
         assert!(e.is_some_and(|e| e.contains("y \"x\" is not a number")));
         assert!(parse_goal("1", 0.2).is_err());
         assert!(parse_goal("1,2,3,4", 0.2).is_err());
+        // Beyond any map: refused with the reason, before anything is sent.
+        let e = parse_goal("1e300,1e300", 0.2).err().map(|e| format!("{e:#}"));
+        assert!(
+            e.as_deref()
+                .is_some_and(|e| e.contains("1e300,1e300") && e.contains("within")),
+            "{e:?}"
+        );
     }
 
     #[test]

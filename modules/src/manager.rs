@@ -61,6 +61,9 @@ pub struct PlanEntry {
     pub tolerance_m: f64,
     /// `reached`, `refused`, `active` (the current goal) or `pending`.
     pub state: String,
+    /// Why a refused goal was refused (`outside the map`, `unreachable`, ..., or `skipped`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reason: Option<String>,
 }
 
 /// The whole mission as the Manager holds it: the JSON document on `plan_out`.
@@ -89,6 +92,9 @@ pub struct MissionCore {
     goals: Vec<PlannedGoal>,
     outcomes: Vec<Outcome>,
     next_id: u32,
+    /// Why refused goals were refused, by goal id.
+    #[serde(default)]
+    reasons: std::collections::BTreeMap<u32, String>,
 }
 
 impl MissionCore {
@@ -135,9 +141,16 @@ impl MissionCore {
         if cur.id != s.goal_id {
             return false;
         }
+        let id = cur.id;
         match s.goal_state() {
             GoalState::Reached => self.outcomes.push(Outcome::Reached),
-            GoalState::Refused => self.outcomes.push(Outcome::Refused),
+            GoalState::Refused => {
+                let why = s
+                    .refusal_reason()
+                    .map_or("refused by Planning", |r| r.describe());
+                self.reasons.insert(id, why.to_owned());
+                self.outcomes.push(Outcome::Refused);
+            }
             GoalState::Active | GoalState::Idle => return false,
         }
         true
@@ -154,7 +167,8 @@ impl MissionCore {
             MissionOp::Append => self.append(goals),
             MissionOp::Clear => self.goals.truncate(self.outcomes.len()),
             MissionOp::Skip => {
-                if self.current().is_some() {
+                if let Some(id) = self.current().map(|g| g.id) {
+                    self.reasons.insert(id, "skipped".to_owned());
                     self.outcomes.push(Outcome::Refused);
                 }
             }
@@ -204,6 +218,7 @@ impl MissionCore {
                     theta: (g.goal.use_theta != 0).then_some(g.goal.pose.theta),
                     tolerance_m: g.goal.tolerance_m,
                     state: state.to_owned(),
+                    reason: self.reasons.get(&g.id).cloned(),
                 }
             })
             .collect();
@@ -290,15 +305,24 @@ pub enum GoalProblem {
     /// A coordinate is NaN or infinite.
     #[error("coordinates must be finite")]
     Coordinates,
+    /// A coordinate is farther than [`MAX_COORDINATE_M`] from the origin: no map is that big.
+    #[error("coordinates must be within ±{MAX_COORDINATE_M} m of the map origin")]
+    Range,
     /// The tolerance is not a positive number.
     #[error("tolerance must be > 0")]
     Tolerance,
 }
 
+/// Largest goal coordinate accepted, m (1000 km: beyond any map a robot plans in; a goal
+/// inside this bound but outside the map is refused by Planning, with the map's bounds).
+pub const MAX_COORDINATE_M: f64 = 1.0e6;
+
 /// Checks a goal (`None`: it can be part of a mission).
 pub fn goal_problem(g: &MissionGoal) -> Option<GoalProblem> {
     if !(g.pose.x.is_finite() && g.pose.y.is_finite() && g.pose.theta.is_finite()) {
         Some(GoalProblem::Coordinates)
+    } else if g.pose.x.abs() > MAX_COORDINATE_M || g.pose.y.abs() > MAX_COORDINATE_M {
+        Some(GoalProblem::Range)
     } else if !(g.tolerance_m.is_finite() && g.tolerance_m > 0.0) {
         Some(GoalProblem::Tolerance)
     } else {
@@ -562,6 +586,28 @@ mod tests {
         let mut nan = g(1.0);
         nan.pose.y = f64::NAN;
         assert_eq!(goal_problem(&nan), Some(GoalProblem::Coordinates));
+    }
+
+    #[test]
+    fn refused_and_skipped_goals_keep_their_reason() {
+        let mut m = MissionCore::new(&[g(1.0), g(2.0), g(3.0)]);
+        let mut refused = status(1, GoalState::Refused);
+        refused.reason = crate::msgs::RefusalReason::OutsideMap as u8;
+        assert!(m.on_status(&refused));
+        assert!(m.apply(MissionOp::Skip, &[]));
+        let p = m.plan(0);
+        assert_eq!(p.goals[0].reason.as_deref(), Some("outside the map"));
+        assert_eq!(p.goals[1].reason.as_deref(), Some("skipped"));
+        assert_eq!(p.goals[2].reason, None);
+        let far = MissionGoal {
+            pose: Pose2D {
+                x: 1e300,
+                y: 1e300,
+                theta: 0.0,
+            },
+            ..g(0.0)
+        };
+        assert_eq!(goal_problem(&far), Some(GoalProblem::Range));
     }
 
     #[test]

@@ -43,7 +43,7 @@ impl GoalState {
 /// A state channel: late joiners get the latest.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize)]
-#[type_name("hng-modules/GoalStatus/v1")]
+#[type_name("hng-modules/GoalStatus/v2")]
 pub struct GoalStatus {
     /// Header; `frame_id` is `map`.
     pub header: Header,
@@ -54,12 +54,57 @@ pub struct GoalStatus {
     /// Distance left to the goal (straight line for the servo, path length for planning), m;
     /// negative if unknown.
     pub distance_m: f64,
+    /// Why a goal was refused: a [`RefusalReason`] as a byte (0 otherwise).
+    pub reason: u8,
 }
 
 impl GoalStatus {
     /// The state.
     pub fn goal_state(&self) -> GoalState {
         GoalState::from_u8(self.state)
+    }
+
+    /// Why the goal was refused, if it was.
+    pub fn refusal_reason(&self) -> Option<RefusalReason> {
+        RefusalReason::from_u8(self.reason)
+    }
+}
+
+/// Why Planning refused a goal ([`GoalStatus::reason`]).
+#[repr(u8)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RefusalReason {
+    /// Outside the known map.
+    OutsideMap = 1,
+    /// Inside an obstacle, or closer to one than the robot's radius and clearance.
+    InObstacle = 2,
+    /// No path to it in the known map.
+    Unreachable = 3,
+    /// A non-finite position.
+    Invalid = 4,
+}
+
+impl RefusalReason {
+    /// From the wire byte (0 and unknown values: none).
+    pub fn from_u8(v: u8) -> Option<RefusalReason> {
+        Some(match v {
+            1 => RefusalReason::OutsideMap,
+            2 => RefusalReason::InObstacle,
+            3 => RefusalReason::Unreachable,
+            4 => RefusalReason::Invalid,
+            _ => return None,
+        })
+    }
+
+    /// In words.
+    pub fn describe(self) -> &'static str {
+        match self {
+            RefusalReason::OutsideMap => "outside the map",
+            RefusalReason::InObstacle => "inside an obstacle",
+            RefusalReason::Unreachable => "unreachable",
+            RefusalReason::Invalid => "not a finite position",
+        }
     }
 }
 

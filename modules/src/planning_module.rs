@@ -29,7 +29,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::common::{decode_state, encode_state, positive};
 use crate::maps::grid_from_msg;
-use crate::msgs::{GoalState, GoalStatus};
+use crate::msgs::{GoalState, GoalStatus, RefusalReason};
 use crate::planning::{
     GridPlanner, InflationConfig, OccupancyGrid, PlannerConfig, inflate, simplify,
 };
@@ -76,8 +76,12 @@ pub struct PlanStep {
     pub waypoint: Option<Waypoint>,
     /// The goal's status to publish.
     pub status: Option<GoalStatus>,
-    /// Why the goal was just refused (once per goal).
+    /// Why the goal was just refused (once per goal; final: the map is complete).
     pub refused: Option<String>,
+    /// Why the goal cannot be planned in the map as it is, when the map may still grow (a
+    /// partial map, or the Mapping provider changing): not a refusal; planned again with the
+    /// next map or provider.
+    pub pending: Option<String>,
     /// True if a new path was computed.
     pub replanned: bool,
 }
@@ -164,6 +168,12 @@ pub struct PlanningCore {
     grid: Option<OccupancyGrid>,
     goal: Option<Goal>,
     refused: Option<u32>,
+    /// The refusal of `refused` is provisional: the map may still grow.
+    provisional: bool,
+    /// The map may still grow (it has unknown cells, or no Mapping provider is settled).
+    map_may_grow: bool,
+    /// Provider switch in flight (set by the module).
+    provider_settled: bool,
     path: Option<PathState>,
     replan: bool,
 }
@@ -203,8 +213,28 @@ impl PlanningCore {
             grid: None,
             goal: None,
             refused: None,
+            provisional: false,
+            map_may_grow: false,
+            provider_settled: true,
             path: None,
             replan: false,
+        }
+    }
+
+    /// Whether the Mapping provider is settled (false while a switch is in flight: no
+    /// refusal is final then). Unsettling or settling again retries a provisional refusal.
+    pub fn set_provider_settled(&mut self, settled: bool) {
+        if settled != self.provider_settled {
+            self.provider_settled = settled;
+            self.retry_provisional();
+        }
+    }
+
+    fn retry_provisional(&mut self) {
+        if self.provisional {
+            self.refused = None;
+            self.provisional = false;
+            self.replan = true;
         }
     }
 
@@ -213,9 +243,9 @@ impl PlanningCore {
         self.goal.as_ref()
     }
 
-    /// True if the current goal was refused.
+    /// True if the current goal was refused for good.
     pub fn is_refused(&self) -> bool {
-        self.goal.is_some_and(|g| self.refused == Some(g.id))
+        self.goal.is_some_and(|g| self.refused == Some(g.id)) && !self.provisional
     }
 
     /// True while a path is being followed.
@@ -233,10 +263,12 @@ impl PlanningCore {
                 inflate_unknown: false,
             },
         );
+        self.map_may_grow = grid.data().contains(&crate::planning::UNKNOWN);
         self.grid = Some(inflated);
         self.replan = true;
         if self.goal.is_some() {
             self.refused = None; // the new map may make it reachable
+            self.provisional = false;
         }
     }
 
@@ -256,6 +288,7 @@ impl PlanningCore {
         self.goal = Some(goal);
         self.path = None;
         self.refused = None;
+        self.provisional = false;
         self.replan = true;
     }
 
@@ -268,6 +301,7 @@ impl PlanningCore {
             goal_id,
             state: state as u8,
             distance_m,
+            reason: 0,
         }
     }
 
@@ -287,51 +321,54 @@ impl PlanningCore {
             && nearest_cell(grid.world_to_cell(pose.x, pose.y), reach, free).is_some()
     }
 
-    fn plan(&mut self, pose: &Pose2D, goal: &Goal) -> Result<PathState, String> {
+    fn plan(&mut self, pose: &Pose2D, goal: &Goal) -> Result<PathState, (RefusalReason, String)> {
         let Some(grid) = &self.grid else {
-            return Err("no map".into());
+            return Err((RefusalReason::OutsideMap, "no map".into()));
         };
         let cfg = *self.planner.config();
         let (gx, gy) = (goal.pose.x, goal.pose.y);
         let o = grid.origin();
         let (w, h, res) = (grid.width(), grid.height(), grid.resolution());
         if !(gx.is_finite() && gy.is_finite()) {
-            return Err(format!("goal {} has a non-finite position", goal.id));
+            return Err((
+                RefusalReason::Invalid,
+                format!("goal {} has a non-finite position", goal.id),
+            ));
         }
         let gcell = grid.world_to_cell(gx, gy);
         if grid.index(gcell.0, gcell.1).is_none() {
-            return Err(format!(
+            return Err((RefusalReason::OutsideMap, format!(
                 "goal {} at ({gx:.2}, {gy:.2}) is outside the map (x {:.2}..{:.2}, y {:.2}..{:.2})",
                 goal.id,
                 o[0],
                 o[0] + f64::from(w) * res,
                 o[1],
                 o[1] + f64::from(h) * res
-            ));
+            )));
         }
         let free = |x: i64, y: i64| grid.get(x, y).is_some_and(|v| cfg.passable(v));
         let tol_cells = (goal.tolerance_m.max(0.0) / res).floor() as i64;
         let goal_cell = nearest_cell(gcell, tol_cells, free).ok_or_else(|| {
-            format!(
+            (RefusalReason::InObstacle, format!(
                 "goal {} at ({gx:.2}, {gy:.2}) is inside an obstacle or closer than {:.2} m to one",
                 goal.id,
                 self.params.robot_radius + self.params.clearance
-            )
+            ))
         })?;
         let scell = grid.world_to_cell(pose.x, pose.y);
         // The robot may stand inside the inflation band (it is allowed closer than the
         // clearance): start from the nearest free cell.
         let reach = ((self.params.robot_radius + self.params.clearance) / res).ceil() as i64 + 2;
         let start_cell = nearest_cell(scell, reach, free).ok_or_else(|| {
-            format!(
+            (RefusalReason::Unreachable, format!(
                 "the robot at ({:.2}, {:.2}) is inside an obstacle or outside the map",
                 pose.x, pose.y
-            )
+            ))
         })?;
         let gp = self
             .planner
             .plan_cells(grid, start_cell, goal_cell)
-            .map_err(|e| format!("goal {} at ({gx:.2}, {gy:.2}) is unreachable: {e}", goal.id))?;
+            .map_err(|e| (RefusalReason::Unreachable, format!("goal {} at ({gx:.2}, {gy:.2}) is unreachable: {e}", goal.id)))?;
         let mut points = simplify(grid, &cfg, &gp);
         if let Some(first) = points.first_mut() {
             *first = [pose.x, pose.y];
@@ -368,7 +405,7 @@ impl PlanningCore {
                     self.path = Some(path);
                     out.replanned = true;
                 }
-                Err(why) if !self.can_start_from(pose) => {
+                Err((_, why)) if !self.can_start_from(pose) => {
                     // A position inside an obstacle or outside the map is a localization
                     // error (e.g. a degraded GPS fix before the switch to SLAM), not a reason
                     // to refuse the goal: hold and plan again from the next position.
@@ -377,10 +414,21 @@ impl PlanningCore {
                     self.replan = true;
                     return out;
                 }
-                Err(why) => {
+                Err((_, why)) if self.map_may_grow || !self.provider_settled => {
+                    // Not in the map as it is, but the map may still grow: hold, and plan
+                    // again with the next map or Mapping provider.
                     self.path = None;
                     self.refused = Some(goal.id);
-                    out.status = Some(self.status(goal.id, GoalState::Refused, -1.0));
+                    self.provisional = true;
+                    out.pending = Some(why);
+                    return out;
+                }
+                Err((reason, why)) => {
+                    self.path = None;
+                    self.refused = Some(goal.id);
+                    let mut status = self.status(goal.id, GoalState::Refused, -1.0);
+                    status.reason = reason as u8;
+                    out.status = Some(status);
                     out.refused = Some(why);
                     return out;
                 }
@@ -540,6 +588,13 @@ impl PlanningModule {
             self.state.refusals += 1;
             tracing::error!(module = ctx.name(), "goal refused: {why}");
         }
+        if let Some(why) = &out.pending {
+            tracing::warn!(
+                module = ctx.name(),
+                "goal not in the map as it is ({why}); the map may still grow: planning again \
+                 with the next map or Mapping provider"
+            );
+        }
         if let Some(w) = out.waypoint {
             self.waypoint_out.publish(w)?;
         }
@@ -643,6 +698,8 @@ impl Module for PlanningModule {
             }
             let changed = self.map_provider.as_ref() != provider;
             self.map_provider = provider.cloned();
+            // No provider: a switch is in flight (no refusal is final until it settles).
+            self.core.set_provider_settled(provider.is_some());
             if changed && let Some(p) = provider {
                 tracing::info!(module = ctx.name(), provider = %p.module, channel = %p.channel, "map from the Mapping provider");
                 // Its map may have been seen already (a state channel, published rarely).
@@ -775,6 +832,51 @@ pub(crate) mod tests {
         p.set_goal(goal(3, 8.0, 1.0));
         let why = p.update(&at(2.0, 1.0)).refused.unwrap();
         assert!(why.contains("unreachable"), "{why}");
+    }
+
+    #[test]
+    fn a_refusal_in_a_map_that_may_grow_is_retried_and_final_only_in_the_known_map() {
+        use crate::planning::UNKNOWN;
+        let mut p = PlanningCore::new(PlanningParams::default());
+        // A partial map (SLAM's): the right half is still unknown, the goal beyond the map.
+        let mut partial = room();
+        for x in 60..99 {
+            for y in 1..59 {
+                partial.set(x, y, UNKNOWN);
+            }
+        }
+        p.set_map(&partial);
+        p.set_goal(goal(1, 12.0, 1.0));
+        let s = p.update(&at(2.0, 1.0));
+        assert!(s.refused.is_none() && s.status.is_none(), "not final: {s:?}");
+        assert!(s.pending.unwrap().contains("outside the map"));
+        assert!(!p.is_refused());
+        // The map grows (a new map): planned again, still provisional.
+        p.set_map(&partial);
+        assert!(p.update(&at(2.0, 1.0)).pending.is_some());
+        // A Mapping provider switch in flight: still provisional, even with a known map.
+        p.set_provider_settled(false);
+        p.set_map(&room());
+        assert!(p.update(&at(2.0, 1.0)).pending.is_some());
+        // Settled on the known map: the refusal is final, with its reason.
+        p.set_provider_settled(true);
+        let s = p.update(&at(2.0, 1.0));
+        assert!(s.refused.unwrap().contains("outside the map"));
+        let st = s.status.unwrap();
+        assert_eq!(st.goal_state(), GoalState::Refused);
+        assert_eq!(st.refusal_reason(), Some(RefusalReason::OutsideMap));
+        assert!(p.is_refused());
+        // A goal that the known map contains is planned after a provisional refusal.
+        p.set_map(&partial);
+        p.set_goal(goal(2, 12.0, 2.0));
+        assert!(p.update(&at(2.0, 1.0)).pending.is_some());
+        let mut bigger = OccupancyGrid::new(140, 60, 0.1, [0.0, 0.0], FREE).unwrap();
+        for x in 0..140 {
+            bigger.set(x, 0, OCCUPIED);
+        }
+        p.set_map(&bigger);
+        let s = p.update(&at(2.0, 1.0));
+        assert!(s.waypoint.is_some() && s.refused.is_none() && s.pending.is_none(), "{s:?}");
     }
 
     #[test]

@@ -245,6 +245,7 @@ impl ServoModule {
                 goal_id: wp.goal_id,
                 state: GoalState::Reached as u8,
                 distance_m: out.distance_m,
+                reason: 0,
             })?;
         }
         ctx.set_quality(

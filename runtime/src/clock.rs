@@ -11,6 +11,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
 
+pub mod lockstep;
 #[cfg(target_arch = "x86_64")]
 pub mod tsc;
 

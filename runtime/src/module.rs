@@ -18,7 +18,6 @@
 //! heartbeat the watchdog watches), writes checkpoints periodically and on stop, and releases
 //! its shared memory on exit.
 
-use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
@@ -27,7 +26,7 @@ use serde::de::DeserializeOwned;
 use crate::channel::{
     InputId, Node, NodeOptions, Publisher, SlicePublisher, SliceSubscriber, Subscriber,
 };
-use crate::checkpoint::CheckpointStore;
+use crate::clock::lockstep::Acker;
 use crate::clock::{CLOCK_CHANNEL, Clock, ClockMode, monotonic_ns};
 use crate::contract::{
     ContractAgent, DropCounters, ModuleId, NeedSpec, Priority, ServiceOffer, Timing, Verdict,
@@ -36,6 +35,12 @@ use crate::control::{ContractSpec, ControlPlane, PlaneEvent, ProviderInfo};
 use crate::error::Error;
 use crate::msg::{self, Message, ModuleReport, ModuleState, SliceMessage};
 use crate::wait::{WaitMode, Waiter, Wake};
+
+mod checkpoints;
+mod options;
+
+use checkpoints::Checkpoints;
+pub use options::RunOptions;
 
 /// The well-known channel every module publishes its [`ModuleReport`] on.
 pub const REPORT_CHANNEL: &str = "hng/report";
@@ -85,7 +90,13 @@ pub trait Module: Sized {
         None
     }
 
-    /// Restores a state saved by [`Module::checkpoint`]. An error means a clean start.
+    /// A module whose latest checkpoint and the one kept before it are both unusable starts
+    /// clean (true, the default) or refuses to start (false: for modules whose clean start
+    /// in the middle of a run would be wrong, such as the simulator).
+    const CLEAN_START_AFTER_BAD_CHECKPOINT: bool = true;
+
+    /// Restores a state saved by [`Module::checkpoint`]. An error means the checkpoint before
+    /// it is tried, then a clean start (see [`Module::CLEAN_START_AFTER_BAD_CHECKPOINT`]).
     fn restore(&mut self, _state: &[u8]) -> ModuleResult {
         Ok(())
     }
@@ -453,85 +464,6 @@ impl Context {
     }
 }
 
-/// How a module process runs; [`RunOptions::from_env`] reads what the supervisor sets.
-#[derive(Debug, Clone)]
-pub struct RunOptions {
-    /// Module name (`HNG_MODULE_NAME`).
-    pub name: String,
-    /// Prefix of the system (`HNG_PREFIX`).
-    pub prefix: String,
-    /// The module's configuration as TOML (`HNG_MODULE_CONFIG`); empty means defaults.
-    pub config_toml: String,
-    /// Where checkpoints go (`HNG_CHECKPOINT_DIR`); `None` disables them.
-    pub checkpoint_dir: Option<PathBuf>,
-    /// Checkpoint period (`HNG_CHECKPOINT_PERIOD_MS`, default 1000).
-    pub checkpoint_period: Duration,
-    /// Report (heartbeat) period (`HNG_REPORT_PERIOD_MS` or `HNG_HEARTBEAT_PERIOD_MS`, default
-    /// 100).
-    pub report_period: Duration,
-    /// Clock (`HNG_CLOCK`: `wall` or `sim`).
-    pub clock: ClockMode,
-    /// Wait mode (`HNG_WAIT`: `blocking`, `blocking:<µs>` or `spin`).
-    pub wait: WaitMode,
-    /// Turn SIGINT/SIGTERM/SIGHUP into a clean stop.
-    pub catch_signals: bool,
-}
-
-impl RunOptions {
-    /// Defaults for a module called `name`.
-    pub fn new(name: &str) -> RunOptions {
-        RunOptions {
-            name: name.to_string(),
-            prefix: crate::channel::DEFAULT_PREFIX.to_string(),
-            config_toml: String::new(),
-            checkpoint_dir: None,
-            checkpoint_period: Duration::from_secs(1),
-            report_period: Duration::from_millis(100),
-            clock: ClockMode::Wall,
-            wait: WaitMode::default(),
-            catch_signals: true,
-        }
-    }
-
-    /// Reads the `HNG_*` environment; `default_name` is used when `HNG_MODULE_NAME` is unset.
-    pub fn from_env(default_name: &str) -> Result<RunOptions, Error> {
-        let var = |k: &str| std::env::var(k).ok().filter(|v| !v.is_empty());
-        let ms = |k: &str, default: u64| -> Result<Duration, Error> {
-            match var(k) {
-                None => Ok(Duration::from_millis(default)),
-                Some(v) => v.parse::<u64>().map(Duration::from_millis).map_err(|_| {
-                    Error::Config(format!("{k}={v:?} is not a number of milliseconds"))
-                }),
-            }
-        };
-        let mut o = RunOptions::new(&var("HNG_MODULE_NAME").unwrap_or_else(|| default_name.into()));
-        if let Some(p) = var("HNG_PREFIX") {
-            o.prefix = p;
-        }
-        o.config_toml = var("HNG_MODULE_CONFIG").unwrap_or_default();
-        o.checkpoint_dir = var("HNG_CHECKPOINT_DIR").map(PathBuf::from);
-        o.checkpoint_period = ms("HNG_CHECKPOINT_PERIOD_MS", 1000)?;
-        // The supervisor names it the heartbeat period; both spellings are accepted.
-        o.report_period = match var("HNG_REPORT_PERIOD_MS") {
-            Some(_) => ms("HNG_REPORT_PERIOD_MS", 100)?,
-            None => ms("HNG_HEARTBEAT_PERIOD_MS", 100)?,
-        };
-        o.clock = match var("HNG_CLOCK").as_deref() {
-            None | Some("wall") => ClockMode::Wall,
-            Some("sim") => ClockMode::Sim,
-            Some(v) => {
-                return Err(Error::Config(format!(
-                    "HNG_CLOCK={v:?}: expected `wall` or `sim`"
-                )));
-            }
-        };
-        if let Some(w) = var("HNG_WAIT") {
-            o.wait = WaitMode::parse(&w)?;
-        }
-        Ok(o)
-    }
-}
-
 /// Sets up `tracing` for a process: `HNG_LOG` is the filter (default `info`), output to
 /// stderr, with colours only when stderr is a terminal (a log file or a pipe gets plain text).
 /// Safe to call more than once.
@@ -634,16 +566,10 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
         None
     };
     let reports = ctx.node.publisher::<ModuleReport>(REPORT_CHANNEL)?;
-    let store = match &opts.checkpoint_dir {
-        Some(dir) => match CheckpointStore::new(dir, &opts.name) {
-            Ok(s) => Some(s),
-            Err(e) => {
-                tracing::warn!(module = %opts.name, "checkpoints disabled: {e}");
-                None
-            }
-        },
-        None => None,
-    };
+    let store = opts
+        .checkpoint_dir
+        .as_deref()
+        .and_then(|dir| Checkpoints::open(dir, &opts.name));
 
     let module_err = |stage, source| RunError::Module {
         module: opts.name.clone(),
@@ -652,20 +578,9 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
     };
     let mut module = M::configure(&mut ctx, config).map_err(|e| module_err("configure", e))?;
     if let Some(store) = &store {
-        match store.load(M::STATE_VERSION) {
-            Ok(Some(bytes)) => match module.restore(&bytes) {
-                Ok(()) => {
-                    tracing::info!(module = %opts.name, bytes = bytes.len(), "state restored from checkpoint")
-                }
-                Err(e) => {
-                    tracing::warn!(module = %opts.name, "checkpoint rejected by the module, starting clean: {e}")
-                }
-            },
-            Ok(None) => {}
-            Err(e) => {
-                tracing::warn!(module = %opts.name, "checkpoint unusable, starting clean: {e}")
-            }
-        }
+        store
+            .restore(&mut module, &opts.name)
+            .map_err(|e| module_err("restore", e))?;
     }
     ctx.state = ModuleState::Running;
     module.start(&mut ctx).map_err(|e| module_err("start", e))?;
@@ -686,6 +601,9 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
     let mut next_report = monotonic_ns().saturating_add(report_ns);
     let mut next_checkpoint = monotonic_ns().saturating_add(checkpoint_ns);
     let clock_id = clock_sub.as_ref().map(|s| s.id());
+    // Lockstep: acknowledge each barrier round of the simulator (see crate::clock::lockstep).
+    let mut acker = clock_sub.is_some().then(|| Acker::new(&ctx.node)).transpose()?;
+    let mut round = 0;
 
     while !ctx.stop_requested {
         // Wall-clock wake-ups: report and checkpoint; clock-time ones: timers and deadlines
@@ -722,8 +640,10 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
             && let Some(c) = sub.latest()?
         {
             clock.set_sim_ns(c.sim_time_ns);
+            round = c.round;
         }
         let now = clock.now_ns();
+        let mut busy = ctx.waiter.ready().any(|id| Some(id) != clock_id);
         let ready: Vec<InputId> = ctx
             .waiter
             .ready()
@@ -746,6 +666,7 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
                 // Skip missed periods rather than firing a burst.
                 let behind = (now - t.next_ns) / t.period_ns;
                 t.next_ns = t.next_ns.saturating_add((behind + 1) * t.period_ns);
+                busy = true;
                 if let Err(e) = module.on_tick(&mut ctx, TimerId(i)) {
                     tracing::warn!(module = %opts.name, "on_tick: {e}");
                 }
@@ -759,6 +680,7 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
             }
         }
         for id in missed {
+            busy = true;
             ctx.deadline_misses += 1;
             if let Err(e) = module.on_deadline_missed(&mut ctx, id) {
                 tracing::warn!(module = %opts.name, "on_deadline_missed: {e}");
@@ -771,11 +693,19 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
             next_checkpoint = wall_now.saturating_add(checkpoint_ns);
             save_checkpoint(&module, store, &mut ctx, &opts.name);
         }
+        let mut reported = 0;
         if wall_now >= next_report {
             next_report = wall_now.saturating_add(report_ns);
-            if let Err(e) = reports.publish(ctx.report(report_ns)) {
-                tracing::warn!(module = %opts.name, "report: {e}");
+            match reports.publish(ctx.report(report_ns)) {
+                Ok(()) => reported = 1,
+                Err(e) => tracing::warn!(module = %opts.name, "report: {e}"),
             }
+        }
+        if let Some(a) = acker.as_mut() {
+            if busy {
+                a.note_busy();
+            }
+            a.after_iteration(&ctx.node, round, reported)?;
         }
     }
 
@@ -815,7 +745,7 @@ fn poll_contracts<M: Module>(module: &mut M, ctx: &mut Context, name: &str) {
     }
 }
 
-fn save_checkpoint<M: Module>(module: &M, store: &CheckpointStore, ctx: &mut Context, name: &str) {
+fn save_checkpoint<M: Module>(module: &M, store: &Checkpoints, ctx: &mut Context, name: &str) {
     if let Some(bytes) = module.checkpoint() {
         match store.save(M::STATE_VERSION, &bytes) {
             Ok(()) => ctx.checkpoints += 1,

@@ -440,12 +440,17 @@ crate::impl_message!(Waypoint, ChannelKind::State);
 /// The simulation clock, published by the simulator on [`crate::clock::CLOCK_CHANNEL`].
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize)]
-#[type_name("hng/Clock/v1")]
+#[type_name("hng/Clock/v2")]
 pub struct Clock {
     /// Header (its stamp is the wall clock of the publisher).
     pub header: Header,
     /// Simulated time, ns since the start of the simulation.
     pub sim_time_ns: u64,
+    /// Lockstep barrier round (0: no lockstep, no acknowledgement wanted). Every module on
+    /// the simulation clock acknowledges each new round on
+    /// [`crate::clock::lockstep::ACK_CHANNEL`] once it has handled its inputs (see
+    /// [`crate::clock::lockstep`]).
+    pub round: u64,
 }
 crate::impl_message!(Clock, ChannelKind::State);
 

@@ -23,11 +23,11 @@
 //! runs repeat. After `wait_timeout_s` of wall time it starts anyway and names who is missing.
 
 use std::collections::BTreeSet;
-use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
 use hng_runtime::channel::InputId;
+use hng_runtime::clock::lockstep::Verdict;
 use hng_runtime::clock::{CLOCK_CHANNEL, Clock, ClockMode};
 use hng_runtime::module::REPORT_CHANNEL;
 use hng_runtime::msg::{
@@ -40,17 +40,25 @@ use hng_runtime::{
     Subscriber, TimerId, run_module_with,
 };
 use iceoryx2::prelude::ZeroCopySend;
-use serde::{Deserialize, Deserializer, Serialize};
+use serde::Serialize;
 
 use crate::map::{OccupancyGrid, grid_from_world};
 use crate::pacing::{Pacer, Speed};
 use crate::sensors::{GpsStatus, SensorKind, SensorOutput};
 use crate::sim::{Simulator, secs_to_ns};
 use crate::snapshot::SimSnapshot;
-use crate::world::{Pose2D, World};
+
+mod config;
+mod lockstep;
+
+pub use config::{Channels, SensorSwitches, SimModuleConfig};
+use config::config_error;
+use lockstep::Lockstep;
 
 /// Longest a tick keeps stepping before it returns to the executor.
 const TICK_BUDGET: Duration = Duration::from_millis(2);
+/// Longest a restarted simulator waits for the reports of the modules following its clock.
+const RESTART_WAIT: Duration = Duration::from_secs(2);
 /// Period of [`SimStatus`] messages, wall clock.
 const STATUS_PERIOD: Duration = Duration::from_millis(100);
 
@@ -58,7 +66,7 @@ const STATUS_PERIOD: Duration = Duration::from_millis(100);
 /// joiners get the latest). Header stamp: simulated time.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize)]
-#[type_name("hng-simulator/SimStatus/v1")]
+#[type_name("hng-simulator/SimStatus/v2")]
 pub struct SimStatus {
     /// Header; `frame_id` is `map`.
     pub header: Header,
@@ -82,6 +90,14 @@ pub struct SimStatus {
     pub realtime_factor: f64,
     /// The speed asked for (0 means as fast as possible).
     pub target_factor: f64,
+    /// Length of the robot's true path since this simulator process started, m (every
+    /// physics step counted; a restarted simulator counts from 0 again).
+    pub path_length_m: f64,
+    /// Lockstep rounds opened so far (0 without lockstep), and of them those opened again
+    /// at the same simulated time because a module was still busy.
+    pub lockstep_rounds: u64,
+    /// See `lockstep_rounds`.
+    pub lockstep_extra_rounds: u64,
 }
 
 hng_runtime::impl_message!(SimStatus, ChannelKind::State);
@@ -104,208 +120,6 @@ pub struct SimCollision {
 }
 
 hng_runtime::impl_message!(SimCollision, ChannelKind::Sensor);
-
-/// Per-sensor switches; `None` keeps the world file's setting. A sensor switched off publishes
-/// nothing and does not even open its channel, so a real driver or a log replay can provide it
-/// (hybrid simulation).
-#[derive(Debug, Clone, Default, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct SensorSwitches {
-    /// Lidar on `channels.scan`.
-    pub lidar: Option<bool>,
-    /// Odometry on `channels.odom`.
-    pub odometry: Option<bool>,
-    /// GPS on `channels.gps`.
-    pub gps: Option<bool>,
-    /// Beacon camera on `channels.camera`.
-    pub camera: Option<bool>,
-    /// Ground truth on `channels.ground_truth`.
-    pub ground_truth: Option<bool>,
-}
-
-/// Channel names.
-#[derive(Debug, Clone, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct Channels {
-    /// Lidar, `LaserScan` in `laser` (default `sim/scan`).
-    pub scan: String,
-    /// Odometry, `Odometry` odom → base_link (default `sim/odom`).
-    pub odom: String,
-    /// GPS/IMU pose, `PoseWithCovariance` in `map` (default `sim/gps`).
-    pub gps: String,
-    /// Beacon camera, `BeaconObservation` in `camera` (default `sim/camera`).
-    pub camera: String,
-    /// True pose, `PoseWithCovariance` in `map`, evaluation only (default `sim/ground_truth`).
-    pub ground_truth: String,
-    /// Collision events, [`SimCollision`] (default `sim/collisions`).
-    pub collisions: String,
-    /// Counters, [`SimStatus`] (default `sim/status`).
-    pub status: String,
-    /// Velocity commands in, `Twist` (default `sim/cmd_vel`).
-    pub cmd_vel: String,
-    /// Ground-truth occupancy grid, `GridInfo` + `[i8]`, published once (default `sim/map`;
-    /// empty: not published).
-    pub map: String,
-}
-
-impl Default for Channels {
-    fn default() -> Self {
-        Self {
-            scan: "sim/scan".into(),
-            odom: "sim/odom".into(),
-            gps: "sim/gps".into(),
-            camera: "sim/camera".into(),
-            ground_truth: "sim/ground_truth".into(),
-            collisions: "sim/collisions".into(),
-            status: "sim/status".into(),
-            cmd_vel: "sim/cmd_vel".into(),
-            map: "sim/map".into(),
-        }
-    }
-}
-
-/// Configuration of `hng module simulator` (the `config` table of its launch-file entry).
-#[derive(Debug, Clone, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct SimModuleConfig {
-    /// World file: a TOML world, or a map_server YAML (`.yaml`/`.yml`, then `start` is needed).
-    /// Default: the built-in world.
-    pub world: Option<PathBuf>,
-    /// Robot start pose, overriding the world's.
-    pub start: Option<Pose2D>,
-    /// `"realtime"` (default), a factor such as `10`, or `"max"`.
-    #[serde(deserialize_with = "de_speed")]
-    pub speed: Speed,
-    /// Noise seed, overriding the world's.
-    pub seed: Option<u64>,
-    /// Stop cleanly after this many simulated seconds.
-    pub duration: Option<f64>,
-    /// Sensor switches (hybrid simulation).
-    pub sensors: SensorSwitches,
-    /// Channel names.
-    pub channels: Channels,
-    /// Cell size of the published ground-truth map, m (default 0.05).
-    pub map_resolution: f64,
-    /// Most physics steps per tick before commands and signals are looked at (default 10).
-    pub max_steps_per_tick: u32,
-    /// Publish the clock every this many steps (default 1), and always with sensor data.
-    pub clock_every_steps: u32,
-    /// Modules whose first report simulated time waits for (default none: it starts at once).
-    pub wait_for: Vec<String>,
-    /// Longest wait for them, s of wall time (default 10).
-    pub wait_timeout_s: f64,
-}
-
-impl Default for SimModuleConfig {
-    fn default() -> Self {
-        Self {
-            world: None,
-            start: None,
-            speed: Speed::RealTime,
-            seed: None,
-            duration: None,
-            sensors: SensorSwitches::default(),
-            channels: Channels::default(),
-            map_resolution: 0.05,
-            max_steps_per_tick: 10,
-            clock_every_steps: 1,
-            wait_for: Vec::new(),
-            wait_timeout_s: 10.0,
-        }
-    }
-}
-
-fn de_speed<'de, D: Deserializer<'de>>(d: D) -> Result<Speed, D::Error> {
-    #[derive(Deserialize)]
-    #[serde(untagged)]
-    enum Raw {
-        Number(f64),
-        Text(String),
-    }
-    let text = match Raw::deserialize(d)? {
-        Raw::Number(f) => f.to_string(),
-        Raw::Text(s) => s,
-    };
-    text.parse().map_err(serde::de::Error::custom)
-}
-
-fn config_error(
-    field: &str,
-    message: impl std::fmt::Display,
-) -> Box<dyn std::error::Error + Send + Sync> {
-    format!("simulator config: field `{field}`: {message}").into()
-}
-
-impl SimModuleConfig {
-    /// The world this configuration describes: loaded, with the overrides applied.
-    pub fn build_world(&self) -> ModuleResult<World> {
-        let mut world = match &self.world {
-            None => World::default_world(),
-            Some(path) => {
-                let is_yaml = path.extension().and_then(|e| e.to_str()).is_some_and(|e| {
-                    e.eq_ignore_ascii_case("yaml") || e.eq_ignore_ascii_case("yml")
-                });
-                if is_yaml {
-                    let start = self.start.ok_or_else(|| {
-                        config_error(
-                            "start",
-                            format!(
-                                "a map_server world ({}) has no robot pose: give `start = {{ x = .., y = .. }}`",
-                                path.display()
-                            ),
-                        )
-                    })?;
-                    World::from_occupancy_map(path, start)?
-                } else {
-                    World::load(path)?
-                }
-            }
-        };
-        if let Some(start) = self.start {
-            world.robot.start = start;
-        }
-        if let Some(seed) = self.seed {
-            world.seed = seed;
-        }
-        let s = &self.sensors;
-        let sw = &mut world.sensors;
-        for (switch, enabled) in [
-            (s.lidar, &mut sw.lidar.enabled),
-            (s.odometry, &mut sw.odometry.enabled),
-            (s.gps, &mut sw.gps.enabled),
-            (s.camera, &mut sw.camera.enabled),
-            (s.ground_truth, &mut sw.ground_truth.enabled),
-        ] {
-            if let Some(on) = switch {
-                *enabled = on;
-            }
-        }
-        if world.sensors.lidar.beams as usize > MAX_BEAMS {
-            return Err(config_error(
-                "sensors.lidar.beams",
-                format!(
-                    "{} beams do not fit a LaserScan message (at most {MAX_BEAMS})",
-                    world.sensors.lidar.beams
-                ),
-            ));
-        }
-        if let Some(d) = self.duration
-            && !(d.is_finite() && d > 0.0)
-        {
-            return Err(config_error(
-                "duration",
-                format!("must be > 0 seconds, got {d}"),
-            ));
-        }
-        if self.max_steps_per_tick == 0 {
-            return Err(config_error("max_steps_per_tick", "must be at least 1"));
-        }
-        if self.clock_every_steps == 0 {
-            return Err(config_error("clock_every_steps", "must be at least 1"));
-        }
-        Ok(world)
-    }
-}
 
 /// The sensor publishers; `None` for a sensor switched off.
 struct Outputs {
@@ -333,6 +147,9 @@ pub struct SimulatorModule {
     gps_no_fix: u64,
     odom_distance: f64,
     last_odom: Option<(f64, f64)>,
+    /// True path length, m, and the last true position.
+    true_path_m: f64,
+    last_true: Option<(f64, f64)>,
     scan_time: f32,
     map_grid: Option<OccupancyGrid>,
     last_status: Instant,
@@ -340,6 +157,15 @@ pub struct SimulatorModule {
     cmd: Subscriber<Twist>,
     /// Paused start: the modules not heard from yet, their reports, and the wall deadline.
     waiting: Option<(BTreeSet<String>, Subscriber<ModuleReport>, Instant)>,
+    /// Modules on the simulation clock (waited for or in lockstep): their reports carry their
+    /// simulated time, which a restarted simulator must not go back behind.
+    followers: BTreeSet<String>,
+    /// Highest simulated time a follower reported during the paused start, ns.
+    followers_ns: u64,
+    /// Restored from a checkpoint (the clock is published only after the paused start).
+    restored: bool,
+    /// Lockstep barrier, when configured.
+    lockstep: Option<Lockstep>,
     clock_pub: Publisher<msg::Clock>,
     outputs: Outputs,
     sim_clock: Clock,
@@ -358,6 +184,10 @@ impl std::fmt::Debug for SimulatorModule {
 
 impl Module for SimulatorModule {
     type Config = SimModuleConfig;
+
+    /// A clean start in the middle of a run would put the robot back at its start and the
+    /// clock back to 0: with neither checkpoint usable the simulator refuses to start.
+    const CLEAN_START_AFTER_BAD_CHECKPOINT: bool = false;
 
     fn configure(ctx: &mut Context, cfg: SimModuleConfig) -> ModuleResult<Self> {
         if ctx.clock().is_sim() {
@@ -413,6 +243,13 @@ impl Module for SimulatorModule {
                 .transpose()?,
         };
         let cmd = ctx.subscribe::<Twist>(&ch.cmd_vel, None)?;
+        let lockstep = if cfg.lockstep.is_empty() {
+            None
+        } else {
+            Some(Lockstep::new(ctx, &cfg.lockstep, cfg.lockstep_timeout_s)?)
+        };
+        let followers: BTreeSet<String> =
+            cfg.wait_for.iter().chain(&cfg.lockstep).cloned().collect();
         let waiting = if cfg.wait_for.is_empty() {
             None
         } else {
@@ -426,6 +263,9 @@ impl Module for SimulatorModule {
         let clock_pub = ctx.publisher::<msg::Clock>(CLOCK_CHANNEL)?;
         let dt = sim.dt_ns();
         let period_ns = match cfg.speed {
+            // In lockstep, answers wake the simulator; the timer only starts it and looks
+            // for silent participants.
+            Speed::Unlimited if lockstep.is_some() => 1_000_000,
             Speed::Unlimited => 1,
             Speed::RealTime => dt,
             Speed::Factor(f) => ((dt as f64 / f) as u64).max(1),
@@ -443,12 +283,18 @@ impl Module for SimulatorModule {
             gps_no_fix: 0,
             odom_distance: 0.0,
             last_odom: None,
+            true_path_m: 0.0,
+            last_true: None,
             scan_time: (1.0 / lidar_rate) as f32,
             map_grid,
             last_status: Instant::now(),
             last_status_sim_ns: 0,
             cmd,
             waiting,
+            followers,
+            followers_ns: 0,
+            restored: false,
+            lockstep,
             clock_pub,
             outputs,
             sim_clock,
@@ -462,7 +308,19 @@ impl Module for SimulatorModule {
         self.sim_clock.set_sim_ns(now);
         self.pacer = Pacer::new(self.speed, now);
         self.last_status_sim_ns = now;
-        self.publish_clock()?;
+        if self.restored && !self.followers.is_empty() {
+            // A restarted simulator: the modules following the clock may be ahead of the
+            // checkpoint. Their reports say where they are; the clock is published once
+            // that is known (end of the paused start), never behind it.
+            let reports = match self.waiting.take() {
+                Some((_, reports, _)) => reports,
+                None => ctx.subscribe::<ModuleReport>(REPORT_CHANNEL, None)?,
+            };
+            let deadline = Instant::now() + RESTART_WAIT;
+            self.waiting = Some((self.followers.clone(), reports, deadline));
+        } else {
+            self.publish_clock()?;
+        }
         if let (Some(grid), Some(publisher)) = (self.map_grid.take(), &self.outputs.map) {
             let info = GridInfo {
                 header: Header {
@@ -497,6 +355,9 @@ impl Module for SimulatorModule {
             && reports.id() == input
         {
             while let Some(r) = reports.receive()? {
+                if self.followers.contains(r.name()) {
+                    self.followers_ns = self.followers_ns.max(r.header.stamp_ns);
+                }
                 missing.remove(r.name());
             }
             if missing.is_empty() {
@@ -507,6 +368,12 @@ impl Module for SimulatorModule {
                 self.end_wait(ctx)?;
             }
             return Ok(());
+        }
+        if let Some(l) = &mut self.lockstep
+            && l.owns(input)
+        {
+            l.read(ctx)?;
+            return self.lockstep_advance(ctx);
         }
         let mut rejected = false;
         while let Some(t) = self.cmd.receive()? {
@@ -533,6 +400,14 @@ impl Module for SimulatorModule {
                 "modules still not up after wait_timeout_s: simulated time starts anyway"
             );
             self.end_wait(ctx)?;
+        }
+        if self.lockstep.is_some() {
+            self.lockstep_advance(ctx)?;
+            self.node.update_connections();
+            if self.last_status.elapsed() >= STATUS_PERIOD {
+                self.publish_status(ctx)?;
+            }
+            return Ok(());
         }
         let started = Instant::now();
         for _ in 0..self.max_steps {
@@ -564,6 +439,7 @@ impl Module for SimulatorModule {
     fn restore(&mut self, state: &[u8]) -> ModuleResult {
         let snap = SimSnapshot::from_bytes(state)?;
         self.sim.restore(&snap)?;
+        self.restored = true;
         tracing::info!(
             sim_time_s = snap.now_ns as f64 * 1e-9,
             x = snap.pose.x,
@@ -585,6 +461,8 @@ impl Module for SimulatorModule {
             collisions = s.collisions,
             rejected_commands = s.rejected_commands,
             realtime_factor = self.pacer.achieved_factor(self.sim.now_ns()),
+            lockstep_rounds = self.lockstep.as_ref().map_or(0, |l| l.rounds),
+            lockstep_extra_rounds = self.lockstep.as_ref().map_or(0, |l| l.extra_rounds),
             "simulator stopped"
         );
     }
@@ -618,13 +496,73 @@ fn diag(a: f64, b: f64, c: f64) -> [f64; 9] {
 }
 
 impl SimulatorModule {
-    /// Ends the paused start: simulated time runs from now on.
+    /// Ends the paused start: simulated time runs from now on. A restored simulator first
+    /// moves its clock up to the latest time a module following it reported, so that time
+    /// never goes back for anyone.
     fn end_wait(&mut self, ctx: &mut Context) -> ModuleResult {
         if let Some((_, reports, _)) = self.waiting.take() {
             ctx.unsubscribe(reports.id())?;
         }
+        if self.restored {
+            let from = self.sim.now_ns();
+            if self.followers_ns > from {
+                self.skip_time_to(self.followers_ns)?;
+                tracing::warn!(
+                    module = ctx.name(),
+                    checkpoint_s = from as f64 * 1e-9,
+                    resumed_s = self.followers_ns as f64 * 1e-9,
+                    "the modules were ahead of the checkpoint: the clock resumes at their time \
+                     (the world is as at the checkpoint)"
+                );
+            }
+            self.sim_clock.set_sim_ns(self.sim.now_ns());
+            self.publish_clock()?;
+        }
         self.pacer = Pacer::new(self.speed, self.sim.now_ns());
         Ok(())
+    }
+
+    /// Moves simulated time forward to `ns` without stepping the world (sensor schedules
+    /// move along).
+    fn skip_time_to(&mut self, ns: u64) -> ModuleResult {
+        let mut snap = self.sim.snapshot();
+        let delta = ns.saturating_sub(snap.now_ns);
+        snap.now_ns = ns;
+        for d in &mut snap.next_due_ns {
+            *d = d.saturating_add(delta);
+        }
+        self.sim.restore(&snap)?;
+        Ok(())
+    }
+
+    /// Lockstep: looks at the open round; opens another one at the same time when someone
+    /// was busy, and takes the next step (if it is due) when everyone was quiet.
+    fn lockstep_advance(&mut self, ctx: &mut Context) -> ModuleResult {
+        if self.waiting.is_some() {
+            return Ok(());
+        }
+        let Some(l) = self.lockstep.as_mut() else {
+            return Ok(());
+        };
+        match l.poll(ctx) {
+            Verdict::Waiting => Ok(()),
+            Verdict::Busy => {
+                l.open(true);
+                self.publish_clock()
+            }
+            Verdict::Quiet => {
+                if self.end_ns.is_some_and(|end| self.sim.now_ns() >= end) {
+                    tracing::info!(module = ctx.name(), "duration reached: stopping");
+                    ctx.request_stop();
+                    return Ok(());
+                }
+                let next = self.sim.now_ns().saturating_add(self.sim.dt_ns());
+                if self.pacer.delay_until(next).is_zero() {
+                    self.step_and_publish()?;
+                }
+                Ok(())
+            }
+        }
     }
 
     /// The simulator (tests drive the module by hand).
@@ -637,6 +575,7 @@ impl SimulatorModule {
         self.steps_since_clock = 0;
         self.clock_pub.publish(msg::Clock {
             sim_time_ns: self.sim.now_ns(),
+            round: self.lockstep.as_ref().map_or(0, Lockstep::round),
             ..Default::default()
         })?;
         Ok(())
@@ -647,9 +586,17 @@ impl SimulatorModule {
         out.clear();
         self.sim.step_into(&mut out);
         self.sim_clock.set_sim_ns(self.sim.now_ns());
+        let gt = self.sim.ground_truth();
+        if let Some((x, y)) = self.last_true {
+            self.true_path_m += (gt.x - x).hypot(gt.y - y);
+        }
+        self.last_true = Some((gt.x, gt.y));
         self.steps_since_clock += 1;
+        // Lockstep: every step opens a round, announced by the clock sample.
+        let lockstep = self.lockstep.as_mut().map(|l| l.open(false)).is_some();
         // The clock goes first, so a module woken by sensor data already has the new time.
-        let result = if self.steps_since_clock >= self.clock_every || !out.is_empty() {
+        let result = if lockstep || self.steps_since_clock >= self.clock_every || !out.is_empty()
+        {
             self.publish_clock()
         } else {
             Ok(())
@@ -821,6 +768,9 @@ impl SimulatorModule {
             min_clearance: s.min_clearance,
             realtime_factor: factor,
             target_factor: target,
+            path_length_m: self.true_path_m,
+            lockstep_rounds: self.lockstep.as_ref().map_or(0, |l| l.rounds),
+            lockstep_extra_rounds: self.lockstep.as_ref().map_or(0, |l| l.extra_rounds),
         })?;
         Ok(())
     }

@@ -51,8 +51,12 @@ pub enum Transport {
 /// Wait modes compared.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum Mode {
-    /// Sleep until notified (after hng's adaptive spin).
+    /// Sleep until notified; hng first spins adaptively (up to 200 µs, its default), the raw
+    /// iceoryx2 ends sleep on their listener at once: spin against sleep.
     Blocking,
+    /// Sleep until notified on both sides: hng with a zero spin budget (only its waiter's
+    /// initial poll of 64 reads before sleeping), like for like with iceoryx2's listener.
+    Sleep,
     /// Busy-poll.
     Spin,
 }
@@ -73,8 +77,19 @@ impl Mode {
     fn name(self) -> &'static str {
         match self {
             Mode::Blocking => "blocking",
+            Mode::Sleep => "sleep",
             Mode::Spin => "spin",
         }
+    }
+
+    /// The transports wait by sleeping (hng possibly after a spin).
+    fn sleeps(self) -> bool {
+        matches!(self, Mode::Blocking | Mode::Sleep)
+    }
+
+    /// hng spins in this mode while the raw ends may not.
+    fn hng_spins(self) -> bool {
+        matches!(self, Mode::Blocking | Mode::Spin)
     }
 }
 
@@ -95,10 +110,12 @@ pub struct IpcArgs {
     #[arg(long, default_value_t = 5)]
     pub rounds: usize,
     /// Transports (comma separated).
-    #[arg(long, value_delimiter = ',', default_values_t = [Transport::Hng, Transport::Iceoryx2, Transport::Uds])]
+    /// The ratios compare with `iceoryx2-spare` (raw iceoryx2 loaning ahead as hng does:
+    /// like for like) when it is in the list, else with `iceoryx2`.
+    #[arg(long, value_delimiter = ',', default_values_t = [Transport::Hng, Transport::Iceoryx2Spare, Transport::Iceoryx2, Transport::Uds])]
     pub transport: Vec<Transport>,
     /// Modes (comma separated).
-    #[arg(long, value_delimiter = ',', default_values_t = [Mode::Blocking, Mode::Spin])]
+    #[arg(long, value_delimiter = ',', default_values_t = [Mode::Blocking, Mode::Sleep, Mode::Spin])]
     pub mode: Vec<Mode>,
     /// One JSON object per case.
     #[arg(long)]
@@ -139,6 +156,9 @@ const PONG: &str = "bench/pong";
 fn wait_mode(mode: Mode) -> WaitMode {
     match mode {
         Mode::Blocking => WaitMode::default(),
+        Mode::Sleep => WaitMode::Blocking {
+            max_spin: Duration::ZERO,
+        },
         Mode::Spin => WaitMode::Spin,
     }
 }
@@ -345,7 +365,7 @@ impl<U: RawHeader> Endpoint for RawEnd<U> {
         stamp(s.payload_mut(), round);
         s.user_header_mut().stamp(round);
         s.send().map_err(|e| anyhow!("send: {e:?}"))?;
-        if self.mode == Mode::Blocking {
+        if self.mode.sleeps() {
             self.notifier
                 .notify()
                 .map_err(|e| anyhow!("notify: {e:?}"))?;
@@ -364,7 +384,7 @@ impl<U: RawHeader> Endpoint for RawEnd<U> {
                 std::hint::black_box(s.user_header().seq());
                 return Ok(Some(read_stamp(s.payload())));
             }
-            if self.mode == Mode::Blocking {
+            if self.mode.sleeps() {
                 let end = *end.get_or_insert_with(|| Instant::now() + timeout);
                 let left = end.saturating_duration_since(Instant::now());
                 if left.is_zero() {
@@ -396,7 +416,7 @@ struct UdsEnd {
 
 impl UdsEnd {
     fn new(stream: UnixStream, size: usize, mode: Mode) -> Result<UdsEnd> {
-        stream.set_nonblocking(mode == Mode::Spin)?;
+        stream.set_nonblocking(!mode.sleeps())?;
         Ok(UdsEnd {
             stream,
             payload: vec![0u8; size],
@@ -434,7 +454,7 @@ impl Endpoint for UdsEnd {
         self.frame = frame;
         let len = (self.frame.len() - 4) as u32;
         self.frame[..4].copy_from_slice(&len.to_le_bytes());
-        if self.mode == Mode::Spin {
+        if !self.mode.sleeps() {
             self.stream.set_nonblocking(false)?;
             self.stream.write_all(&self.frame)?;
             self.stream.set_nonblocking(true)?;
@@ -447,7 +467,7 @@ impl Endpoint for UdsEnd {
     fn recv(&mut self, timeout: Duration) -> Result<Option<u64>> {
         let end = Instant::now() + timeout;
         self.frame.resize(4, 0);
-        if self.mode == Mode::Blocking {
+        if self.mode.sleeps() {
             self.stream
                 .set_read_timeout(Some(timeout.max(Duration::from_millis(1))))?;
             match self.stream.read_exact(&mut self.frame[..4]) {
@@ -735,6 +755,11 @@ pub fn run_mode(
         }
     }
     let floor = transports.iter().position(|&t| t == Transport::Iceoryx2);
+    // The like-for-like baseline: raw iceoryx2 loaning ahead as hng does.
+    let baseline = transports
+        .iter()
+        .position(|&t| t == Transport::Iceoryx2Spare)
+        .or(floor);
     let smallest = sizes
         .iter()
         .enumerate()
@@ -755,7 +780,16 @@ pub fn run_mode(
             .with("mode", mode.name())
             .with("rounds", rounds as u64)
             .with("round_p50_min_ns", p50s.iter().copied().min().unwrap_or(0))
-            .with("round_p50_max_ns", p50s.iter().copied().max().unwrap_or(0));
+            .with("round_p50_max_ns", p50s.iter().copied().max().unwrap_or(0))
+            .with("hng_spins", t == Transport::Hng && mode.hng_spins());
+            if let Some(b) = baseline.filter(|&b| b != ti) {
+                row = row
+                    .with("baseline", transports[b].name())
+                    .with(
+                        "p50_vs_baseline",
+                        paired_ratio(p50s, &round_p50[case(si, b)]),
+                    );
+            }
             if let Some(f) = floor.filter(|&f| f != ti) {
                 row = row.with(
                     "p50_vs_iceoryx2",

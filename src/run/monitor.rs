@@ -2,10 +2,16 @@
 //! follows the mission through the system's channels, prints progress, decides success and
 //! asks the supervisor to stop everything when the mission ends.
 //!
-//! It reads `manager/status` (goals reached or refused), `sim/status` (simulated time,
-//! collisions, minimum clearance), `sim/ground_truth` (path length; evaluation only),
-//! [`SUPERVISOR_EVENTS`] (restarts) and [`CONTRACTS`] (which provider serves which need: a
-//! change of provider is a contract switch).
+//! It reads the Manager's mission document `manager/mission` (every goal the mission ever
+//! held, added ones included, with its state and the reason of a refusal), `sim/status`
+//! (simulated time, collisions, minimum clearance), `sim/ground_truth` (the true pose: path
+//! length and the true error at each goal; evaluation only), [`SUPERVISOR_EVENTS`] (restarts)
+//! and [`CONTRACTS`] (which provider serves which need: a change of provider is a contract
+//! switch).
+//!
+//! A goal counts as reached only when the simulator's true pose is within the goal's
+//! tolerance at the moment the robot reports it reached (the robot's own estimate can be off
+//! by its localization error); otherwise it is `missed`, and the mission fails.
 
 use std::collections::{BTreeMap, HashMap};
 use std::sync::Arc;
@@ -13,26 +19,52 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context as _, Result};
-use hng_modules::msgs::MissionStatus;
+use hng_modules::manager::{MISSION_PLAN_CHANNEL, MissionPlan};
 use hng_runtime::msg::PoseWithCovariance;
 use hng_runtime::system::{
-    CONTRACTS, CommandOp, ContractRole, ContractTable, EventKind, ModuleEvent, SUPERVISOR_COMMAND,
-    SUPERVISOR_EVENTS, SupervisorCommand,
+    CONTRACTS, CommandOp, ContractRole, ContractTable, EventKind, JsonInfo, ModuleEvent,
+    SUPERVISOR_COMMAND, SUPERVISOR_EVENTS, SupervisorCommand,
 };
 use hng_runtime::wait::{WaitMode, Waiter};
 use hng_runtime::{Node, NodeOptions};
 use hng_simulator::module::SimStatus;
 use serde::Serialize;
 
+/// One goal of the mission, as the summary reports it.
+#[derive(Debug, Clone, Default, Serialize, PartialEq)]
+pub struct GoalSummary {
+    /// The Manager's id of the goal.
+    pub id: u32,
+    /// x, m (map frame).
+    pub x: f64,
+    /// y, m.
+    pub y: f64,
+    /// Position tolerance, m.
+    pub tolerance_m: f64,
+    /// `reached` (true pose within tolerance), `missed` (reported reached, true pose
+    /// outside the tolerance), `refused`, `active` or `pending` (never dealt with).
+    pub state: String,
+    /// Why it was not reached (refusal reason, true error, ...).
+    pub reason: Option<String>,
+    /// Distance from the true pose to the goal when it was dealt with (reached or refused),
+    /// or at the end of the mission, m (`null` without ground truth).
+    pub true_error_m: Option<f64>,
+}
+
+/// True poses kept to look up where the robot was when a goal was reported (40 s simulated).
+const TRUTH_LOG: usize = 4096;
+
 /// The summary of a mission (`--summary FILE` writes it as JSON, with exactly these fields).
 #[derive(Debug, Clone, Default, Serialize, PartialEq)]
 pub struct Summary {
-    /// Every goal reached, no collision, within the duration.
+    /// Every goal truly reached, no collision, within the duration.
     pub success: bool,
-    /// Goals reached.
+    /// Goals reached (true pose within tolerance).
     pub goals_reached: u32,
-    /// Goals in the mission.
+    /// Goals the mission ever held (added ones and refused ones included).
     pub goals_total: u32,
+    /// Every goal, in mission order.
+    pub goals: Vec<GoalSummary>,
     /// Simulated time at the end, s.
     pub sim_time_s: f64,
     /// Wall time from start to the end of the mission, s.
@@ -118,7 +150,7 @@ impl Monitor {
 
 struct State {
     // Ports before the node.
-    mission: hng_runtime::Subscriber<MissionStatus>,
+    mission: hng_runtime::SliceSubscriber<JsonInfo>,
     sim: hng_runtime::Subscriber<SimStatus>,
     truth: hng_runtime::Subscriber<PoseWithCovariance>,
     events: hng_runtime::Subscriber<ModuleEvent>,
@@ -130,11 +162,16 @@ struct State {
     last_sim: Instant,
     sim_time_s: f64,
     last_pos: Option<(f64, f64)>,
+    /// Recent true poses: (simulated ns, x, y), oldest first.
+    truth_log: std::collections::VecDeque<(u64, f64, f64)>,
+    /// Path length of the simulator processes before the current one, m, and the current
+    /// one's.
+    path_before_m: f64,
     path_length_m: f64,
     min_clearance: f64,
     collisions: u64,
-    reached: u32,
-    refused: u32,
+    /// Every goal seen in the Manager's documents, in mission order.
+    goals: Vec<GoalSummary>,
     done: bool,
     restarts: u64,
     switches: u64,
@@ -151,7 +188,7 @@ impl State {
             NodeOptions::new(&format!("hng-mission-{}", std::process::id())).prefix(&opts.prefix),
         )
         .context("creating the mission monitor's node")?;
-        let mission = node.subscriber::<MissionStatus>("manager/status")?;
+        let mission = node.slice_subscriber::<JsonInfo>(MISSION_PLAN_CHANNEL)?;
         let sim = node.subscriber::<SimStatus>("sim/status")?;
         let truth = node.subscriber::<PoseWithCovariance>("sim/ground_truth")?;
         let events = node.subscriber::<ModuleEvent>(SUPERVISOR_EVENTS)?;
@@ -162,6 +199,9 @@ impl State {
         })?;
         waiter.attach(&mission)?;
         waiter.attach(&sim)?;
+        // Woken by every true pose, so that none is lost at high speed (the true error at a
+        // goal is looked up at the time the goal was reported reached).
+        waiter.attach(&truth)?;
         waiter.attach(&events)?;
         waiter.attach(&tables)?;
         let now = Instant::now();
@@ -178,11 +218,12 @@ impl State {
             last_sim: now,
             sim_time_s: 0.0,
             last_pos: None,
+            truth_log: std::collections::VecDeque::new(),
+            path_before_m: 0.0,
             path_length_m: 0.0,
             min_clearance: f64::INFINITY,
             collisions: 0,
-            reached: 0,
-            refused: 0,
+            goals: Vec::new(),
             done: false,
             restarts: 0,
             switches: 0,
@@ -197,26 +238,46 @@ impl State {
     }
 
     fn run(&mut self, opts: &MonitorOptions, stop: &AtomicBool) -> Result<Outcome> {
-        let total = u32::try_from(opts.goals.len()).unwrap_or(u32::MAX);
         let mut failure: Option<String> = None;
         while !stop.load(Ordering::Acquire) {
-            // The ground truth comes at 100 Hz simulated: read it on the other wake-ups
-            // rather than waking for every sample.
             self.waiter.wait(Some(Duration::from_millis(100)))?;
-            self.read(opts)?;
-            if let Some(f) = self.verdict(opts, total) {
+            self.read()?;
+            if let Some(f) = self.verdict(opts) {
                 failure = f;
                 break;
             }
         }
         let ended = !stop.load(Ordering::Acquire);
+        if self.goals.is_empty() {
+            // The Manager never published its mission: the configured goals, never pursued.
+            for (i, &(x, y)) in opts.goals.iter().enumerate() {
+                self.goals.push(GoalSummary {
+                    id: u32::try_from(i + 1).unwrap_or(u32::MAX),
+                    x,
+                    y,
+                    tolerance_m: 0.2,
+                    state: "pending".to_owned(),
+                    reason: Some("the Manager never published the mission".to_owned()),
+                    true_error_m: None,
+                });
+            }
+        }
+        // Goals never dealt with: their true distance at the end.
+        for g in &mut self.goals {
+            if g.true_error_m.is_none()
+                && let Some((x, y)) = self.last_pos
+            {
+                g.true_error_m = Some((x - g.x).hypot(y - g.y));
+            }
+        }
         let summary = Summary {
             success: ended && failure.is_none(),
-            goals_reached: self.reached,
-            goals_total: total,
+            goals_reached: self.reached(),
+            goals_total: u32::try_from(self.goals.len()).unwrap_or(u32::MAX),
+            goals: self.goals.clone(),
             sim_time_s: self.sim_time_s,
             wall_time_s: self.started.elapsed().as_secs_f64(),
-            path_length_m: self.path_length_m,
+            path_length_m: self.path_before_m + self.path_length_m,
             min_obstacle_distance_m: self.min_clearance.is_finite().then_some(self.min_clearance),
             collisions: self.collisions,
             contract_switches: self.switches,
@@ -233,8 +294,27 @@ impl State {
         Ok(Outcome { summary, failure })
     }
 
+    fn reached(&self) -> u32 {
+        let n = self.goals.iter().filter(|g| g.state == "reached").count();
+        u32::try_from(n).unwrap_or(u32::MAX)
+    }
+
+    /// The goals not reached, with their state and reason.
+    fn not_reached(&self) -> String {
+        self.goals
+            .iter()
+            .filter(|g| g.state != "reached")
+            .map(|g| {
+                let why = g.reason.as_deref().map(|r| format!(": {r}")).unwrap_or_default();
+                format!("goal {} ({:.2}, {:.2}) {}{why}", g.id, g.x, g.y, g.state)
+            })
+            .collect::<Vec<_>>()
+            .join("; ")
+    }
+
     /// `Some(None)`: success; `Some(Some(why))`: failure; `None`: going on.
-    fn verdict(&self, opts: &MonitorOptions, total: u32) -> Option<Option<String>> {
+    fn verdict(&self, opts: &MonitorOptions) -> Option<Option<String>> {
+        let total = self.goals.len();
         if self.collisions > 0 {
             return Some(Some(format!(
                 "the robot collided with an obstacle ({} contacts)",
@@ -242,18 +322,21 @@ impl State {
             )));
         }
         if self.done {
-            if self.reached >= total {
+            if self.reached() as usize >= total {
                 return Some(None);
             }
             return Some(Some(format!(
-                "{} of {total} goals refused (unreachable or outside the map; see planning's log)",
-                self.refused
+                "{} of {total} goals not reached: {}",
+                total - self.reached() as usize,
+                self.not_reached()
             )));
         }
         if self.sim_time_s > opts.duration_s {
             return Some(Some(format!(
-                "the mission took longer than its duration ({} s simulated): {} of {total} goals reached",
-                opts.duration_s, self.reached
+                "the mission took longer than its duration ({} s simulated): {} of {total} goals reached; {}",
+                opts.duration_s,
+                self.reached(),
+                self.not_reached()
             )));
         }
         if self.last_sim.elapsed() > opts.stall_timeout {
@@ -265,10 +348,15 @@ impl State {
         None
     }
 
-    fn read(&mut self, opts: &MonitorOptions) -> Result<()> {
+    fn read(&mut self) -> Result<()> {
         while let Some(s) = self.sim.receive()? {
             self.last_sim = Instant::now();
             self.sim_time_s = s.sim_time_ns as f64 * 1e-9;
+            if s.path_length_m + 1e-9 < self.path_length_m {
+                // A restarted simulator counts from 0 again.
+                self.path_before_m += self.path_length_m;
+            }
+            self.path_length_m = s.path_length_m;
             if s.min_clearance.is_finite() {
                 self.min_clearance = self.min_clearance.min(s.min_clearance);
             }
@@ -279,33 +367,22 @@ impl State {
         }
         while let Some(p) = self.truth.receive()? {
             let (x, y) = (p.pose.x, p.pose.y);
-            if let Some((px, py)) = self.last_pos {
-                self.path_length_m += (x - px).hypot(y - py);
-            }
             self.last_pos = Some((x, y));
+            if self.truth_log.len() >= TRUTH_LOG {
+                self.truth_log.pop_front();
+            }
+            self.truth_log.push_back((p.header.stamp_ns, x, y));
         }
+        let mut plans = Vec::new();
         while let Some(m) = self.mission.receive()? {
-            let m = *m;
-            for i in self.reached..m.goals_reached {
-                let at = opts
-                    .goals
-                    .get(i as usize)
-                    .map(|(x, y)| format!(" ({x:.2}, {y:.2})"))
-                    .unwrap_or_default();
-                self.say(&format!(
-                    "goal reached{at}: {} of {} goals done",
-                    i + 1 + m.goals_refused,
-                    m.goals_total
-                ));
+            match serde_json::from_slice::<MissionPlan>(m.data()) {
+                Ok(p) => plans.push((m.header().header.stamp_ns, p)),
+                Err(e) => self.say(&format!("unreadable mission document ignored: {e}")),
             }
-            for _ in self.refused..m.goals_refused {
-                self.say(
-                    "goal REFUSED by Planning (unreachable or outside the map); the robot holds",
-                );
-            }
-            self.reached = self.reached.max(m.goals_reached);
-            self.refused = self.refused.max(m.goals_refused);
-            self.done = m.done != 0 && m.goals_total > 0;
+        }
+        for (stamp, p) in plans {
+            let truth = self.truth_at(stamp);
+            self.on_plan(&p, truth);
         }
         while let Some(e) = self.events.receive()? {
             let name = e.module().to_owned();
@@ -358,6 +435,96 @@ impl State {
     }
 }
 
+impl State {
+    /// The true position at simulated time `ns`: the last sample at or before it (the
+    /// latest known if none is that old).
+    fn truth_at(&self, ns: u64) -> Option<(f64, f64)> {
+        self.truth_log
+            .iter()
+            .rev()
+            .find(|(t, _, _)| *t <= ns)
+            .or(self.truth_log.front())
+            .map(|(_, x, y)| (*x, *y))
+            .or(self.last_pos)
+    }
+
+    /// A mission document (published at simulated time when the true position was `truth`):
+    /// new goals are added, goals dealt with are judged against the true pose.
+    fn on_plan(&mut self, p: &MissionPlan, truth: Option<(f64, f64)>) {
+        for e in &p.goals {
+            let known = self.goals.iter().position(|g| g.id == e.id);
+            let i = match known {
+                Some(i) => i,
+                None => {
+                    if !self.goals.is_empty() && self.sim_time_s > 0.0 {
+                        self.say(&format!("goal {} added ({:.2}, {:.2})", e.id, e.x, e.y));
+                    }
+                    self.goals.push(GoalSummary {
+                        id: e.id,
+                        x: e.x,
+                        y: e.y,
+                        tolerance_m: e.tolerance_m,
+                        state: e.state.clone(),
+                        reason: None,
+                        true_error_m: None,
+                    });
+                    self.goals.len() - 1
+                }
+            };
+            let g = &mut self.goals[i];
+            let settled = matches!(g.state.as_str(), "reached" | "missed" | "refused");
+            if settled {
+                continue;
+            }
+            g.state = e.state.clone();
+            let error = truth.map(|(x, y)| (x - g.x).hypot(y - g.y));
+            let line = match e.state.as_str() {
+                "reached" => {
+                    g.true_error_m = error;
+                    match error {
+                        Some(err) if err <= g.tolerance_m => {
+                            format!("goal reached ({:.2}, {:.2}), id {}: true error {err:.3} m", g.x, g.y, g.id)
+                        }
+                        Some(err) => {
+                            g.state = "missed".to_owned();
+                            let why = format!(
+                                "reported reached, but the true pose is {err:.3} m away (tolerance {:.2} m)",
+                                g.tolerance_m
+                            );
+                            g.reason = Some(why.clone());
+                            format!("goal MISSED ({:.2}, {:.2}), id {}: {why}", g.x, g.y, g.id)
+                        }
+                        None => {
+                            g.state = "missed".to_owned();
+                            g.reason = Some("reported reached, but no ground truth to check it".to_owned());
+                            format!("goal MISSED ({:.2}, {:.2}), id {}: reported reached, no ground truth to check it", g.x, g.y, g.id)
+                        }
+                    }
+                }
+                "refused" => {
+                    g.true_error_m = error;
+                    g.reason = e.reason.clone();
+                    format!(
+                        "goal REFUSED ({:.2}, {:.2}), id {}: {}",
+                        g.x,
+                        g.y,
+                        g.id,
+                        e.reason.as_deref().unwrap_or("see planning's log")
+                    )
+                }
+                _ => continue,
+            };
+            let done = self
+                .goals
+                .iter()
+                .filter(|g| matches!(g.state.as_str(), "reached" | "missed" | "refused"))
+                .count();
+            self.say(&format!("{line}; {done} of {} goals done", self.goals.len()));
+        }
+        self.done = p.done && p.goals_total > 0;
+    }
+}
+
 impl std::fmt::Display for Summary {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         writeln!(
@@ -378,6 +545,17 @@ impl std::fmt::Display for Summary {
             None => writeln!(f, "  min obstacle dist -")?,
         }
         writeln!(f, "  collisions        {}", self.collisions)?;
+        for g in &self.goals {
+            let err = g
+                .true_error_m
+                .map_or_else(|| "-".to_owned(), |e| format!("{e:.3} m"));
+            let why = g.reason.as_deref().map(|r| format!(" ({r})")).unwrap_or_default();
+            writeln!(
+                f,
+                "  goal {:<3} ({:6.2}, {:6.2})  {:<8} true error {err}{why}",
+                g.id, g.x, g.y, g.state
+            )?;
+        }
         writeln!(f, "  contract switches {}", self.contract_switches)?;
         write!(f, "  restarts          {}", self.restarts)
     }

@@ -16,6 +16,13 @@ fn data(rel: &str) -> Option<PathBuf> {
     }
 }
 
+/// Test data kept in the repository (`tests/data`): never skipped.
+fn repo_data(rel: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/data")
+        .join(rel)
+}
+
 fn hng(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_hng"))
         .args(args)
@@ -57,10 +64,10 @@ impl Drop for Scratch {
 
 #[test]
 fn eval_planner_finds_every_optimal_length_on_arena() {
-    let (Some(map), Some(scen)) = (data("movingai/arena.map"), data("movingai/arena.map.scen"))
-    else {
-        return;
-    };
+    let (map, scen) = (
+        repo_data("movingai/arena.map"),
+        repo_data("movingai/arena.map.scen"),
+    );
     let (map, scen) = (map.to_string_lossy(), scen.to_string_lossy());
     let v = json(&hng(&["eval", "planner", &map, &scen, "--json"]));
     assert_eq!(v["problems"], 160, "{v}");
@@ -77,9 +84,7 @@ fn eval_planner_finds_every_optimal_length_on_arena() {
 
 #[test]
 fn eval_planner_errors_name_file_line_and_field() {
-    let Some(map) = data("movingai/arena.map") else {
-        return;
-    };
+    let map = repo_data("movingai/arena.map");
     let dir = Scratch::new("badscen");
     let scen = dir.0.join("bad.scen");
     std::fs::write(

@@ -5,6 +5,7 @@ mod contracts;
 mod dataplane;
 mod eval;
 mod faults;
+mod lockstep;
 mod mission;
 mod mission_cmd;
 mod modules;

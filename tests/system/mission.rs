@@ -102,6 +102,7 @@ fn summary_fields_are_exactly_the_documented_ones(s: &serde_json::Value) {
         [
             "collisions",
             "contract_switches",
+            "goals",
             "goals_reached",
             "goals_total",
             "min_obstacle_distance_m",

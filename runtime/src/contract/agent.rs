@@ -36,6 +36,12 @@ pub struct Timing {
     /// Period of the probes of an inactive module whose required need
     /// failed. Default 1 s.
     pub probe_period: Duration,
+    /// A client does not take a better offer from the provider it left less
+    /// than this long ago (no flapping between two providers whose values
+    /// cross back and forth); it goes back at once only when the current
+    /// provider is lost (dies, cancels, falls silent). Zero disables it.
+    /// Default 1 s.
+    pub switch_back_dwell: Duration,
 }
 
 impl Default for Timing {
@@ -46,6 +52,7 @@ impl Default for Timing {
             peer_timeout: Duration::from_secs(1),
             retry_period: Duration::from_millis(500),
             probe_period: Duration::from_secs(1),
+            switch_back_dwell: Duration::from_secs(1),
         }
     }
 }
@@ -264,6 +271,10 @@ struct NeedSlot {
     evaluation: Option<(ModuleId, f64)>,
     /// The last attempt to serve this optional need failed.
     optional_unmet: bool,
+    /// The provider of the latest contract (kept when it ends).
+    last_provider: Option<ModuleId>,
+    /// The provider this need last switched away from, and when.
+    left: Option<(ModuleId, Duration)>,
 }
 
 #[derive(Debug, Clone)]
@@ -342,6 +353,8 @@ impl ContractAgent {
                 candidates: Vec::new(),
                 evaluation: None,
                 optional_unmet: false,
+                last_provider: None,
+                left: None,
             })
             .collect();
         let (priority, lineage) = if cfg.manager {
@@ -971,6 +984,15 @@ impl ContractAgent {
             self.drops.record(DropReason::StaleReply);
             return;
         }
+        let dwell = self.cfg.timing.switch_back_dwell;
+        if self.needs[i]
+            .left
+            .is_some_and(|(left, at)| left == from && now < at + dwell)
+        {
+            // Just left it: stay at least the dwell time (the offer comes again with the
+            // next refresh).
+            return;
+        }
         let id = self.cfg.id;
         let body = Message::Cancel(Cancel {
             need: b.need,
@@ -1199,6 +1221,12 @@ impl ContractAgent {
         });
         let slot = &mut self.needs[i];
         slot.optional_unmet = false;
+        if let Some(prev) = slot.last_provider
+            && prev != p.provider
+        {
+            slot.left = Some((prev, now));
+        }
+        slot.last_provider = Some(p.provider);
         slot.state = NeedState::Contracted {
             provider: p.provider,
             channel: p.channel,

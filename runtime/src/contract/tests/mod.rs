@@ -1,5 +1,6 @@
 //! Scenario and property tests of the contract protocol.
 
+mod dwell;
 mod props;
 mod scenarios;
 

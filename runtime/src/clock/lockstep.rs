@@ -1,0 +1,395 @@
+//! Lockstep simulation: a barrier on the simulation clock.
+//!
+//! Without it, a simulator running faster than real time can outrun the modules that follow
+//! its clock: at `speed = "max"` it steps on while they are still busy with older sensor
+//! data, and what the robot does depends on how the processes were scheduled. In lockstep
+//! (as Gazebo's lockstep between physics and sensor consumers) simulated time advances only
+//! once every participating module has handled what the previous step caused:
+//!
+//! 1. The simulator takes a step and publishes [`msg::Clock`] with a new barrier `round`
+//!    (then the step's sensor data).
+//! 2. Every module on the simulation clock handles its inputs, timers and deadlines at that
+//!    time (the executor does this, [`Acker`]) and then acknowledges the round with a
+//!    [`ClockAck`] on [`ACK_CHANNEL`]: its name, the round, and whether it did anything since
+//!    its previous acknowledgement (handled an input, fired a timer, published a message).
+//! 3. The simulator ([`Barrier`]) waits for the acknowledgement of every live participant.
+//!    If one of them was busy, its output may be another module's input: the simulator opens
+//!    another round at the same time, and so on until a round in which nobody did anything
+//!    (the system is quiet). Only then does it take the next step.
+//!
+//! Why a quiet round proves that nothing is in flight: a message published before round `r`
+//! was opened is already in its subscriber's queue when the subscriber reads round `r`, so the
+//! subscriber handles it before acknowledging `r` and reports itself busy; a message published
+//! after round `r` was opened comes from a module that reports itself busy in round `r`. A
+//! round with every participant idle therefore leaves no message behind.
+//!
+//! Dead modules never freeze the world: the simulator drops a participant when the supervisor
+//! reports it died or was deactivated, takes it back when it is started again (the world then
+//! waits for the restarted module, which resumes from its checkpoint), and drops one that has
+//! not answered for `timeout` of wall time (logged; it rejoins with its next acknowledgement).
+
+use std::collections::BTreeMap;
+use std::time::Duration;
+
+use iceoryx2::prelude::ZeroCopySend;
+use serde::Serialize;
+
+use crate::channel::{Node, Publisher};
+use crate::error::Error;
+use crate::msg::{self, Header, MODULE_NAME_LEN};
+use crate::qos::ChannelKind;
+
+/// The channel of the acknowledgements.
+pub const ACK_CHANNEL: &str = "hng/clock_ack";
+
+/// A module has handled everything up to a lockstep round (published on [`ACK_CHANNEL`]).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize)]
+#[type_name("hng/ClockAck/v1")]
+pub struct ClockAck {
+    /// Header (stamped with the module's simulated clock).
+    pub header: Header,
+    /// The module's name, NUL-padded UTF-8.
+    #[serde(skip)]
+    pub name: [u8; MODULE_NAME_LEN],
+    /// The round acknowledged ([`msg::Clock::round`]).
+    pub round: u64,
+    /// The module's simulated clock when it acknowledged, ns.
+    pub sim_time_ns: u64,
+    /// 1 if the module did anything since its previous acknowledgement.
+    pub busy: u8,
+}
+
+crate::impl_message!(ClockAck, ChannelKind::Report);
+
+impl ClockAck {
+    /// The module name as text.
+    pub fn name(&self) -> &str {
+        msg::get_str(&self.name)
+    }
+
+    /// Sets the module name (cut to [`MODULE_NAME_LEN`] bytes).
+    pub fn set_name(&mut self, name: &str) {
+        msg::put_str(&mut self.name, name);
+    }
+}
+
+/// The module side: acknowledges each new round once the executor has handled its inputs.
+pub struct Acker {
+    publisher: Publisher<ClockAck>,
+    name: String,
+    acked_round: u64,
+    busy: bool,
+    out_seen: u64,
+}
+
+impl std::fmt::Debug for Acker {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Acker")
+            .field("name", &self.name)
+            .field("acked_round", &self.acked_round)
+            .field("busy", &self.busy)
+            .finish_non_exhaustive()
+    }
+}
+
+impl Acker {
+    /// Opens the acknowledgement channel on `node`.
+    pub fn new(node: &Node) -> Result<Acker, Error> {
+        Ok(Acker {
+            publisher: node.publisher(ACK_CHANNEL)?,
+            name: node.name().to_owned(),
+            acked_round: 0,
+            busy: false,
+            out_seen: node.counters().msgs_out.get(),
+        })
+    }
+
+    /// The module did something (handled an input, fired a timer, missed a deadline).
+    pub fn note_busy(&mut self) {
+        self.busy = true;
+    }
+
+    /// The end of an executor iteration: `round` is the latest clock sample's round (0: no
+    /// lockstep), `ignored_out` the messages published in this iteration that are nobody's
+    /// input in simulated time (the module's report). Acknowledges a round not acknowledged
+    /// yet; a round that differs counts as new, so a restarted simulator (counting from 1
+    /// again) is answered.
+    pub fn after_iteration(
+        &mut self,
+        node: &Node,
+        round: u64,
+        ignored_out: u64,
+    ) -> Result<(), Error> {
+        let out = node.counters().msgs_out.get();
+        if out.saturating_sub(self.out_seen) > ignored_out {
+            self.busy = true;
+        }
+        self.out_seen = out;
+        if round == 0 || round == self.acked_round {
+            return Ok(());
+        }
+        let mut ack = ClockAck {
+            round,
+            sim_time_ns: node.clock().now_ns(),
+            busy: u8::from(self.busy),
+            ..Default::default()
+        };
+        ack.set_name(&self.name);
+        self.publisher.publish(ack)?;
+        self.out_seen = node.counters().msgs_out.get();
+        self.acked_round = round;
+        self.busy = false;
+        Ok(())
+    }
+}
+
+/// What a [`Barrier`] says about the open round.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Verdict {
+    /// Some participant has not answered yet.
+    Waiting,
+    /// Everyone answered and someone was busy: open another round at the same time.
+    Busy,
+    /// Everyone answered idle: the system is quiet, take the next step.
+    Quiet,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Membership {
+    /// Answers are waited for.
+    Live,
+    /// Dead, deactivated or silent: not waited for until it comes back.
+    Out,
+}
+
+#[derive(Debug, Clone)]
+struct Participant {
+    membership: Membership,
+    /// Round of the last acknowledgement.
+    acked: u64,
+    busy: bool,
+}
+
+/// The simulator side: which participants answered the open round. Transport-free; times are
+/// wall-clock nanoseconds passed in.
+#[derive(Debug, Clone)]
+pub struct Barrier {
+    participants: BTreeMap<String, Participant>,
+    round: u64,
+    open: bool,
+    opened_ns: u64,
+    timeout_ns: u64,
+    /// Highest simulated clock any participant reported, ns.
+    max_sim_ns: u64,
+}
+
+impl Barrier {
+    /// A barrier over the named modules; one that stays silent for `timeout` (wall time) is
+    /// left out until it answers again.
+    pub fn new<S: AsRef<str>>(participants: &[S], timeout: Duration) -> Barrier {
+        Barrier {
+            participants: participants
+                .iter()
+                .map(|n| {
+                    (
+                        n.as_ref().to_owned(),
+                        Participant {
+                            membership: Membership::Live,
+                            acked: 0,
+                            busy: false,
+                        },
+                    )
+                })
+                .collect(),
+            round: 0,
+            open: false,
+            opened_ns: 0,
+            timeout_ns: u64::try_from(timeout.as_nanos()).unwrap_or(u64::MAX),
+            max_sim_ns: 0,
+        }
+    }
+
+    /// Opens a new round (at `now_ns` wall time) and returns its number (never 0).
+    pub fn open(&mut self, now_ns: u64) -> u64 {
+        self.round += 1;
+        self.open = true;
+        self.opened_ns = now_ns;
+        self.round
+    }
+
+    /// True while a round waits for answers.
+    pub fn is_open(&self) -> bool {
+        self.open
+    }
+
+    /// The last round opened.
+    pub fn round(&self) -> u64 {
+        self.round
+    }
+
+    /// The highest simulated time a participant reported, ns.
+    pub fn max_reported_sim_ns(&self) -> u64 {
+        self.max_sim_ns
+    }
+
+    /// An acknowledgement arrived. Returns true if it brought a participant back.
+    pub fn ack(&mut self, a: &ClockAck) -> bool {
+        self.max_sim_ns = self.max_sim_ns.max(a.sim_time_ns);
+        let Some(p) = self.participants.get_mut(a.name()) else {
+            return false;
+        };
+        if a.round != self.round {
+            return false; // an answer to an older round (or an older simulator)
+        }
+        p.acked = a.round;
+        p.busy = a.busy != 0;
+        let back = p.membership == Membership::Out;
+        p.membership = Membership::Live;
+        back
+    }
+
+    /// The supervisor reports the module died or was deactivated: not waited for.
+    pub fn left(&mut self, name: &str) -> bool {
+        match self.participants.get_mut(name) {
+            Some(p) if p.membership == Membership::Live => {
+                p.membership = Membership::Out;
+                true
+            }
+            _ => false,
+        }
+    }
+
+    /// The supervisor started the module (again): waited for from now on.
+    pub fn joined(&mut self, name: &str) -> bool {
+        match self.participants.get_mut(name) {
+            Some(p) if p.membership == Membership::Out => {
+                p.membership = Membership::Live;
+                true
+            }
+            _ => false,
+        }
+    }
+
+    /// The participants not waited for.
+    pub fn left_out(&self) -> impl Iterator<Item = &str> + '_ {
+        self.participants
+            .iter()
+            .filter(|(_, p)| p.membership == Membership::Out)
+            .map(|(n, _)| n.as_str())
+    }
+
+    /// The verdict on the open round at `now_ns` (wall). Participants silent longer than the
+    /// timeout are left out first; their names are returned.
+    pub fn poll(&mut self, now_ns: u64) -> (Verdict, Vec<String>) {
+        let mut dropped = Vec::new();
+        if !self.open {
+            return (Verdict::Quiet, dropped);
+        }
+        let timed_out = now_ns.saturating_sub(self.opened_ns) > self.timeout_ns;
+        let mut waiting = false;
+        let mut busy = false;
+        for (name, p) in &mut self.participants {
+            if p.membership == Membership::Out {
+                continue;
+            }
+            if p.acked != self.round {
+                if timed_out {
+                    p.membership = Membership::Out;
+                    dropped.push(name.clone());
+                } else {
+                    waiting = true;
+                }
+                continue;
+            }
+            busy |= p.busy;
+        }
+        let verdict = if waiting {
+            Verdict::Waiting
+        } else if busy {
+            Verdict::Busy
+        } else {
+            Verdict::Quiet
+        };
+        if verdict != Verdict::Waiting {
+            self.open = false;
+        }
+        (verdict, dropped)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ack(name: &str, round: u64, busy: bool) -> ClockAck {
+        let mut a = ClockAck {
+            round,
+            busy: u8::from(busy),
+            sim_time_ns: round * 10,
+            ..Default::default()
+        };
+        a.set_name(name);
+        a
+    }
+
+    const T: Duration = Duration::from_secs(5);
+
+    #[test]
+    fn a_round_closes_when_everyone_answered_and_is_quiet_only_when_nobody_was_busy() {
+        let mut b = Barrier::new(&["laser", "slam"], T);
+        let r = b.open(0);
+        assert_eq!(r, 1);
+        b.ack(&ack("laser", r, true));
+        assert_eq!(b.poll(1).0, Verdict::Waiting);
+        assert!(b.is_open());
+        b.ack(&ack("slam", r, false));
+        assert_eq!(b.poll(2).0, Verdict::Busy, "laser was busy: another round");
+        assert!(!b.is_open());
+        let r = b.open(3);
+        b.ack(&ack("slam", r, true));
+        b.ack(&ack("laser", r, false));
+        assert_eq!(b.poll(4).0, Verdict::Busy);
+        let r = b.open(5);
+        b.ack(&ack("slam", r, false));
+        assert_eq!(b.poll(6).0, Verdict::Waiting);
+        b.ack(&ack("laser", r - 1, false));
+        assert_eq!(b.poll(6).0, Verdict::Waiting, "an old round's answer counts for nothing");
+        b.ack(&ack("laser", r, false));
+        assert_eq!(b.poll(7).0, Verdict::Quiet);
+        assert_eq!(b.max_reported_sim_ns(), r * 10);
+    }
+
+    #[test]
+    fn strangers_are_ignored_and_the_dead_are_not_waited_for() {
+        let mut b = Barrier::new(&["laser", "slam"], T);
+        let r = b.open(0);
+        b.ack(&ack("monitor", r, true));
+        b.ack(&ack("laser", r, false));
+        assert_eq!(b.poll(1).0, Verdict::Waiting);
+        assert!(b.left("slam"));
+        assert_eq!(b.poll(2).0, Verdict::Quiet, "a dead module never freezes the world");
+        assert_eq!(b.left_out().collect::<Vec<_>>(), ["slam"]);
+        // Started again: waited for.
+        assert!(b.joined("slam"));
+        let r = b.open(3);
+        b.ack(&ack("laser", r, false));
+        assert_eq!(b.poll(4).0, Verdict::Waiting);
+        b.ack(&ack("slam", r, false));
+        assert_eq!(b.poll(5).0, Verdict::Quiet);
+    }
+
+    #[test]
+    fn a_silent_participant_is_left_out_after_the_timeout_and_rejoins_when_it_answers() {
+        let mut b = Barrier::new(&["laser", "slam"], Duration::from_nanos(100));
+        let r = b.open(0);
+        b.ack(&ack("laser", r, false));
+        assert_eq!(b.poll(50).0, Verdict::Waiting);
+        let (v, dropped) = b.poll(101);
+        assert_eq!((v, dropped), (Verdict::Quiet, vec!["slam".to_owned()]));
+        let r = b.open(200);
+        assert!(b.ack(&ack("slam", r, true)), "back");
+        b.ack(&ack("laser", r, false));
+        assert_eq!(b.poll(201).0, Verdict::Busy);
+    }
+}

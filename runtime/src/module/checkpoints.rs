@@ -1,0 +1,90 @@
+//! A module's checkpoints: the latest one and, beside it, the last good one before it.
+//!
+//! Every save first moves the current checkpoint aside (`<name>.prev.ckpt`, an atomic
+//! rename) and then writes the new one, so a checkpoint that turns out unusable (corrupted on
+//! disk, or rejected by the module) is replaced by the one before it rather than by a clean
+//! start. A module for which a clean start in the middle of a run would be wrong (the
+//! simulator: the world would start again and its clock go back) sets
+//! [`Module::CLEAN_START_AFTER_BAD_CHECKPOINT`] to false and then refuses to start when
+//! neither checkpoint is usable.
+
+use std::path::Path;
+
+use super::{Module, ModuleError};
+use crate::checkpoint::CheckpointStore;
+
+/// The latest checkpoint and the one before it.
+#[derive(Debug)]
+pub(super) struct Checkpoints {
+    latest: CheckpointStore,
+    previous: Option<CheckpointStore>,
+}
+
+impl Checkpoints {
+    /// The checkpoints of module `name` in `dir`; `None` (after a warning) when they cannot
+    /// be used.
+    pub(super) fn open(dir: &Path, name: &str) -> Option<Checkpoints> {
+        match CheckpointStore::new(dir, name) {
+            Ok(latest) => Some(Checkpoints {
+                latest,
+                previous: CheckpointStore::new(dir, &format!("{name}.prev")).ok(),
+            }),
+            Err(e) => {
+                tracing::warn!(module = %name, "checkpoints disabled: {e}");
+                None
+            }
+        }
+    }
+
+    /// Restores `module` from the latest usable checkpoint. `Ok` also when there is none
+    /// (a first start) or, for modules that allow it, when none is usable (a clean start);
+    /// `Err` when none is usable and the module refuses a clean start.
+    pub(super) fn restore<M: Module>(&self, module: &mut M, name: &str) -> Result<(), ModuleError> {
+        let mut problems = Vec::new();
+        for (which, store) in [("latest", Some(&self.latest)), ("previous", self.previous.as_ref())] {
+            let Some(store) = store else { continue };
+            match store.load(M::STATE_VERSION) {
+                Ok(Some(bytes)) => match module.restore(&bytes) {
+                    Ok(()) => {
+                        if problems.is_empty() {
+                            tracing::info!(module = %name, bytes = bytes.len(), "state restored from checkpoint");
+                        } else {
+                            tracing::warn!(module = %name, bytes = bytes.len(), problems = ?problems, "latest checkpoint unusable: state restored from the one before it");
+                        }
+                        return Ok(());
+                    }
+                    Err(e) => problems.push(format!("{which}: rejected by the module: {e}")),
+                },
+                Ok(None) => {}
+                Err(e) => problems.push(format!("{which}: {e}")),
+            }
+        }
+        if problems.is_empty() {
+            return Ok(()); // first start
+        }
+        if M::CLEAN_START_AFTER_BAD_CHECKPOINT {
+            tracing::warn!(module = %name, problems = ?problems, "no usable checkpoint, starting clean");
+            return Ok(());
+        }
+        Err(format!(
+            "no usable checkpoint ({}), and this module does not start clean in the middle of a run",
+            problems.join("; ")
+        )
+        .into())
+    }
+
+    /// Saves `bytes`, keeping the checkpoint it replaces as the previous one.
+    pub(super) fn save(
+        &self,
+        state_version: u32,
+        bytes: &[u8],
+    ) -> Result<(), crate::checkpoint::CheckpointError> {
+        if let Some(prev) = &self.previous
+            && self.latest.path().exists()
+            && let Err(e) = std::fs::rename(self.latest.path(), prev.path())
+        {
+            tracing::debug!("keeping the previous checkpoint: {e}");
+        }
+        self.latest.save(state_version, bytes)
+    }
+}

@@ -1,0 +1,228 @@
+//! Configuration of `hng module simulator` (the `config` table of its launch-file entry).
+
+use std::path::PathBuf;
+
+use hng_runtime::ModuleResult;
+use hng_runtime::msg::MAX_BEAMS;
+use serde::{Deserialize, Deserializer};
+
+use crate::pacing::Speed;
+use crate::world::{Pose2D, World};
+
+/// Per-sensor switches; `None` keeps the world file's setting. A sensor switched off publishes
+/// nothing and does not even open its channel, so a real driver or a log replay can provide it
+/// (hybrid simulation).
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SensorSwitches {
+    /// Lidar on `channels.scan`.
+    pub lidar: Option<bool>,
+    /// Odometry on `channels.odom`.
+    pub odometry: Option<bool>,
+    /// GPS on `channels.gps`.
+    pub gps: Option<bool>,
+    /// Beacon camera on `channels.camera`.
+    pub camera: Option<bool>,
+    /// Ground truth on `channels.ground_truth`.
+    pub ground_truth: Option<bool>,
+}
+
+/// Channel names.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Channels {
+    /// Lidar, `LaserScan` in `laser` (default `sim/scan`).
+    pub scan: String,
+    /// Odometry, `Odometry` odom → base_link (default `sim/odom`).
+    pub odom: String,
+    /// GPS/IMU pose, `PoseWithCovariance` in `map` (default `sim/gps`).
+    pub gps: String,
+    /// Beacon camera, `BeaconObservation` in `camera` (default `sim/camera`).
+    pub camera: String,
+    /// True pose, `PoseWithCovariance` in `map`, evaluation only (default `sim/ground_truth`).
+    pub ground_truth: String,
+    /// Collision events, [`SimCollision`] (default `sim/collisions`).
+    pub collisions: String,
+    /// Counters, [`SimStatus`] (default `sim/status`).
+    pub status: String,
+    /// Velocity commands in, `Twist` (default `sim/cmd_vel`).
+    pub cmd_vel: String,
+    /// Ground-truth occupancy grid, `GridInfo` + `[i8]`, published once (default `sim/map`;
+    /// empty: not published).
+    pub map: String,
+}
+
+impl Default for Channels {
+    fn default() -> Self {
+        Self {
+            scan: "sim/scan".into(),
+            odom: "sim/odom".into(),
+            gps: "sim/gps".into(),
+            camera: "sim/camera".into(),
+            ground_truth: "sim/ground_truth".into(),
+            collisions: "sim/collisions".into(),
+            status: "sim/status".into(),
+            cmd_vel: "sim/cmd_vel".into(),
+            map: "sim/map".into(),
+        }
+    }
+}
+
+/// Configuration of `hng module simulator` (the `config` table of its launch-file entry).
+#[derive(Debug, Clone, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SimModuleConfig {
+    /// World file: a TOML world, or a map_server YAML (`.yaml`/`.yml`, then `start` is needed).
+    /// Default: the built-in world.
+    pub world: Option<PathBuf>,
+    /// Robot start pose, overriding the world's.
+    pub start: Option<Pose2D>,
+    /// `"realtime"` (default), a factor such as `10`, or `"max"`.
+    #[serde(deserialize_with = "de_speed")]
+    pub speed: Speed,
+    /// Noise seed, overriding the world's.
+    pub seed: Option<u64>,
+    /// Stop cleanly after this many simulated seconds.
+    pub duration: Option<f64>,
+    /// Sensor switches (hybrid simulation).
+    pub sensors: SensorSwitches,
+    /// Channel names.
+    pub channels: Channels,
+    /// Cell size of the published ground-truth map, m (default 0.05).
+    pub map_resolution: f64,
+    /// Most physics steps per tick before commands and signals are looked at (default 10).
+    pub max_steps_per_tick: u32,
+    /// Publish the clock every this many steps (default 1), and always with sensor data.
+    pub clock_every_steps: u32,
+    /// Modules whose first report simulated time waits for (default none: it starts at once).
+    pub wait_for: Vec<String>,
+    /// Longest wait for them, s of wall time (default 10).
+    pub wait_timeout_s: f64,
+    /// Lockstep: modules whose acknowledgement of each step simulated time waits for
+    /// (default none: the simulator only keeps its pace); see
+    /// [`hng_runtime::clock::lockstep`].
+    pub lockstep: Vec<String>,
+    /// A lockstep participant silent this long (s of wall time) is not waited for until it
+    /// answers again (default 10).
+    pub lockstep_timeout_s: f64,
+}
+
+impl Default for SimModuleConfig {
+    fn default() -> Self {
+        Self {
+            world: None,
+            start: None,
+            speed: Speed::RealTime,
+            seed: None,
+            duration: None,
+            sensors: SensorSwitches::default(),
+            channels: Channels::default(),
+            map_resolution: 0.05,
+            max_steps_per_tick: 10,
+            clock_every_steps: 1,
+            wait_for: Vec::new(),
+            wait_timeout_s: 10.0,
+            lockstep: Vec::new(),
+            lockstep_timeout_s: 10.0,
+        }
+    }
+}
+
+fn de_speed<'de, D: Deserializer<'de>>(d: D) -> Result<Speed, D::Error> {
+    #[derive(Deserialize)]
+    #[serde(untagged)]
+    enum Raw {
+        Number(f64),
+        Text(String),
+    }
+    let text = match Raw::deserialize(d)? {
+        Raw::Number(f) => f.to_string(),
+        Raw::Text(s) => s,
+    };
+    text.parse().map_err(serde::de::Error::custom)
+}
+
+pub(super) fn config_error(
+    field: &str,
+    message: impl std::fmt::Display,
+) -> Box<dyn std::error::Error + Send + Sync> {
+    format!("simulator config: field `{field}`: {message}").into()
+}
+
+impl SimModuleConfig {
+    /// The world this configuration describes: loaded, with the overrides applied.
+    pub fn build_world(&self) -> ModuleResult<World> {
+        let mut world = match &self.world {
+            None => World::default_world(),
+            Some(path) => {
+                let is_yaml = path.extension().and_then(|e| e.to_str()).is_some_and(|e| {
+                    e.eq_ignore_ascii_case("yaml") || e.eq_ignore_ascii_case("yml")
+                });
+                if is_yaml {
+                    let start = self.start.ok_or_else(|| {
+                        config_error(
+                            "start",
+                            format!(
+                                "a map_server world ({}) has no robot pose: give `start = {{ x = .., y = .. }}`",
+                                path.display()
+                            ),
+                        )
+                    })?;
+                    World::from_occupancy_map(path, start)?
+                } else {
+                    World::load(path)?
+                }
+            }
+        };
+        if let Some(start) = self.start {
+            world.robot.start = start;
+        }
+        if let Some(seed) = self.seed {
+            world.seed = seed;
+        }
+        let s = &self.sensors;
+        let sw = &mut world.sensors;
+        for (switch, enabled) in [
+            (s.lidar, &mut sw.lidar.enabled),
+            (s.odometry, &mut sw.odometry.enabled),
+            (s.gps, &mut sw.gps.enabled),
+            (s.camera, &mut sw.camera.enabled),
+            (s.ground_truth, &mut sw.ground_truth.enabled),
+        ] {
+            if let Some(on) = switch {
+                *enabled = on;
+            }
+        }
+        if world.sensors.lidar.beams as usize > MAX_BEAMS {
+            return Err(config_error(
+                "sensors.lidar.beams",
+                format!(
+                    "{} beams do not fit a LaserScan message (at most {MAX_BEAMS})",
+                    world.sensors.lidar.beams
+                ),
+            ));
+        }
+        if let Some(d) = self.duration
+            && !(d.is_finite() && d > 0.0)
+        {
+            return Err(config_error(
+                "duration",
+                format!("must be > 0 seconds, got {d}"),
+            ));
+        }
+        if self.max_steps_per_tick == 0 {
+            return Err(config_error("max_steps_per_tick", "must be at least 1"));
+        }
+        if !(self.lockstep_timeout_s.is_finite() && self.lockstep_timeout_s > 0.0) {
+            return Err(config_error(
+                "lockstep_timeout_s",
+                format!("must be > 0 seconds, got {}", self.lockstep_timeout_s),
+            ));
+        }
+        if self.clock_every_steps == 0 {
+            return Err(config_error("clock_every_steps", "must be at least 1"));
+        }
+        Ok(world)
+    }
+}
+

@@ -1,0 +1,329 @@
+//! Lockstep simulation and the truth of mission results, end to end with `hng run` (every
+//! module its own process): the default mission at `--speed max`, two runs with one seed,
+//! a corrupted simulator checkpoint, and goals added outside the map.
+
+use std::io::Read as _;
+use std::path::PathBuf;
+use std::process::{Child, Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+use hng_runtime::clock::CLOCK_CHANNEL;
+use hng_runtime::msg;
+use hng_runtime::shm;
+use hng_runtime::wait::{WaitMode, Waiter};
+use hng_runtime::{Node, NodeOptions};
+use hng_simulator::module::SimStatus;
+
+fn hng() -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_hng"));
+    c.env("HNG_LOG", "warn").stdin(Stdio::null());
+    c
+}
+
+/// A mission under its own prefix and run directory; removes both on drop.
+struct Run {
+    prefix: String,
+    dir: PathBuf,
+}
+
+impl Run {
+    fn new(tag: &str) -> Run {
+        let prefix = shm::unique_prefix(tag);
+        let dir = std::env::temp_dir().join(format!("hng-test-{}", prefix.trim_end_matches('_')));
+        std::fs::create_dir_all(&dir).expect("test dir");
+        Run { prefix, dir }
+    }
+
+    fn summary_path(&self) -> PathBuf {
+        self.dir.join("summary.json")
+    }
+
+    fn command(&self, args: &[&str]) -> Command {
+        let mut c = hng();
+        c.arg("--prefix")
+            .arg(&self.prefix)
+            .arg("run")
+            .arg("--run-dir")
+            .arg(self.dir.join("run"))
+            .arg("--summary")
+            .arg(self.summary_path())
+            .args(args);
+        c
+    }
+
+    fn summary(&self, out: &str) -> serde_json::Value {
+        let text = std::fs::read_to_string(self.summary_path())
+            .unwrap_or_else(|e| panic!("no summary ({e}); output:\n{out}"));
+        serde_json::from_str(&text).expect("summary JSON")
+    }
+
+    fn run(&self, args: &[&str]) -> (Output, serde_json::Value) {
+        let out = self.command(args).output().expect("hng run");
+        let s = self.summary(&format!(
+            "{}\n{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        ));
+        (out, s)
+    }
+}
+
+impl Drop for Run {
+    fn drop(&mut self) {
+        shm::remove_prefix_files(&self.prefix);
+        let _ = std::fs::remove_dir_all(&self.dir);
+    }
+}
+
+/// Kills `hng run` (its modules follow by their parent-death signal) if the test ends early.
+struct KillOnDrop(Child);
+
+impl Drop for KillOnDrop {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+impl KillOnDrop {
+    /// Waits for the run to end; its exit status, stdout and stderr.
+    fn finish(&mut self) -> (std::process::ExitStatus, String, String) {
+        let mut out = String::new();
+        let mut err = String::new();
+        if let Some(mut o) = self.0.stdout.take() {
+            o.read_to_string(&mut out).expect("stdout");
+        }
+        if let Some(mut e) = self.0.stderr.take() {
+            e.read_to_string(&mut err).expect("stderr");
+        }
+        (self.0.wait().expect("wait"), out, err)
+    }
+}
+
+fn goals(s: &serde_json::Value) -> &Vec<serde_json::Value> {
+    s["goals"].as_array().expect("goals list")
+}
+
+/// Every goal reached by the true pose, with its true error within its tolerance.
+fn assert_truly_successful(out: &Output, s: &serde_json::Value) {
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "hng run failed: {s}\n{text}");
+    assert_eq!(s["success"], true, "{s}\n{text}");
+    assert_eq!(s["goals_reached"], s["goals_total"], "{s}");
+    assert_eq!(s["collisions"], 0, "{s}");
+    for g in goals(s) {
+        assert_eq!(g["state"], "reached", "{g}\n{s}");
+        let err = g["true_error_m"].as_f64().expect("true error");
+        let tol = g["tolerance_m"].as_f64().expect("tolerance");
+        assert!(err <= tol, "{g}");
+    }
+}
+
+#[test]
+fn the_default_mission_succeeds_at_speed_max() {
+    let _heavy = crate::common::heavy();
+    let r = Run::new("lockstep_max");
+    let (out, s) = r.run(&["--speed", "max"]);
+    assert_truly_successful(&out, &s);
+    assert_eq!(s["goals_total"], 3, "{s}");
+    assert!(s["path_length_m"].as_f64().expect("path") > 10.0, "{s}");
+    println!(
+        "speed max: {} s simulated in {} s wall",
+        s["sim_time_s"], s["wall_time_s"]
+    );
+}
+
+#[test]
+fn two_runs_with_one_seed_give_the_same_summary() {
+    let _heavy = crate::common::heavy();
+    let mut summaries = Vec::new();
+    for i in 0..2 {
+        let r = Run::new(&format!("lockstep_seed{i}"));
+        let (out, s) = r.run(&["--speed", "max", "--seed", "7", "--no-rm"]);
+        assert_truly_successful(&out, &s);
+        summaries.push(s);
+    }
+    let (a, b) = (&summaries[0], &summaries[1]);
+    let states = |s: &serde_json::Value| -> Vec<(String, String)> {
+        goals(s)
+            .iter()
+            .map(|g| (g["id"].to_string(), g["state"].to_string()))
+            .collect()
+    };
+    assert_eq!(states(a), states(b), "same goals, same outcomes:\n{a}\n{b}");
+    let (pa, pb) = (
+        a["path_length_m"].as_f64().expect("path"),
+        b["path_length_m"].as_f64().expect("path"),
+    );
+    assert!(
+        (pa - pb).abs() <= 0.01 * pa.max(pb),
+        "path lengths {pa} and {pb} differ by more than 1 %:\n{a}\n{b}"
+    );
+    assert_eq!(
+        a["contract_switches"], b["contract_switches"],
+        "same contract switches:\n{a}\n{b}"
+    );
+}
+
+/// The pid of a module of the running system (`hng ps --json`).
+fn pid_of(prefix: &str, module: &str) -> Option<i32> {
+    let out = hng()
+        .args(["--prefix", prefix, "ps", "--json"])
+        .output()
+        .ok()?;
+    let text = String::from_utf8_lossy(&out.stdout);
+    let doc: serde_json::Value = serde_json::from_str(text.trim()).ok()?;
+    let list = doc
+        .as_array()
+        .or_else(|| doc["modules"].as_array())?
+        .clone();
+    list.iter()
+        .find(|m| m["name"] == module)
+        .and_then(|m| m["pid"].as_i64())
+        .and_then(|p| i32::try_from(p).ok())
+        .filter(|p| *p > 0)
+}
+
+#[test]
+fn a_corrupted_simulator_checkpoint_never_makes_simulated_time_go_back() {
+    let _heavy = crate::common::heavy();
+    let r = Run::new("lockstep_ckpt");
+    let mut run = KillOnDrop(
+        r.command(&["--speed", "5", "--no-rm"])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("hng run"),
+    );
+    let node = Node::new(NodeOptions::new("ckpt-watch").prefix(&r.prefix)).expect("node");
+    let clock = node
+        .subscriber::<msg::Clock>(CLOCK_CHANNEL)
+        .expect("clock");
+    let status = node.subscriber::<SimStatus>("sim/status").expect("status");
+    let mut waiter = Waiter::new(WaitMode::Blocking {
+        max_spin: Duration::ZERO,
+    })
+    .expect("waiter");
+    waiter.attach(&clock).expect("attach");
+    let ckpt = r.dir.join("run/checkpoints/simulator.ckpt");
+    let mut max_ns = 0u64;
+    let mut went_back: Option<(u64, u64)> = None;
+    let mut killed_at: Option<u64> = None;
+    let mut after_kill_max = 0u64;
+    let start = Instant::now();
+    while run.0.try_wait().expect("try_wait").is_none() && start.elapsed() < Duration::from_secs(120)
+    {
+        waiter.wait(Some(Duration::from_millis(50))).expect("wait");
+        while let Some(c) = clock.receive().expect("receive") {
+            if c.sim_time_ns < max_ns && went_back.is_none() {
+                went_back = Some((max_ns, c.sim_time_ns));
+            }
+            max_ns = max_ns.max(c.sim_time_ns);
+            if killed_at.is_some() {
+                after_kill_max = after_kill_max.max(c.sim_time_ns);
+            }
+        }
+        while let Some(st) = status.receive().expect("receive") {
+            if st.sim_time_ns < max_ns && went_back.is_none() {
+                went_back = Some((max_ns, st.sim_time_ns));
+            }
+        }
+        // After 8 s simulated (two checkpoints at least): freeze the simulator, corrupt its
+        // latest checkpoint, and kill it: the supervisor restarts it.
+        if killed_at.is_none() && max_ns > 8_000_000_000 && ckpt.exists() {
+            let Some(pid) = pid_of(&r.prefix, "simulator") else {
+                continue;
+            };
+            let pid = nix::unistd::Pid::from_raw(pid);
+            nix::sys::signal::kill(pid, nix::sys::signal::Signal::SIGSTOP).expect("SIGSTOP");
+            let mut bytes = std::fs::read(&ckpt).expect("read checkpoint");
+            let mid = bytes.len() / 2;
+            for b in &mut bytes[mid..mid + 8] {
+                *b ^= 0xA5;
+            }
+            std::fs::write(&ckpt, &bytes).expect("corrupt checkpoint");
+            nix::sys::signal::kill(pid, nix::sys::signal::Signal::SIGKILL).expect("SIGKILL");
+            killed_at = Some(max_ns);
+        }
+    }
+    drop(status);
+    drop(clock);
+    drop(node);
+    let (exit, out, err) = run.finish();
+    let killed_at = killed_at.unwrap_or_else(|| panic!("the simulator was never killed\n{out}"));
+    assert!(
+        went_back.is_none(),
+        "simulated time went back {went_back:?}\n{out}\n{err}"
+    );
+    assert!(
+        after_kill_max > killed_at,
+        "the clock never moved on after the restart\n{out}\n{err}"
+    );
+    assert!(
+        err.contains("state restored from the one before it"),
+        "the previous checkpoint was not used:\n{err}"
+    );
+    let s = r.summary(&out);
+    assert!(exit.success(), "{s}\n{out}\n{err}");
+    assert_eq!(s["success"], true, "{s}");
+    assert!(s["restarts"].as_u64().expect("restarts") >= 1, "{s}");
+}
+
+#[test]
+fn an_added_goal_outside_the_map_fails_the_run_and_is_listed() {
+    let _heavy = crate::common::heavy();
+    let r = Run::new("lockstep_added");
+    let mut run = KillOnDrop(
+        r.command(&["--speed", "5", "--no-rm"])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("hng run"),
+    );
+    // Wait for the Manager, then add goals: one beyond any map (refused at once, with the
+    // reason), one outside this map (accepted, then refused by Planning).
+    let start = Instant::now();
+    let added = loop {
+        assert!(
+            start.elapsed() < Duration::from_secs(60),
+            "the Manager never answered"
+        );
+        assert!(
+            run.0.try_wait().expect("try_wait").is_none(),
+            "hng run ended early"
+        );
+        let far = hng()
+            .args(["--prefix", &r.prefix, "mission", "add", "1e300,1e300"])
+            .output()
+            .expect("hng mission");
+        let far_err = String::from_utf8_lossy(&far.stderr).into_owned();
+        assert!(!far.status.success(), "1e300,1e300 accepted");
+        if !far_err.contains("within") {
+            // No Manager yet ("start a system ..."): try again.
+            std::thread::sleep(Duration::from_millis(200));
+            continue;
+        }
+        let out = hng()
+            .args(["--prefix", &r.prefix, "mission", "add", "25,25"])
+            .output()
+            .expect("hng mission");
+        if out.status.success() {
+            break String::from_utf8_lossy(&out.stdout).into_owned();
+        }
+        std::thread::sleep(Duration::from_millis(200));
+    };
+    assert!(added.contains("25.00"), "{added}");
+    let (exit, out, _) = run.finish();
+    let s = r.summary(&out);
+    assert!(!exit.success(), "the run succeeded with a goal outside the map:\n{out}");
+    assert_eq!(s["success"], false, "{s}");
+    assert_eq!(s["goals_total"], 4, "{s}");
+    let g = goals(&s)
+        .iter()
+        .find(|g| g["x"] == 25.0 && g["y"] == 25.0)
+        .unwrap_or_else(|| panic!("the added goal is not listed: {s}"));
+    assert_eq!(g["state"], "refused", "{g}");
+    assert_eq!(g["reason"], "outside the map", "{g}");
+    assert!(out.contains("REFUSED (25.00, 25.00)"), "{out}");
+    assert!(out.contains("mission FAILED"), "{out}");
+}
