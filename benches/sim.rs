@@ -4,6 +4,7 @@
 use std::hint::black_box;
 
 use criterion::{Criterion, criterion_group, criterion_main};
+use hng_simulator::render::{ImageParams, Renderer};
 use hng_simulator::{SensorKind, SensorOutput, Simulator, World, bench};
 
 fn sim_benches(c: &mut Criterion) {
@@ -58,5 +59,33 @@ fn sim_benches(c: &mut Criterion) {
     });
 }
 
-criterion_group!(benches, sim_benches);
+/// One camera image (320 x 240 RGB8, 230 KB) of the default world, without and with pixel
+/// noise.
+fn render_benches(c: &mut Criterion) {
+    let world = World::default_world();
+    let start = world.robot.start;
+    for (case, sigma) in [("clean", 0.0), ("noise_3", 3.0)] {
+        let params = ImageParams {
+            noise_sigma: sigma,
+            ..ImageParams::default()
+        };
+        let Ok(r) = Renderer::new(&world, params) else {
+            eprintln!("cannot build the renderer");
+            return;
+        };
+        let mut img = vec![0u8; params.image_bytes()];
+        let mut rng = <rand_chacha::ChaCha8Rng as rand::SeedableRng>::seed_from_u64(1);
+        c.bench_function(
+            &format!("sim/render_camera_320x240_default_world_{case}"),
+            |b| {
+                b.iter(|| {
+                    r.render(start, 1.0, Some(&mut rng), &mut img);
+                    black_box(&img);
+                })
+            },
+        );
+    }
+}
+
+criterion_group!(benches, sim_benches, render_benches);
 criterion_main!(benches);

@@ -602,7 +602,10 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
     let mut next_checkpoint = monotonic_ns().saturating_add(checkpoint_ns);
     let clock_id = clock_sub.as_ref().map(|s| s.id());
     // Lockstep: acknowledge each barrier round of the simulator (see crate::clock::lockstep).
-    let mut acker = clock_sub.is_some().then(|| Acker::new(&ctx.node)).transpose()?;
+    let mut acker = clock_sub
+        .is_some()
+        .then(|| Acker::new(&ctx.node))
+        .transpose()?;
     let mut round = 0;
 
     while !ctx.stop_requested {

@@ -21,6 +21,7 @@ mod error;
 pub mod map;
 pub mod module;
 mod pacing;
+pub mod render;
 mod sensors;
 mod sim;
 mod snapshot;

@@ -120,6 +120,7 @@ pub fn grid_boxes(grid: &OccupancyGrid) -> Vec<BoxObstacle> {
                 center: [origin[0] + c * u - s * v, origin[1] + s * u + c * v],
                 size: [(c1 - c0) as f64 * res, (r1 - r0) as f64 * res],
                 angle: yaw,
+                color: None,
             }
         })
         .collect();

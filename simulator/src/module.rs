@@ -51,8 +51,8 @@ use crate::snapshot::SimSnapshot;
 mod config;
 mod lockstep;
 
-pub use config::{Channels, SensorSwitches, SimModuleConfig};
 use config::config_error;
+pub use config::{Channels, SensorSwitches, SimModuleConfig};
 use lockstep::Lockstep;
 
 /// Longest a tick keeps stepping before it returns to the executor.
@@ -595,8 +595,7 @@ impl SimulatorModule {
         // Lockstep: every step opens a round, announced by the clock sample.
         let lockstep = self.lockstep.as_mut().map(|l| l.open(false)).is_some();
         // The clock goes first, so a module woken by sensor data already has the new time.
-        let result = if lockstep || self.steps_since_clock >= self.clock_every || !out.is_empty()
-        {
+        let result = if lockstep || self.steps_since_clock >= self.clock_every || !out.is_empty() {
             self.publish_clock()
         } else {
             Ok(())

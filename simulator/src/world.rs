@@ -139,6 +139,9 @@ pub struct Wall {
     /// Thickness, metres (default 0.05).
     #[serde(default = "Wall::default_thickness")]
     pub thickness: f64,
+    /// Colour [r, g, b] in camera images (default: a shade picked from the wall's position).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub color: Option<[u8; 3]>,
 }
 
 impl Wall {
@@ -153,6 +156,7 @@ impl Wall {
             from,
             to,
             thickness: Self::default_thickness(),
+            color: None,
         }
     }
 
@@ -169,6 +173,7 @@ impl Wall {
             ],
             size: [len + self.thickness, self.thickness],
             angle: if len > 0.0 { dy.atan2(dx) } else { 0.0 },
+            color: self.color,
         }
     }
 }
@@ -184,6 +189,9 @@ pub struct BoxObstacle {
     /// Rotation, radians (default 0).
     #[serde(default)]
     pub angle: f64,
+    /// Colour [r, g, b] in camera images (default: a shade picked from the box's position).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub color: Option<[u8; 3]>,
 }
 
 impl BoxObstacle {
@@ -747,27 +755,32 @@ impl World {
                 center: [4.0, 5.0],
                 size: [0.6, 0.6],
                 angle: 0.0,
+                color: None,
             },
             BoxObstacle {
                 center: [5.5, 10.0],
                 size: [1.0, 0.5],
                 angle: 0.5,
+                color: None,
             },
             BoxObstacle {
                 center: [2.5, 12.5],
                 size: [0.8, 0.8],
                 angle: PI / 4.0,
+                color: None,
             },
             // A table in the north room and a shelf in the south-east room.
             BoxObstacle {
                 center: [15.0, 11.5],
                 size: [2.0, 1.0],
                 angle: 0.0,
+                color: None,
             },
             BoxObstacle {
                 center: [17.5, 2.0],
                 size: [0.4, 2.0],
                 angle: 0.0,
+                color: None,
             },
         ];
         w.beacons = vec![

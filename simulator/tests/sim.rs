@@ -63,6 +63,7 @@ fn lidar_world() -> World {
             from: [3.0, 2.0],
             to: [7.0, 3.1],
             thickness: 0.3,
+            color: None,
         }, // slanted thick wall
         Wall::new([8.0, 1.0], [8.0, 4.0]),
     ];
@@ -70,6 +71,7 @@ fn lidar_world() -> World {
         center: [2.0, 4.5],
         size: [0.7, 0.4],
         angle: 0.4,
+        color: None,
     }];
     w.sensors.lidar.beams = 3600;
     w.sensors.lidar.max_range = 9.0;

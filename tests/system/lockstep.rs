@@ -196,9 +196,7 @@ fn a_corrupted_simulator_checkpoint_never_makes_simulated_time_go_back() {
             .expect("hng run"),
     );
     let node = Node::new(NodeOptions::new("ckpt-watch").prefix(&r.prefix)).expect("node");
-    let clock = node
-        .subscriber::<msg::Clock>(CLOCK_CHANNEL)
-        .expect("clock");
+    let clock = node.subscriber::<msg::Clock>(CLOCK_CHANNEL).expect("clock");
     let status = node.subscriber::<SimStatus>("sim/status").expect("status");
     let mut waiter = Waiter::new(WaitMode::Blocking {
         max_spin: Duration::ZERO,
@@ -211,7 +209,8 @@ fn a_corrupted_simulator_checkpoint_never_makes_simulated_time_go_back() {
     let mut killed_at: Option<u64> = None;
     let mut after_kill_max = 0u64;
     let start = Instant::now();
-    while run.0.try_wait().expect("try_wait").is_none() && start.elapsed() < Duration::from_secs(120)
+    while run.0.try_wait().expect("try_wait").is_none()
+        && start.elapsed() < Duration::from_secs(120)
     {
         waiter.wait(Some(Duration::from_millis(50))).expect("wait");
         while let Some(c) = clock.receive().expect("receive") {
@@ -315,7 +314,10 @@ fn an_added_goal_outside_the_map_fails_the_run_and_is_listed() {
     assert!(added.contains("25.00"), "{added}");
     let (exit, out, _) = run.finish();
     let s = r.summary(&out);
-    assert!(!exit.success(), "the run succeeded with a goal outside the map:\n{out}");
+    assert!(
+        !exit.success(),
+        "the run succeeded with a goal outside the map:\n{out}"
+    );
     assert_eq!(s["success"], false, "{s}");
     assert_eq!(s["goals_total"], 4, "{s}");
     let g = goals(&s)

@@ -354,7 +354,11 @@ mod tests {
         b.ack(&ack("slam", r, false));
         assert_eq!(b.poll(6).0, Verdict::Waiting);
         b.ack(&ack("laser", r - 1, false));
-        assert_eq!(b.poll(6).0, Verdict::Waiting, "an old round's answer counts for nothing");
+        assert_eq!(
+            b.poll(6).0,
+            Verdict::Waiting,
+            "an old round's answer counts for nothing"
+        );
         b.ack(&ack("laser", r, false));
         assert_eq!(b.poll(7).0, Verdict::Quiet);
         assert_eq!(b.max_reported_sim_ns(), r * 10);
@@ -368,7 +372,11 @@ mod tests {
         b.ack(&ack("laser", r, false));
         assert_eq!(b.poll(1).0, Verdict::Waiting);
         assert!(b.left("slam"));
-        assert_eq!(b.poll(2).0, Verdict::Quiet, "a dead module never freezes the world");
+        assert_eq!(
+            b.poll(2).0,
+            Verdict::Quiet,
+            "a dead module never freezes the world"
+        );
         assert_eq!(b.left_out().collect::<Vec<_>>(), ["slam"]);
         // Started again: waited for.
         assert!(b.joined("slam"));
