@@ -24,6 +24,7 @@ pub mod security;
 pub mod servo;
 pub mod slam;
 pub mod slam_module;
+pub mod tracker;
 pub mod wall_follow;
 pub mod walls;
 

@@ -366,6 +366,25 @@ impl Serialize for LaserScan {
     }
 }
 
+/// The two band colours (top, bottom) [r, g, b] of the marker of beacon `id`: the appearance
+/// shared by the simulator's camera and the visual trackers. Six saturated hues; beacons with
+/// different ids (below 36) differ in at least one band.
+#[must_use]
+pub fn beacon_colors(id: u32) -> ([u8; 3], [u8; 3]) {
+    const PALETTE: [[u8; 3]; 6] = [
+        [230, 40, 40],  // red
+        [40, 200, 60],  // green
+        [50, 90, 235],  // blue
+        [240, 220, 40], // yellow
+        [220, 60, 220], // magenta
+        [40, 220, 230], // cyan
+    ];
+    let n = PALETTE.len() as u32;
+    let top = PALETTE[(id % n) as usize];
+    let bottom = PALETTE[((id / n + id + 1) % n) as usize];
+    (top, bottom)
+}
+
 /// One beacon seen by a camera or fiducial finder, in the sensor's frame.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize)]

@@ -20,6 +20,8 @@ use rand::Rng;
 use rand_distr::{Distribution, Normal};
 use serde::{Deserialize, Serialize};
 
+pub use hng_runtime::msg::beacon_colors;
+
 use crate::error::{Result, SimError};
 use crate::world::{BoxObstacle, Pose2D, World};
 
@@ -96,24 +98,6 @@ impl ImageParams {
         }
         Ok(())
     }
-}
-
-/// The two band colours (top, bottom) of beacon `id`: distinct saturated hues, so beacons with
-/// different ids differ in at least one band.
-#[must_use]
-pub fn beacon_colors(id: u32) -> ([u8; 3], [u8; 3]) {
-    const PALETTE: [[u8; 3]; 6] = [
-        [230, 40, 40],  // red
-        [40, 200, 60],  // green
-        [50, 90, 235],  // blue
-        [240, 220, 40], // yellow
-        [220, 60, 220], // magenta
-        [40, 220, 230], // cyan
-    ];
-    let n = PALETTE.len() as u32;
-    let top = PALETTE[(id % n) as usize];
-    let bottom = PALETTE[((id / n + id + 1) % n) as usize];
-    (top, bottom)
 }
 
 /// One edge of an obstacle.

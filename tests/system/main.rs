@@ -13,3 +13,4 @@ mod rm;
 mod sdk;
 mod sim;
 mod topic;
+mod vision;
