@@ -10,6 +10,7 @@
 //! - [`contract`]: the Contract-Net protocol logic.
 //! - [`control`]: contracts between processes: the control channels, provider inputs.
 //! - [`checkpoint`]: atomic, checksummed checkpoint files.
+//! - [`fatal`]: SIGSEGV and SIGBUS sent by `kill` end the process on the first delivery.
 
 pub mod channel;
 pub mod checkpoint;
@@ -18,6 +19,7 @@ pub mod contract;
 pub mod control;
 pub mod cpus;
 mod error;
+pub mod fatal;
 pub mod module;
 pub mod msg;
 pub mod qos;

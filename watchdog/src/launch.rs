@@ -219,8 +219,34 @@ pub struct LaunchPlan {
     pub warnings: Vec<String>,
 }
 
+/// What a [`ModuleCheck`] found wrong with a module.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum ModuleProblem {
+    /// `command[index]` is wrong (e.g. an unknown built-in module name).
+    Command {
+        /// Index in `command` (0 is the program).
+        index: usize,
+        /// What is wrong.
+        message: String,
+    },
+    /// The `[module.config]` table does not fit the module's configuration type.
+    Config {
+        /// Where, in the module's config as passed on ([`ModuleSpec::config`]); mapped back
+        /// to the launch file's key.
+        span: Option<std::ops::Range<usize>>,
+        /// What is wrong.
+        message: String,
+    },
+}
+
+/// A caller's check of each module (its command and its typed configuration), run while
+/// the file is validated so its problems are reported with the others, before anything
+/// starts. `hng run` checks its built-in modules' names and configuration types.
+pub type ModuleCheck =
+    std::sync::Arc<dyn Fn(&ModuleSpec) -> Result<(), ModuleProblem> + Send + Sync>;
+
 /// How `command[0]` is resolved.
-#[derive(Debug, Clone)]
+#[derive(Clone)]
 pub struct LoadOptions {
     /// What `hng` / `@hng` means; `None`: [`std::env::current_exe`].
     pub self_exe: Option<PathBuf>,
@@ -228,6 +254,19 @@ pub struct LoadOptions {
     pub path: Option<OsString>,
     /// Check that programs exist and are executable.
     pub check_binaries: bool,
+    /// Check every module whose program was resolved (see [`ModuleCheck`]).
+    pub check_module: Option<ModuleCheck>,
+}
+
+impl fmt::Debug for LoadOptions {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("LoadOptions")
+            .field("self_exe", &self.self_exe)
+            .field("path", &self.path)
+            .field("check_binaries", &self.check_binaries)
+            .field("check_module", &self.check_module.is_some())
+            .finish()
+    }
 }
 
 impl Default for LoadOptions {
@@ -236,6 +275,7 @@ impl Default for LoadOptions {
             self_exe: None,
             path: None,
             check_binaries: true,
+            check_module: None,
         }
     }
 }
@@ -587,7 +627,12 @@ impl Cx<'_> {
             }
         };
 
-        let mut raws: Vec<(usize, RawModule, std::ops::Range<usize>)> = Vec::new();
+        let mut raws: Vec<(
+            usize,
+            RawModule,
+            std::ops::Range<usize>,
+            Option<DeTable<'_>>,
+        )> = Vec::new();
         match modules_value {
             None => {
                 if let Some(top) = &top {
@@ -609,7 +654,7 @@ impl Cx<'_> {
                         };
                         let prefix = format!("module[{i}]");
                         match RawModule::deserialize(ValueDeserializer::from(el.clone())) {
-                            Ok(m) => raws.push((i, m, el.span())),
+                            Ok(m) => raws.push((i, m, el.span(), table)),
                             Err(e) => self.serde_err(&e, table.as_ref(), &prefix),
                         }
                     }
@@ -683,7 +728,7 @@ impl Cx<'_> {
         let mut seen: HashMap<String, usize> = HashMap::new();
         let mut manager: Option<(String, usize)> = None;
         let mut spans = Vec::new();
-        for (i, mut raw, span) in raws {
+        for (i, mut raw, span, table) in raws {
             let prefix = format!("module[{i}]");
             let name = raw.name.get_ref().clone();
             if !valid_name(&name) {
@@ -731,6 +776,7 @@ impl Cx<'_> {
                 m_prefix: prefix.clone(),
             };
             let program = self.resolve_program(&raw.command, &prefix, self_exe.as_deref(), opts);
+            let resolved = program.is_some();
             let mut spec = ModuleSpec::new(name, program.unwrap_or_default(), &[]);
             spec.args = raw
                 .command
@@ -765,6 +811,12 @@ impl Cx<'_> {
                     ),
                 }
             }
+            if resolved
+                && let Some(check) = &opts.check_module
+                && let Err(problem) = check(&spec)
+            {
+                self.module_problem(problem, &raw, table.as_ref(), &spec.config, &prefix);
+            }
             specs.push(spec);
             spans.push((
                 span,
@@ -788,6 +840,63 @@ impl Cx<'_> {
             checkpoint_dir,
             warnings,
         })
+    }
+
+    /// Reports a [`ModuleCheck`]'s problem at its place in the launch file.
+    fn module_problem(
+        &mut self,
+        problem: ModuleProblem,
+        raw: &RawModule,
+        table: Option<&DeTable<'_>>,
+        config_text: &str,
+        prefix: &str,
+    ) {
+        match problem {
+            ModuleProblem::Command { index, message } => {
+                let span = raw
+                    .command
+                    .get_ref()
+                    .get(index)
+                    .map_or_else(|| raw.command.span(), |a| a.span());
+                self.err(
+                    span,
+                    Some(format!("{prefix}.command[{index}]")),
+                    LaunchErrorKind::InvalidValue(message),
+                );
+            }
+            ModuleProblem::Config { span, message } => {
+                // The key the module's parser stopped at, in the passed-on text ...
+                let key = span.and_then(|sp| {
+                    let (parsed, errors) = DeTable::parse_recoverable(config_text);
+                    if errors.is_empty() {
+                        key_at(parsed.get_ref(), sp.start)
+                    } else {
+                        None
+                    }
+                });
+                // ... and the same key in the launch file.
+                let config = table.and_then(|t| table_entry(t, "config"));
+                let found = key.as_deref().and_then(|k| {
+                    let path: Vec<&str> = k.split('.').collect();
+                    config.as_ref().and_then(|(_, v)| key_span(v, &path))
+                });
+                let whole = raw
+                    .config
+                    .as_ref()
+                    .map(|c| c.span())
+                    .or_else(|| config.as_ref().map(|(k, _)| k.clone()))
+                    .unwrap_or_else(|| raw.name.span());
+                let field = match &key {
+                    Some(k) if found.is_some() => format!("{prefix}.config.{k}"),
+                    _ => format!("{prefix}.config"),
+                };
+                self.err(
+                    found.unwrap_or(whole),
+                    Some(field),
+                    LaunchErrorKind::InvalidValue(message),
+                );
+            }
+        }
     }
 
     fn resolve_program(
@@ -925,19 +1034,60 @@ impl Cx<'_> {
         if let Some(Some(d)) = dur(pick!(s, backoff_reset_after), false, &mut errs) {
             spec.backoff_reset_after = d;
         }
-        if let Some(Some(d)) = dur(pick!(s, give_up_window), false, &mut errs) {
-            spec.give_up_window = d;
+        // A zero here would switch a safety mechanism off without saying so.
+        let zero = |f: &Option<(&S<Scalar>, String)>, why: &str, errs: &mut Errs| {
+            if let Some((v, field)) = f
+                && report(field)
+            {
+                errs.push((
+                    v.span(),
+                    field.clone(),
+                    LaunchErrorKind::InvalidValue(why.to_owned()),
+                ));
+            }
+        };
+        let f = pick!(s, give_up_window);
+        match dur(f.clone(), false, &mut errs) {
+            Some(Some(d)) if d.is_zero() => zero(
+                &f,
+                "give_up_window = 0 would never count a restart, so a crash loop would never be stopped: give a window such as \"60s\"",
+                &mut errs,
+            ),
+            Some(Some(d)) => spec.give_up_window = d,
+            _ => {}
         }
-        if let Some(Some(d)) = dur(pick!(s, start_timeout), false, &mut errs) {
-            spec.start_timeout = d;
+        let f = pick!(s, start_timeout);
+        match dur(f.clone(), false, &mut errs) {
+            Some(Some(d)) if d.is_zero() => zero(
+                &f,
+                "start_timeout = 0 would count every start as a hang: give the time a module may take to its first heartbeat, such as \"5s\"",
+                &mut errs,
+            ),
+            Some(Some(d)) => spec.start_timeout = d,
+            _ => {}
         }
-        if let Some(Some(d)) = dur(pick!(s, stop_timeout), false, &mut errs) {
-            spec.stop_timeout = d;
+        let f = pick!(s, stop_timeout);
+        match dur(f.clone(), false, &mut errs) {
+            Some(Some(d)) if d.is_zero() => zero(
+                &f,
+                "stop_timeout = 0 would SIGKILL every module without letting it stop (no final checkpoint): give a time such as \"5s\"",
+                &mut errs,
+            ),
+            Some(Some(d)) => spec.stop_timeout = d,
+            _ => {}
         }
         if let Some(d) = dur(pick!(s, checkpoint_period), true, &mut errs) {
             spec.checkpoint_period = d.filter(|d| !d.is_zero());
         }
-        let period = dur(pick!(s, heartbeat_period), true, &mut errs).flatten();
+        let period_field = pick!(s, heartbeat_period);
+        let period = dur(period_field.clone(), true, &mut errs).flatten();
+        if period.is_some_and(|p| p.is_zero()) {
+            zero(
+                &period_field,
+                "heartbeat_period = 0 would switch hang detection off without saying so: give a period such as \"100ms\", or write \"off\"",
+                &mut errs,
+            );
+        }
         let timeout_field = pick!(s, heartbeat_timeout);
         let timeout = dur(timeout_field.clone(), false, &mut errs).flatten();
         match (period, timeout, timeout_field) {
@@ -1164,6 +1314,31 @@ impl Cx<'_> {
             }
         }
         (order, warnings)
+    }
+}
+
+/// The span of key `name` in `table`, and its value.
+fn table_entry<'a, 'b>(
+    table: &'a DeTable<'b>,
+    name: &str,
+) -> Option<(std::ops::Range<usize>, &'a DeValue<'b>)> {
+    table
+        .iter()
+        .find(|(k, _)| k.get_ref() == name)
+        .map(|(k, v)| (k.span(), v.get_ref()))
+}
+
+/// The span of the key at dotted `path` under `value` (a table).
+fn key_span(value: &DeValue<'_>, path: &[&str]) -> Option<std::ops::Range<usize>> {
+    let (first, rest) = path.split_first()?;
+    let DeValue::Table(t) = value else {
+        return None;
+    };
+    let (span, v) = table_entry(t, first)?;
+    if rest.is_empty() {
+        Some(span)
+    } else {
+        key_span(v, rest)
     }
 }
 

@@ -1,0 +1,103 @@
+//! The default mission under faults: at speed 10, one SIGKILL (`hng kill`) of a random
+//! non-critical module every 1.5 s of wall time until the mission ends. It must still succeed
+//! with no collision, and leave no process and no file of its prefix. The figures (kills,
+//! restarts, times, path) are printed for the record (`--nocapture`).
+//!
+//! Non-critical: the sensors and estimators and the navigation chain (camera, laser, gps,
+//! slam, maps, planning, servo) and the operator's Interface. Not killed: the simulator (it is
+//! the world, not part of the robot), the Robot and Security (the safety chain between any
+//! command and the base), the Manager (the mission itself) and the resource manager.
+
+use std::time::{Duration, Instant};
+
+use crate::signals::Run;
+
+const VICTIMS: [&str; 8] = [
+    "camera",
+    "laser",
+    "gps",
+    "slam",
+    "maps",
+    "planning",
+    "servo",
+    "interface",
+];
+
+/// xorshift64*: a reproducible choice of victims.
+struct Rng(u64);
+
+impl Rng {
+    fn next(&mut self) -> u64 {
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        self.0.wrapping_mul(0x2545_f491_4f6c_dd1d)
+    }
+}
+
+#[test]
+fn the_mission_succeeds_under_a_sigkill_of_a_random_module_every_1_5_s() {
+    let _heavy = crate::common::heavy();
+    let seed = std::env::var("HNG_CHAOS_SEED")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(0x5eed_u64);
+    let mut rng = Rng(seed.max(1));
+    let prefix = hng_runtime::shm::unique_prefix("chaos");
+    let summary = crate::signals::test_dir(&prefix).join("summary.json");
+    std::fs::create_dir_all(crate::signals::test_dir(&prefix)).expect("dir");
+    let mut run = Run::start_on(
+        &prefix,
+        &[
+            "--speed",
+            "10",
+            "--summary",
+            summary.to_str().expect("path"),
+        ],
+    );
+    run.wait_line("a progress line", |l| l.starts_with('['));
+    let started = Instant::now();
+    let mut kills = Vec::new();
+    let mut refused = 0u32;
+    let status = loop {
+        run.read_for(Duration::from_millis(1500));
+        if let Some(s) = run.try_wait() {
+            break s;
+        }
+        assert!(
+            started.elapsed() < Duration::from_secs(600),
+            "the mission did not end within 10 minutes"
+        );
+        let victim = VICTIMS[(rng.next() % VICTIMS.len() as u64) as usize];
+        let out = run.hng(&["kill", victim]);
+        if out.status.success() {
+            kills.push(victim);
+        } else {
+            // Between its death and its restart a module has no process to kill.
+            refused += 1;
+        }
+    };
+    let log = run.assert_left_nothing();
+    let text = std::fs::read_to_string(&summary).unwrap_or_default();
+    let s: serde_json::Value = serde_json::from_str(&text).unwrap_or_default();
+    eprintln!(
+        "chaos: seed {seed:#x}, {} SIGKILLs ({refused} refused: module restarting), victims {kills:?}\n\
+         summary: {text}",
+        kills.len()
+    );
+    assert!(
+        status.success() && s["success"] == true,
+        "the mission failed under faults: {status:?}\n{}\nsummary {s}\nlog tail: {}",
+        run.stdout.join("\n"),
+        log.lines().rev().take(40).collect::<Vec<_>>().join("\n")
+    );
+    assert_eq!(s["collisions"], 0, "{s}");
+    assert!(
+        kills.len() >= 3,
+        "at least three faults injected: {kills:?}"
+    );
+    assert!(
+        s["restarts"].as_u64().unwrap_or(0) >= kills.len() as u64,
+        "every kill was followed by a restart: {s}"
+    );
+}
