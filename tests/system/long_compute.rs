@@ -39,6 +39,9 @@ fn planning_keeps_its_heartbeat_through_a_long_computation() {
     let status = node
         .subscriber::<GoalStatus>("planning/status")
         .expect("status");
+    let reports = node
+        .subscriber::<hng_runtime::msg::ModuleReport>(hng_runtime::module::REPORT_CHANNEL)
+        .expect("reports");
     let map = node
         .slice_publisher::<GridInfo>("test/map", (SIDE * SIDE) as usize)
         .expect("map publisher");
@@ -52,19 +55,28 @@ fn planning_keeps_its_heartbeat_through_a_long_computation() {
     .expect("waiter");
     waiter.attach(&events).expect("attach");
     waiter.attach(&status).expect("attach");
+    waiter.attach(&reports).expect("attach");
     let mut run = Run::start_on(&prefix, &["--no-rm", file.to_str().expect("path")]);
 
-    // Running (its first heartbeat), then the inputs.
+    // Its first report (configured: its inputs are open), then the inputs.
     let deadline = Instant::now() + TIMEOUT;
-    let first = 'running: loop {
+    let mut first = None;
+    loop {
         while let Some(e) = events.receive().expect("event") {
             if e.module() == "planning" && e.kind() == Some(EventKind::Started) {
-                break 'running *e;
+                first = Some(*e);
             }
+        }
+        let reported = std::iter::from_fn(|| reports.receive().expect("report"))
+            .any(|r| r.name() == "planning");
+        if reported && first.is_some() {
+            break;
         }
         assert!(Instant::now() < deadline, "planning did not start");
         waiter.wait(Some(deadline - Instant::now())).expect("wait");
-    };
+    }
+    let first = first.expect("started");
+    drop(reports);
     // Free cells, 5 cm: 200 x 200 m.
     let cells = vec![0i8; (SIDE * SIDE) as usize];
     let info = GridInfo {
@@ -101,6 +113,7 @@ fn planning_keeps_its_heartbeat_through_a_long_computation() {
 
     // Its answer: a path (Active), with no death on the way.
     let answer = loop {
+        node.update_connections();
         while let Some(e) = events.receive().expect("event") {
             assert!(
                 !(e.module() == "planning" && e.kind() == Some(EventKind::Died)),
