@@ -38,6 +38,8 @@ impl Rng {
 #[test]
 fn the_mission_succeeds_under_a_sigkill_of_a_random_module_every_1_5_s() {
     let _heavy = crate::common::heavy();
+    let load = std::fs::read_to_string("/proc/loadavg").unwrap_or_default();
+    eprintln!("chaos: load average at the start: {}", load.trim());
     let seed = std::env::var("HNG_CHAOS_SEED")
         .ok()
         .and_then(|s| s.parse().ok())
@@ -78,12 +80,15 @@ fn the_mission_succeeds_under_a_sigkill_of_a_random_module_every_1_5_s() {
         }
     };
     let log = run.assert_left_nothing();
+    let load = std::fs::read_to_string("/proc/loadavg").unwrap_or_default();
     let text = std::fs::read_to_string(&summary).unwrap_or_default();
     let s: serde_json::Value = serde_json::from_str(&text).unwrap_or_default();
     eprintln!(
         "chaos: seed {seed:#x}, {} SIGKILLs ({refused} refused: module restarting), victims {kills:?}\n\
-         summary: {text}",
-        kills.len()
+         summary: {text}\n\
+         load average at the end: {}",
+        kills.len(),
+        load.trim()
     );
     assert!(
         status.success() && s["success"] == true,
