@@ -93,22 +93,26 @@ fn planning_keeps_its_heartbeat_through_a_long_computation() {
     node.update_connections();
     map.publish_copy(info, &cells).expect("publish the map");
     pose.update_connections();
-    let mut p = PoseWithCovariance::default();
-    p.pose = Pose2D {
-        x: 2.0,
-        y: 2.0,
-        theta: 0.0,
+    let p = PoseWithCovariance {
+        pose: Pose2D {
+            x: 2.0,
+            y: 2.0,
+            theta: 0.0,
+        },
+        ..PoseWithCovariance::default()
     };
     pose.publish(p).expect("pose");
     goal.update_connections();
-    let mut g = Goal::default();
-    g.id = 1;
-    g.pose = Pose2D {
-        x: 190.0,
-        y: 190.0,
-        theta: 0.0,
+    let g = Goal {
+        id: 1,
+        pose: Pose2D {
+            x: 190.0,
+            y: 190.0,
+            theta: 0.0,
+        },
+        tolerance_m: 0.2,
+        ..Goal::default()
     };
-    g.tolerance_m = 0.2;
     goal.publish(g).expect("goal");
 
     // Its answer: a path (Active), with no death on the way.
