@@ -77,6 +77,8 @@ use toml::de::{DeTable, DeValue, ValueDeserializer};
 
 use crate::units::{parse_duration, parse_size};
 
+pub use self::check::{ModuleCheck, ModuleProblem};
+
 // ---------------------------------------------------------------------------
 // Validated plan
 // ---------------------------------------------------------------------------
@@ -218,32 +220,6 @@ pub struct LaunchPlan {
     /// Problems that do not prevent starting (e.g. a need nobody provides).
     pub warnings: Vec<String>,
 }
-
-/// What a [`ModuleCheck`] found wrong with a module.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub enum ModuleProblem {
-    /// `command[index]` is wrong (e.g. an unknown built-in module name).
-    Command {
-        /// Index in `command` (0 is the program).
-        index: usize,
-        /// What is wrong.
-        message: String,
-    },
-    /// The `[module.config]` table does not fit the module's configuration type.
-    Config {
-        /// Where, in the module's config as passed on ([`ModuleSpec::config`]); mapped back
-        /// to the launch file's key.
-        span: Option<std::ops::Range<usize>>,
-        /// What is wrong.
-        message: String,
-    },
-}
-
-/// A caller's check of each module (its command and its typed configuration), run while
-/// the file is validated so its problems are reported with the others, before anything
-/// starts. `hng run` checks its built-in modules' names and configuration types.
-pub type ModuleCheck =
-    std::sync::Arc<dyn Fn(&ModuleSpec) -> Result<(), ModuleProblem> + Send + Sync>;
 
 /// How `command[0]` is resolved.
 #[derive(Clone)]
@@ -842,63 +818,6 @@ impl Cx<'_> {
         })
     }
 
-    /// Reports a [`ModuleCheck`]'s problem at its place in the launch file.
-    fn module_problem(
-        &mut self,
-        problem: ModuleProblem,
-        raw: &RawModule,
-        table: Option<&DeTable<'_>>,
-        config_text: &str,
-        prefix: &str,
-    ) {
-        match problem {
-            ModuleProblem::Command { index, message } => {
-                let span = raw
-                    .command
-                    .get_ref()
-                    .get(index)
-                    .map_or_else(|| raw.command.span(), |a| a.span());
-                self.err(
-                    span,
-                    Some(format!("{prefix}.command[{index}]")),
-                    LaunchErrorKind::InvalidValue(message),
-                );
-            }
-            ModuleProblem::Config { span, message } => {
-                // The key the module's parser stopped at, in the passed-on text ...
-                let key = span.and_then(|sp| {
-                    let (parsed, errors) = DeTable::parse_recoverable(config_text);
-                    if errors.is_empty() {
-                        key_at(parsed.get_ref(), sp.start)
-                    } else {
-                        None
-                    }
-                });
-                // ... and the same key in the launch file.
-                let config = table.and_then(|t| table_entry(t, "config"));
-                let found = key.as_deref().and_then(|k| {
-                    let path: Vec<&str> = k.split('.').collect();
-                    config.as_ref().and_then(|(_, v)| key_span(v, &path))
-                });
-                let whole = raw
-                    .config
-                    .as_ref()
-                    .map(|c| c.span())
-                    .or_else(|| config.as_ref().map(|(k, _)| k.clone()))
-                    .unwrap_or_else(|| raw.name.span());
-                let field = match &key {
-                    Some(k) if found.is_some() => format!("{prefix}.config.{k}"),
-                    _ => format!("{prefix}.config"),
-                };
-                self.err(
-                    found.unwrap_or(whole),
-                    Some(field),
-                    LaunchErrorKind::InvalidValue(message),
-                );
-            }
-        }
-    }
-
     fn resolve_program(
         &mut self,
         command: &S<Vec<S<String>>>,
@@ -1317,31 +1236,6 @@ impl Cx<'_> {
     }
 }
 
-/// The span of key `name` in `table`, and its value.
-fn table_entry<'a, 'b>(
-    table: &'a DeTable<'b>,
-    name: &str,
-) -> Option<(std::ops::Range<usize>, &'a DeValue<'b>)> {
-    table
-        .iter()
-        .find(|(k, _)| k.get_ref() == name)
-        .map(|(k, v)| (k.span(), v.get_ref()))
-}
-
-/// The span of the key at dotted `path` under `value` (a table).
-fn key_span(value: &DeValue<'_>, path: &[&str]) -> Option<std::ops::Range<usize>> {
-    let (first, rest) = path.split_first()?;
-    let DeValue::Table(t) = value else {
-        return None;
-    };
-    let (span, v) = table_entry(t, first)?;
-    if rest.is_empty() {
-        Some(span)
-    } else {
-        key_span(v, rest)
-    }
-}
-
 /// The innermost key of `table` (recursively) whose key or value span
 /// contains `offset`. Sub-tables are searched first: the span of a `[table]`
 /// value covers only its header, not its keys.
@@ -1382,5 +1276,6 @@ fn is_executable(p: &Path) -> Result<(), String> {
     }
 }
 
+mod check;
 #[cfg(test)]
 mod tests;
