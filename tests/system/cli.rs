@@ -168,3 +168,32 @@ fn built_in_module_names_configs_and_zero_durations_are_checked_before_anything_
     assert!(shm::prefix_files(&prefix).is_empty(), "nothing started");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn iox2_config_is_iceoryx2_toml_with_the_prefix_and_reads_back() {
+    let prefix = shm::unique_prefix("cliiox");
+    let out = Command::new(HNG)
+        .args(["iox2-config"])
+        .env("HNG_PREFIX", &prefix)
+        .output()
+        .expect("hng iox2-config");
+    assert!(out.status.success());
+    let text = String::from_utf8_lossy(&out.stdout);
+    let v: toml::Table = toml::from_str(&text).expect("TOML");
+    assert_eq!(v["global"]["prefix"].as_str(), Some(prefix.as_str()));
+    // iceoryx2 itself reads it back as the configuration hng uses for the prefix.
+    let dir = std::env::temp_dir().join(format!("hng-cliiox-{}", prefix.trim_end_matches('_')));
+    std::fs::create_dir_all(&dir).expect("dir");
+    let file = dir.join("iceoryx2.toml");
+    std::fs::write(&file, text.as_bytes()).expect("write");
+    use iceoryx2::prelude::*;
+    let path = FilePath::new(file.to_string_lossy().as_bytes()).expect("file path");
+    let read = iceoryx2::config::Config::from_file(&path).expect("iceoryx2 reads it");
+    let ours = hng_runtime::channel::iceoryx_config(&prefix).expect("hng's config");
+    assert_eq!(read, ours);
+    assert!(
+        shm::prefix_files(&prefix).is_empty(),
+        "printing creates nothing"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
