@@ -6,11 +6,11 @@
 use std::collections::{BTreeMap, BTreeSet};
 use std::time::{Duration, Instant};
 
-use anyhow::{Context as _, Result};
+use anyhow::{Context as _, Result, bail};
 use hng_runtime::Node;
 use hng_runtime::channel::NodeOptions;
 use hng_runtime::control::TABLE_PERIOD;
-use hng_runtime::system::{CONTRACTS, ContractRole, ContractTable};
+use hng_runtime::system::{CONTRACTS, ContractRole, ContractTable, SUPERVISOR_STATUS};
 use hng_runtime::wait::{WaitMode, Waiter};
 use serde::Serialize;
 
@@ -171,10 +171,12 @@ fn print_tree(
     id: u32,
     depth: usize,
     seen: &mut BTreeSet<u32>,
-) {
-    let Some(t) = tables.get(&id) else { return };
+) -> std::io::Result<()> {
+    let Some(t) = tables.get(&id) else {
+        return Ok(());
+    };
     if !seen.insert(id) {
-        return;
+        return Ok(());
     }
     let mut entries: Vec<_> = t
         .entries()
@@ -187,7 +189,7 @@ fn print_tree(
             .get(&e.peer)
             .map(|p| p.module().to_string())
             .unwrap_or_else(|| format!("m{}", e.peer));
-        println!(
+        outln!(
             "{:indent$}{} [{}] -> {} (V {:.2})",
             "",
             e.service(),
@@ -195,10 +197,11 @@ fn print_tree(
             provider,
             e.value,
             indent = 2 * (depth + 1)
-        );
-        print_tree(tables, e.peer, depth + 1, seen);
+        )?;
+        print_tree(tables, e.peer, depth + 1, seen)?;
     }
     seen.remove(&id);
+    Ok(())
 }
 
 /// `hng contracts`.
@@ -206,40 +209,62 @@ pub fn run(prefix: &str, args: &ContractsArgs) -> Result<()> {
     let wait = Duration::try_from_secs_f64(args.wait.max(0.0))
         .unwrap_or(TABLE_PERIOD)
         .max(Duration::from_millis(1));
-    let tables = collect(prefix, wait)?;
+    // Asked without creating any file of the prefix: a read-only command leaves nothing.
+    let has_tables = crate::top::channel_exists(prefix, CONTRACTS)?;
+    let has_system = has_tables
+        || crate::run::lock::running_supervisor(prefix).is_some()
+        || crate::top::channel_exists(prefix, SUPERVISOR_STATUS)?;
+    if !has_system {
+        bail!(
+            "no hng system runs under prefix {prefix:?} (no supervisor, no contract tables); start one with `hng run` or pass --prefix"
+        );
+    }
+    let tables = if has_tables {
+        collect(prefix, wait)?
+    } else {
+        BTreeMap::new()
+    };
     let v = view(&tables);
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&v)?);
+        outln!("{}", serde_json::to_string_pretty(&v)?)?;
         return Ok(());
     }
     if tables.is_empty() {
-        println!("no contract tables on prefix {prefix:?} (no module with contracts running?)");
+        outln!("no contract tables on prefix {prefix:?} (no module with contracts running?)")?;
         return Ok(());
     }
-    println!("contract tree:");
+    outln!("contract tree:")?;
     let roots: Vec<u32> = tables
         .values()
         .filter(|t| t.active != 0 && t.priority().is_empty())
         .map(|t| t.module_id)
         .collect();
     for r in &roots {
-        println!("{} (root)", tables[r].module());
-        print_tree(&tables, *r, 0, &mut BTreeSet::new());
+        outln!("{} (root)", tables[r].module())?;
+        print_tree(&tables, *r, 0, &mut BTreeSet::new())?;
     }
-    println!("\ndata network:");
+    outln!("\ndata network:")?;
     for f in &v.data {
-        println!(
+        outln!(
             "  {} -> {}  on {}  ({})",
-            f.from, f.to, f.channel, f.service
-        );
+            f.from,
+            f.to,
+            f.channel,
+            f.service
+        )?;
     }
-    println!("\nmodules:");
-    println!(
+    outln!("\nmodules:")?;
+    outln!(
         "  {:<20} {:>8} {:>10} {:>7} {:>6} {:>6}",
-        "name", "active", "priority", "V", "drops", "cmd_nc"
-    );
+        "name",
+        "active",
+        "priority",
+        "V",
+        "drops",
+        "cmd_nc"
+    )?;
     for m in &v.modules {
-        println!(
+        outln!(
             "  {:<20} {:>8} {:>10} {:>7} {:>6} {:>6}",
             m.name,
             m.active,
@@ -247,7 +272,7 @@ pub fn run(prefix: &str, args: &ContractsArgs) -> Result<()> {
             m.value.map_or("-".into(), |v| format!("{v:.2}")),
             m.control_drops,
             m.commands_no_contract
-        );
+        )?;
     }
     Ok(())
 }

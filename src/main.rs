@@ -4,6 +4,22 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
+/// `println!` that returns the write's error (a closed pipe) instead of panicking.
+macro_rules! outln {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        writeln!(std::io::stdout().lock(), $($arg)*)
+    }};
+}
+
+/// `print!` that returns the write's error instead of panicking.
+macro_rules! out {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        write!(std::io::stdout().lock(), $($arg)*)
+    }};
+}
+
 use hng::bench;
 mod contracts;
 mod doc;
@@ -14,6 +30,7 @@ mod run;
 mod sim;
 mod top;
 mod topic;
+mod topic_pub;
 
 /// hng: a runtime for robot control architectures (HNG: processes, zero-copy channels,
 /// contracts).
@@ -86,10 +103,14 @@ enum Command {
         module: Option<String>,
     },
     /// Live view of every module: state, CPU %, memory, caps, restarts, V, contracts,
-    /// degraded mode and C_R (text or --json snapshots when stdout is not a terminal).
+    /// degraded mode and C_R (JSON snapshots when stdout is not a terminal; --text for text).
     Top(top::TopArgs),
     /// The live contract tree (client, provider, service, priority, V) and data network.
     Contracts(contracts::ContractsArgs),
+    /// Print the iceoryx2 configuration (TOML) that reaches this prefix's channels, for
+    /// iceoryx2's own tools: `hng iox2-config > config/iceoryx2.toml && iox2 service list`.
+    #[command(name = "iox2-config")]
+    Iox2Config,
     /// Simulator tools (ground-truth maps of worlds).
     Sim {
         #[command(subcommand)]
@@ -101,8 +122,17 @@ enum Command {
 }
 
 fn main() -> ExitCode {
-    hng_runtime::module::init_tracing();
+    // Before any thread exists (docs/supervision.md): `hng run` reads SIGINT, SIGTERM and
+    // SIGHUP from a signalfd, so they must be blocked in every thread it will start.
     let cli = Cli::parse();
+    if matches!(cli.command, Command::Run(_)) {
+        run::block_termination_signals();
+    }
+    // A SIGSEGV or SIGBUS sent by `kill` ends the process at once (hng_runtime::fatal).
+    if let Err(e) = hng_runtime::fatal::install() {
+        eprintln!("hng: warning: fatal-signal handler not installed: {e}");
+    }
+    hng_runtime::module::init_tracing();
     let result = match cli.command {
         Command::Module { name } => return modules::run(&name),
         Command::Run(args) => return run::run(&cli.prefix, &args),
@@ -118,13 +148,24 @@ fn main() -> ExitCode {
         Command::Bench { bench } => bench::run(bench),
         Command::Eval { command } => eval::run(command),
         Command::Sim { command } => sim::run(command),
+        Command::Iox2Config => topic::iox2_config(&cli.prefix),
         Command::BenchPeer(args) => bench::ipc::peer(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
+        // The reader went away (`hng topic list | head -2`): nothing more to say.
+        Err(e) if is_broken_pipe(&e) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("hng: error: {e:#}");
             ExitCode::FAILURE
         }
     }
+}
+
+/// Whether `e` comes from writing to a pipe whose reader has gone.
+fn is_broken_pipe(e: &anyhow::Error) -> bool {
+    e.chain().any(|c| {
+        c.downcast_ref::<std::io::Error>()
+            .is_some_and(|io| io.kind() == std::io::ErrorKind::BrokenPipe)
+    })
 }

@@ -26,9 +26,13 @@ use serde_json::{Value, json};
 /// Options of `hng top`.
 #[derive(Debug, Args)]
 pub struct TopArgs {
-    /// Print one JSON document per interval instead of the live view.
-    #[arg(long)]
+    /// Print one JSON document per interval instead of the live view (the default when
+    /// stdout is not a terminal).
+    #[arg(long, conflicts_with = "text")]
     pub json: bool,
+    /// Print text snapshots instead of the live view or JSON.
+    #[arg(long)]
+    pub text: bool,
     /// Print one snapshot and exit.
     #[arg(long)]
     pub once: bool,
@@ -75,16 +79,22 @@ impl Sources {
     }
 
     /// Takes in what arrived. Malformed documents are skipped.
+    ///
+    /// A document's age is measured from when it arrived here, on this process's monotonic
+    /// clock: its header stamp is on the publisher's clock, which is the simulated one under
+    /// `clock = "sim"` (comparing it with the wall clock gave "RM status 1616 s old" on a
+    /// system started seconds ago). A late joiner's first document (kept for it by the
+    /// channel) counts as new; the ages are right from the next one on.
     fn poll(&mut self) -> Result<()> {
         if let Some(s) = self.supervisor.latest()?
             && let Ok(v) = serde_json::from_slice::<Value>(s.data())
         {
-            self.last_supervisor = Some((s.header().header.stamp_ns, v));
+            self.last_supervisor = Some((monotonic_ns(), v));
         }
         if let Some(s) = self.rm_status.latest()?
             && let Ok(v) = serde_json::from_slice::<Value>(s.data())
         {
-            self.last_rm = Some((s.header().header.stamp_ns, v));
+            self.last_rm = Some((monotonic_ns(), v));
         }
         if let Some(c) = self.costs.latest()? {
             self.last_costs = Some(*c);
@@ -496,7 +506,7 @@ fn text(snap: &Value) -> String {
 
 /// Whether a publish-subscribe channel exists under `prefix` (checked without creating
 /// any file).
-fn channel_exists(prefix: &str, channel: &str) -> Result<bool> {
+pub(crate) fn channel_exists(prefix: &str, channel: &str) -> Result<bool> {
     use hng_runtime::channel::{Service, iceoryx_config};
     let config = iceoryx_config(prefix)?;
     let name = iceoryx2::prelude::ServiceName::new(channel)
@@ -525,7 +535,10 @@ pub fn run(prefix: &str, args: &TopArgs) -> Result<()> {
         Node::new(NodeOptions::new(&format!("hng-top-{}", std::process::id())).prefix(prefix))
             .with_context(|| format!("opening the system under prefix {prefix:?}"))?;
     let mut src = Sources::open(&node)?;
-    let live = !args.json && !args.once && std::io::stdout().is_terminal();
+    let terminal = std::io::stdout().is_terminal();
+    let live = !args.json && !args.text && !args.once && terminal;
+    // JSON for programs (stdout a file or a pipe), text on a terminal or with --text.
+    let json = args.json || (!args.text && !terminal);
     if live {
         return live_view(&mut src, interval);
     }
@@ -544,12 +557,12 @@ pub fn run(prefix: &str, args: &TopArgs) -> Result<()> {
         }
         first = false;
         let snap = src.snapshot();
-        if args.json {
-            println!("{}", serde_json::to_string(&snap)?);
+        if json {
+            outln!("{}", serde_json::to_string(&snap)?)?;
         } else {
-            print!("{}", text(&snap));
+            out!("{}", text(&snap))?;
             if count != Some(1) {
-                println!();
+                outln!()?;
             }
         }
         printed += 1;

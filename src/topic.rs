@@ -1,4 +1,8 @@
-//! `hng topic list | echo | hz`: look at the channels of any running system.
+//! `hng topic list | echo | hz | pub`: look at the channels of any running system, and
+//! publish on one by hand (`hng topic pub hng/teleop '{"linear_x": 0.2}' --rate 10`).
+//!
+//! Output goes through `outln!`: a reader that goes away (`hng topic list | head -2`) ends
+//! the command quietly with exit code 0.
 
 use std::time::{Duration, Instant};
 
@@ -33,6 +37,22 @@ pub enum TopicCommand {
         #[arg(long)]
         json: bool,
     },
+    /// Publish a message given as JSON on a channel of the running system (once, or at
+    /// --rate HZ until Ctrl-C or --count). Known types: hng/Twist/v1 (linear_x, linear_y,
+    /// angular_z) and hng/Goal/v1 (id, x, y, theta, tolerance_m, use_theta). A number may
+    /// also be written "NaN", "inf", "-inf" (or bare NaN, Infinity, -Infinity).
+    Pub {
+        /// Channel name, e.g. `hng/teleop`.
+        name: String,
+        /// The message as a JSON object; fields left out are 0.
+        json: String,
+        /// Publish at this rate (Hz) until Ctrl-C or --count.
+        #[arg(long)]
+        rate: Option<f64>,
+        /// Stop after this many messages (default: 1 without --rate).
+        #[arg(long)]
+        count: Option<u64>,
+    },
     /// Measure the publishing rate of a channel.
     Hz {
         /// Channel name.
@@ -50,16 +70,16 @@ pub enum TopicCommand {
 }
 
 #[derive(Debug, Serialize)]
-struct ChannelInfo {
-    name: String,
-    r#type: String,
+pub(crate) struct ChannelInfo {
+    pub(crate) name: String,
+    pub(crate) r#type: String,
     /// Processes (nodes) attached to the channel.
     nodes: Option<usize>,
     history: usize,
     buffer: usize,
 }
 
-fn channels(prefix: &str) -> Result<Vec<ChannelInfo>> {
+pub(crate) fn channels(prefix: &str) -> Result<Vec<ChannelInfo>> {
     let config = iceoryx_config(prefix)?;
     let mut out = Vec::new();
     <Service as iceoryx2::service::Service>::list(&config, |d| {
@@ -91,16 +111,16 @@ pub fn run(prefix: &str, cmd: TopicCommand) -> Result<()> {
             let list = channels(prefix)?;
             if json {
                 for c in &list {
-                    println!("{}", serde_json::to_string(c)?);
+                    outln!("{}", serde_json::to_string(c)?)?;
                 }
             } else if list.is_empty() {
-                println!("no channels under prefix {prefix:?}");
+                outln!("no channels under prefix {prefix:?}")?;
             } else {
                 let w = list.iter().map(|c| c.name.len()).max().unwrap_or(4).max(4);
-                println!("{:w$}  {:28}  nodes  history", "name", "type");
+                outln!("{:w$}  {:28}  nodes  history", "name", "type")?;
                 for c in &list {
                     let n = c.nodes.map_or("-".to_string(), |v| v.to_string());
-                    println!("{:w$}  {:28}  {:>5}  {:>7}", c.name, c.r#type, n, c.history);
+                    outln!("{:w$}  {:28}  {:>5}  {:>7}", c.name, c.r#type, n, c.history)?;
                 }
             }
             Ok(())
@@ -118,6 +138,12 @@ pub fn run(prefix: &str, cmd: TopicCommand) -> Result<()> {
             };
             dispatch(prefix, &name, mode)
         }
+        TopicCommand::Pub {
+            name,
+            json,
+            rate,
+            count,
+        } => crate::topic_pub::run(prefix, &name, &json, rate, count),
         TopicCommand::Hz {
             name,
             window,
@@ -138,6 +164,18 @@ pub fn run(prefix: &str, cmd: TopicCommand) -> Result<()> {
             )
         }
     }
+}
+
+/// `hng iox2-config`: iceoryx2's configuration with this prefix (see docs/data-plane.md).
+pub fn iox2_config(prefix: &str) -> Result<()> {
+    let config = iceoryx_config(prefix)?;
+    let text = toml::to_string_pretty(&config).context("writing the configuration as TOML")?;
+    out!(
+        "# iceoryx2 configuration of the hng system under prefix {prefix:?}.\n\
+         # iceoryx2's tools read ./config/iceoryx2.toml first, then\n\
+         # ~/.config/iceoryx2/iceoryx2.toml, then /etc/iceoryx2/iceoryx2.toml.\n{text}"
+    )?;
+    Ok(())
 }
 
 #[derive(Clone, Copy)]
@@ -242,10 +280,16 @@ impl Rate {
     }
 
     /// Prints a report if the window is over; returns true when enough reports were printed.
-    fn report(&mut self, name: &str, window: Duration, count: Option<u64>, json: bool) -> bool {
+    fn report(
+        &mut self,
+        name: &str,
+        window: Duration,
+        count: Option<u64>,
+        json: bool,
+    ) -> Result<bool> {
         let el = self.start.elapsed();
         if el < window {
-            return false;
+            return Ok(false);
         }
         let rate = self.n as f64 / el.as_secs_f64();
         let (min, max) = self
@@ -265,23 +309,23 @@ impl Rate {
         };
         let min = if min.is_finite() { min } else { 0.0 };
         if json {
-            println!(
+            outln!(
                 "{}",
                 serde_json::json!({"channel": name, "rate_hz": rate, "messages": self.n,
                 "window_s": el.as_secs_f64(), "min_gap_s": min, "max_gap_s": max, "std_dev_s": sd})
-            );
+            )?;
         } else {
-            println!(
+            outln!(
                 "{name}: average rate {rate:.3} Hz ({} msgs in {:.2} s), min {min:.4} s, max {max:.4} s, std dev {sd:.5} s",
                 self.n,
                 el.as_secs_f64()
-            );
+            )?;
         }
         self.reports += 1;
         self.start = Instant::now();
         self.n = 0;
         self.gaps.clear();
-        count.is_some_and(|c| self.reports >= c)
+        Ok(count.is_some_and(|c| self.reports >= c))
     }
 }
 
@@ -313,7 +357,7 @@ fn run_loop(
                 count,
                 json,
             } => {
-                if rate.report(name, window, count, json) {
+                if rate.report(name, window, count, json)? {
                     return Ok(());
                 }
             }
@@ -323,9 +367,9 @@ fn run_loop(
 
 fn print_json<T: Serialize>(v: &T, json: bool) -> Result<()> {
     if json {
-        println!("{}", serde_json::to_string(v)?);
+        outln!("{}", serde_json::to_string(v)?)?;
     } else {
-        println!("{}\n---", serde_json::to_string_pretty(v)?);
+        outln!("{}\n---", serde_json::to_string_pretty(v)?)?;
     }
     Ok(())
 }

@@ -5,10 +5,12 @@
 //! Security's and above autonomous navigation (paper 5.8):
 //!
 //! - "Robot control" (2.1): the operator's teleoperation commands, read from `teleop_in`
-//!   (`hng/teleop`, any publisher: a joystick bridge, a test, a GUI), are forwarded as the
-//!   Interface's own commands to the Robot's channel. They override the Servo-controller's
-//!   (2.2.1.1) while the operator commands, and Security (1.1) still limits them. Nothing is
-//!   forwarded before the contract exists (commands are never wired around the contract tree).
+//!   (`hng/teleop`, any publisher: a joystick bridge, a test, `hng topic pub`), are forwarded
+//!   as the Interface's own commands to the Robot's channel. They override the
+//!   Servo-controller's (2.2.1.1) while the operator commands, and Security (1.1) still limits
+//!   them. Nothing is forwarded before the contract exists (commands are never wired around
+//!   the contract tree). A command with a NaN or infinite velocity is never forwarded: it is
+//!   dropped and counted (the report's `msgs_dropped`; the Robot does the same for any source).
 //! - "Reach goal" (2.2, optional): the user wants the robot to reach the Manager's goals, so
 //!   Planning (2.2), the Servo-controller (2.2.1) and their own providers run under Human
 //!   control. Without a Planning module the Interface still serves teleoperation (its Q is
@@ -63,6 +65,8 @@ struct InterfaceState {
     forwarded: u64,
     dropped: u64,
     frames: u64,
+    /// Teleoperation commands with a NaN or infinite velocity (dropped).
+    invalid: u64,
 }
 
 /// The Interface module.
@@ -73,6 +77,8 @@ pub struct InterfaceModule {
     cmd_out: Option<Publisher<Twist>>,
     video: ProviderInput<BeaconObservation>,
     state: InterfaceState,
+    /// The last teleoperation command was not finite (one warning per run of them).
+    last_invalid: bool,
 }
 
 impl Module for InterfaceModule {
@@ -96,12 +102,33 @@ impl Module for InterfaceModule {
             cmd_out: None,
             video: ProviderInput::new(),
             state: InterfaceState::default(),
+            last_invalid: false,
         })
     }
 
-    fn on_input(&mut self, _ctx: &mut Context, input: InputId) -> ModuleResult {
+    fn on_input(&mut self, ctx: &mut Context, input: InputId) -> ModuleResult {
         if input == self.teleop_in.id() {
             while let Some(cmd) = self.teleop_in.receive()? {
+                if ![cmd.linear_x, cmd.linear_y, cmd.angular_z]
+                    .iter()
+                    .all(|v| v.is_finite())
+                {
+                    // NaN or infinite: never forwarded, counted (state and the report's
+                    // msgs_dropped), said once per run of bad commands.
+                    self.state.invalid += 1;
+                    let c = &ctx.node().counters().msgs_dropped;
+                    c.set(c.get() + 1);
+                    if !self.last_invalid {
+                        tracing::warn!(
+                            module = ctx.name(),
+                            invalid = self.state.invalid,
+                            "non-finite teleoperation command dropped"
+                        );
+                    }
+                    self.last_invalid = true;
+                    continue;
+                }
+                self.last_invalid = false;
                 match &self.cmd_out {
                     Some(out) => {
                         out.publish(Twist {

@@ -12,6 +12,7 @@
 pub mod camera;
 pub mod common;
 pub mod gps;
+pub mod heartbeat;
 pub mod interface;
 pub mod laser;
 pub mod manager;

@@ -28,6 +28,7 @@ use hng_runtime::{Context, Module, ModuleResult, Publisher, SliceSubscriber, Sub
 use serde::{Deserialize, Serialize};
 
 use crate::common::{decode_state, encode_state, positive};
+use crate::heartbeat::BusyHeartbeat;
 use crate::maps::grid_from_msg;
 use crate::msgs::{GoalState, GoalStatus, RefusalReason};
 use crate::planning::{
@@ -494,6 +495,9 @@ pub struct PlanningModuleConfig {
     pub status_out: String,
     /// Planner parameters.
     pub params: PlanningParams,
+    /// Longest computation (map inflation, a search) during which heartbeats go on, s
+    /// (default 120); a longer one is a hang for the watchdog. See [`crate::heartbeat`].
+    pub max_compute_s: f64,
 }
 
 impl Default for PlanningModuleConfig {
@@ -505,6 +509,7 @@ impl Default for PlanningModuleConfig {
             waypoint_out: "planning/waypoint".into(),
             status_out: "planning/status".into(),
             params: PlanningParams::default(),
+            max_compute_s: 120.0,
         }
     }
 }
@@ -529,6 +534,8 @@ pub const LOCALIZATION_NEED: u16 = 3;
 /// The Planning module.
 #[derive(Debug)]
 pub struct PlanningModule {
+    /// Heartbeats during long computations (`None` if its thread could not start).
+    heartbeat: Option<std::rc::Rc<BusyHeartbeat>>,
     core: PlanningCore,
     /// The configured map channel: read until a "Mapping" provider is known, and for the
     /// provider when it publishes there.
@@ -556,6 +563,8 @@ impl PlanningModule {
     /// Reads the map inputs: the provider's maps only once it is known (the configured
     /// channel's, from any publisher, before).
     fn read_map(&mut self, ctx: &mut Context) -> ModuleResult {
+        let hb = self.heartbeat.clone();
+        let _busy = hb.as_ref().map(|h| h.busy(ctx));
         let source = self.map_provider.as_ref().map(|p| p.module.0);
         let mut use_now = None;
         let subs = std::iter::once(&self.map).chain(self.map_followed.as_ref());
@@ -588,6 +597,8 @@ impl PlanningModule {
     }
 
     fn step(&mut self, ctx: &mut Context) -> ModuleResult {
+        let hb = self.heartbeat.clone();
+        let _busy = hb.as_ref().map(|h| h.busy(ctx));
         let Some(pose) = self.last_pose else {
             return Ok(());
         };
@@ -640,11 +651,25 @@ impl Module for PlanningModule {
         // "Reach waypoint" (Servo; the waypoints go on `waypoint_out`), "Mapping" and
         // "Localization": the map and the pose come from the contracted providers, from `map`
         // and `pose` until they are known.
+        positive("max_compute_s", cfg.max_compute_s)?;
+        let max_compute = std::time::Duration::try_from_secs_f64(cfg.max_compute_s)
+            .map_err(|e| crate::common::field_error("max_compute_s", e.to_string()))?;
+        let heartbeat = match BusyHeartbeat::start(ctx, max_compute) {
+            Ok(h) => Some(std::rc::Rc::new(h)),
+            Err(e) => {
+                tracing::warn!(
+                    module = ctx.name(),
+                    "no heartbeats during long computations: {e}"
+                );
+                None
+            }
+        };
         ctx.provide(ServiceOffer::new("Reach goal", ""))
             .need(NeedSpec::required("Reach waypoint", WAYPOINT_NEED))
             .need(NeedSpec::required("Mapping", MAPPING_NEED))
             .need(NeedSpec::required("Localization", LOCALIZATION_NEED));
         Ok(PlanningModule {
+            heartbeat,
             core: PlanningCore::new(cfg.params),
             map: ctx.subscribe_slice(&cfg.map, None)?,
             map_provider: None,
@@ -692,6 +717,8 @@ impl Module for PlanningModule {
         need: u16,
         provider: Option<&ProviderInfo>,
     ) -> ModuleResult {
+        let hb = self.heartbeat.clone();
+        let _busy = hb.as_ref().map(|h| h.busy(ctx));
         if need == LOCALIZATION_NEED {
             self.localization.follow(ctx, provider)?;
         } else if need == MAPPING_NEED {

@@ -131,6 +131,9 @@ impl RobotModule {
             return self.send(cmd);
         }
         self.state.invalid += 1;
+        // Counted where every tool sees it too: the report's msgs_dropped.
+        let c = &ctx.node().counters().msgs_dropped;
+        c.set(c.get() + 1);
         tracing::warn!(
             module = ctx.name(),
             source = from,

@@ -11,6 +11,7 @@
 //! - [`control`]: contracts between processes: the control channels, provider inputs.
 //! - [`checkpoint`]: atomic, checksummed checkpoint files.
 //! - [`map`]: occupancy grids and map_server map files.
+//! - [`fatal`]: SIGSEGV and SIGBUS sent by `kill` end the process on the first delivery.
 
 pub mod channel;
 pub mod checkpoint;
@@ -20,6 +21,7 @@ pub mod control;
 pub mod cpus;
 mod error;
 pub mod map;
+pub mod fatal;
 pub mod module;
 pub mod msg;
 pub mod qos;

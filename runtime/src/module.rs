@@ -482,6 +482,9 @@ pub fn init_tracing() {
 /// Runs module `M` as this process, configured from the environment; returns the exit code.
 pub fn run_module<M: Module>() -> ExitCode {
     init_tracing();
+    if let Err(e) = crate::fatal::install() {
+        tracing::warn!("fatal-signal handler not installed: {e}");
+    }
     let default_name = std::env::args()
         .next()
         .and_then(|a| {

@@ -43,21 +43,28 @@ pub fn ps(prefix: &str, json: bool) -> Result<()> {
                 }
             }
         }
-        println!("{}", serde_json::to_string(&v)?);
+        outln!("{}", serde_json::to_string(&v)?)?;
         return Ok(());
     }
-    println!(
+    outln!(
         "system {} (prefix {}, supervisor pid {}, up {}){}",
         doc.system,
         doc.prefix,
         doc.supervisor_pid,
         human_ms(doc.uptime_ms),
         if doc.shutting_down { ", stopping" } else { "" }
-    );
-    println!(
+    )?;
+    outln!(
         "{:<16} {:<12} {:>8} {:>9} {:>8} {:>6} {:>9}  {:<18} LAST EXIT",
-        "MODULE", "STATE", "PID", "UPTIME", "RESTARTS", "CPU%", "RSS", "CAPS"
-    );
+        "MODULE",
+        "STATE",
+        "PID",
+        "UPTIME",
+        "RESTARTS",
+        "CPU%",
+        "RSS",
+        "CAPS"
+    )?;
     for m in &doc.modules {
         let state = match m.restart_in_ms {
             Some(t) if m.state == "backing-off" => format!("backing-off ({})", human_ms(t)),
@@ -71,7 +78,7 @@ pub fn ps(prefix: &str, json: bool) -> Result<()> {
             || "-".to_owned(),
             |b| format!("{:.1}M", b / (1024.0 * 1024.0)),
         );
-        println!(
+        outln!(
             "{:<16} {:<12} {:>8} {:>9} {:>8} {:>6} {:>9}  {:<18} {}",
             format!("{}{}", m.name, if m.manager { "*" } else { "" }),
             state,
@@ -84,7 +91,7 @@ pub fn ps(prefix: &str, json: bool) -> Result<()> {
                 .as_ref()
                 .map_or_else(|| "-".to_owned(), super::status::CapsRow::short),
             m.last_exit_text.as_deref().unwrap_or("-"),
-        );
+        )?;
     }
     Ok(())
 }

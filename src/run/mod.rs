@@ -19,41 +19,42 @@
 
 pub mod ctl;
 mod hooks;
+pub mod lock;
 pub mod mission;
 pub mod monitor;
 pub mod probe;
+mod receiver;
 pub mod status;
+mod validate;
 
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::rc::Rc;
-use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::mpsc;
+use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context as _, Result};
 use clap::Args;
 use hng_rm::cgroup::{CgroupRun, CgroupSupport, unique_run_id};
-use hng_runtime::module::REPORT_CHANNEL;
 use hng_runtime::msg::ModuleReport;
 use hng_runtime::system::{
     CommandOp, EventKind as WireEvent, JsonInfo, ModuleEvent, SUPERVISOR_COMMAND,
     SUPERVISOR_EVENTS, SUPERVISOR_STATUS, SupervisorCommand,
 };
-use hng_runtime::wait::{WaitMode, Waiter, Wake};
-use hng_runtime::{Node, NodeOptions, Publisher, SlicePublisher, shm};
+use hng_runtime::{Node, NodeOptions, Publisher, SlicePublisher};
 use hng_watchdog::systemd::SdNotify;
 use hng_watchdog::{
     Event, EventKind, LaunchPlan, LoadOptions, ModuleSpec, Signal, Supervisor, SupervisorOptions,
-    Waker, launch,
+    launch,
 };
 use nix::sys::signal::SigSet;
 
 use self::hooks::RunHooks;
+use self::lock::SystemLock;
 use self::mission::{Mission, MissionOptions};
 use self::monitor::{Monitor, MonitorOptions, Outcome};
+use self::receiver::{Inbox, Receiver};
 use self::status::{CommandResult, ModuleRow, ReportFigures, StatusDoc};
 
 /// Options of `hng run`.
@@ -141,6 +142,40 @@ period_ms = 100
 /// Exit code for a launch file that does not validate.
 const EXIT_BAD_LAUNCH_FILE: u8 = 2;
 
+/// Blocks SIGINT, SIGTERM and SIGHUP in the calling thread, and so in every thread it starts
+/// later. `main` calls it for `hng run` before anything else, while it is the only thread:
+/// from then on these signals are only read from the receiver thread's signalfd and start the
+/// orderly stop, whichever thread the kernel would have picked (a signal delivered to a thread
+/// that did not block it would have killed the process by its default action).
+pub fn block_termination_signals() {
+    let mut mask = SigSet::empty();
+    mask.add(Signal::SIGINT);
+    mask.add(Signal::SIGTERM);
+    mask.add(Signal::SIGHUP);
+    if let Err(e) = mask.thread_block() {
+        eprintln!("hng: warning: cannot block termination signals: {e}");
+    }
+}
+
+/// Takes the prefix's lock (one system per prefix). When the last system on the prefix died
+/// without its orderly stop, says so: what its processes left is reclaimed by iceoryx2's
+/// dead-node clean-up as this system's nodes start (not by removing the prefix's files, which
+/// a tool or a test may already have opened for this run), and the orderly stop removes the
+/// rest.
+fn lock_prefix(prefix: &str) -> Result<SystemLock> {
+    let got = SystemLock::acquire(prefix)?;
+    if let Some(pid) = got.stale_pid {
+        tracing::warn!(
+            prefix,
+            lock = %got.lock.path().display(),
+            dead_supervisor = pid,
+            files = hng_runtime::shm::prefix_files(prefix).len(),
+            "the previous system on this prefix ended without an orderly stop; its dead processes' resources are reclaimed as modules start"
+        );
+    }
+    Ok(got.lock)
+}
+
 /// `hng run`: returns the process's exit code.
 pub fn run(prefix: &str, args: &RunArgs) -> ExitCode {
     if args.file.is_none() {
@@ -168,7 +203,14 @@ pub fn run(prefix: &str, args: &RunArgs) -> ExitCode {
             }
         };
     }
-    match supervise(prefix, args, plan, None).0 {
+    let lock = match lock_prefix(prefix) {
+        Ok(l) => l,
+        Err(e) => {
+            eprintln!("hng: error: {e:#}");
+            return ExitCode::FAILURE;
+        }
+    };
+    match supervise(prefix, args, plan, None, lock).0 {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("hng: error: {e:#}");
@@ -198,7 +240,7 @@ fn run_mission(prefix: &str, args: &RunArgs) -> ExitCode {
         launch::parse(
             &mission.plan,
             Path::new("<built-in mission>"),
-            &LoadOptions::default(),
+            &load_options(),
         ),
         args,
     ) {
@@ -220,8 +262,16 @@ fn run_mission(prefix: &str, args: &RunArgs) -> ExitCode {
             }
         };
     }
+    let lock = match lock_prefix(prefix) {
+        Ok(l) => l,
+        Err(e) => {
+            eprintln!("hng: error: {e:#}");
+            return ExitCode::FAILURE;
+        }
+    };
     if let Err(e) = mission.prepare() {
         eprintln!("hng: error: {e:#}");
+        lock.release();
         return ExitCode::FAILURE;
     }
     println!(
@@ -241,10 +291,12 @@ fn run_mission(prefix: &str, args: &RunArgs) -> ExitCode {
         Ok(m) => m,
         Err(e) => {
             eprintln!("hng: error: {e:#}");
+            lock::remove_prefix_files_but_lock(prefix);
+            lock.release();
             return ExitCode::FAILURE;
         }
     };
-    let (result, outcome) = supervise(prefix, args, plan, Some(monitor));
+    let (result, outcome) = supervise(prefix, args, plan, Some(monitor), lock);
     if let Err(e) = result {
         eprintln!("hng: error: {e:#}");
         return ExitCode::FAILURE;
@@ -284,7 +336,7 @@ fn report(outcome: &Outcome, file: Option<&Path>) -> ExitCode {
 
 /// Loads the launch file (or the default plan) and adds the resource manager module.
 fn load_plan(args: &RunArgs) -> Result<LaunchPlan, launch::LaunchErrors> {
-    let opts = LoadOptions::default();
+    let opts = load_options();
     let plan = match &args.file {
         Some(f) => launch::load(f, &opts),
         None => launch::parse(
@@ -294,6 +346,14 @@ fn load_plan(args: &RunArgs) -> Result<LaunchPlan, launch::LaunchErrors> {
         ),
     };
     add_rm(plan, args)
+}
+
+/// How launch files are loaded: built-in modules' names and configurations are checked too.
+fn load_options() -> LoadOptions {
+    LoadOptions {
+        check_module: validate::module_check(),
+        ..LoadOptions::default()
+    }
 }
 
 /// Adds the resource manager module unless the plan has one or `--no-rm`.
@@ -325,98 +385,6 @@ fn default_run_dir(prefix: &str) -> PathBuf {
     }
 }
 
-/// What the receiver thread hands to the main thread.
-enum Inbox {
-    Report { report: ModuleReport, at: Instant },
-    Command(SupervisorCommand),
-    Signal(i32),
-    Failed(String),
-}
-
-/// The receiver thread: reports, commands and termination signals.
-struct Receiver {
-    rx: mpsc::Receiver<Inbox>,
-    stop: Arc<AtomicBool>,
-    thread: Option<std::thread::JoinHandle<()>>,
-}
-
-impl Receiver {
-    fn start(prefix: &str, waker: Waker) -> Result<Receiver> {
-        let (tx, rx) = mpsc::channel();
-        let stop = Arc::new(AtomicBool::new(false));
-        let (ready_tx, ready_rx) = mpsc::channel::<Result<(), String>>();
-        let prefix = prefix.to_owned();
-        let stop2 = Arc::clone(&stop);
-        let thread = std::thread::Builder::new()
-            .name("hng-run-rx".into())
-            .spawn(move || {
-                if let Err(e) = receive_loop(&prefix, &tx, &waker, &stop2, &ready_tx) {
-                    let _ = ready_tx.send(Err(format!("{e:#}")));
-                    let _ = tx.send(Inbox::Failed(format!("{e:#}")));
-                    let _ = waker.wake();
-                }
-            })
-            .context("starting the receiver thread")?;
-        match ready_rx.recv() {
-            Ok(Ok(())) => Ok(Receiver {
-                rx,
-                stop,
-                thread: Some(thread),
-            }),
-            Ok(Err(e)) => anyhow::bail!("receiver thread: {e}"),
-            Err(_) => anyhow::bail!("the receiver thread ended before it was ready"),
-        }
-    }
-}
-
-fn receive_loop(
-    prefix: &str,
-    tx: &mpsc::Sender<Inbox>,
-    waker: &Waker,
-    stop: &AtomicBool,
-    ready: &mpsc::Sender<Result<(), String>>,
-) -> Result<()> {
-    let node = Node::new(NodeOptions::new("hng-run-rx").prefix(prefix))?;
-    let reports = node.subscriber::<ModuleReport>(REPORT_CHANNEL)?;
-    let commands = node.subscriber::<SupervisorCommand>(SUPERVISOR_COMMAND)?;
-    // Sleep at once: the supervisor is not latency-critical to the microsecond, and it must
-    // not steal CPU from the modules.
-    let mut waiter = Waiter::new(WaitMode::Blocking {
-        max_spin: Duration::ZERO,
-    })?;
-    waiter.attach(&reports)?;
-    waiter.attach(&commands)?;
-    waiter.catch_termination_signals()?;
-    let _ = ready.send(Ok(()));
-    while !stop.load(Ordering::Acquire) {
-        let wake = waiter.wait(Some(Duration::from_secs(1)))?;
-        let mut any = false;
-        if let Wake::Signal(sig) = wake {
-            any = true;
-            if tx.send(Inbox::Signal(sig)).is_err() {
-                break;
-            }
-        }
-        let at = Instant::now();
-        while let Some(r) = reports.receive()? {
-            any = true;
-            if tx.send(Inbox::Report { report: *r, at }).is_err() {
-                return Ok(());
-            }
-        }
-        while let Some(c) = commands.receive()? {
-            any = true;
-            if tx.send(Inbox::Command(*c)).is_err() {
-                return Ok(());
-            }
-        }
-        if any {
-            let _ = waker.wake();
-        }
-    }
-    Ok(())
-}
-
 /// The main thread's state.
 struct Runner {
     sup: Supervisor<RunHooks>,
@@ -437,18 +405,24 @@ struct Runner {
 
 /// Runs the system until it stops; with a mission `monitor`, also returns its outcome (the
 /// monitor is finished before the prefix's files are removed).
+/// The prefix's files and its `lock` are removed last, whatever happened.
 fn supervise(
     prefix: &str,
     args: &RunArgs,
     plan: LaunchPlan,
     monitor: Option<Monitor>,
+    lock: SystemLock,
 ) -> (Result<()>, Option<Result<Outcome>>) {
     let mut monitor = monitor;
     let r = supervise_inner(prefix, args, plan, &mut monitor);
-    match r {
+    let r = match r {
         Ok((r, outcome)) => (r, outcome),
         Err(e) => (Err(e), monitor.map(Monitor::finish)),
-    }
+    };
+    let n = lock::remove_prefix_files_but_lock(prefix);
+    lock.release();
+    tracing::info!(files = n, "stopped; prefix files removed");
+    r
 }
 
 #[allow(clippy::type_complexity)]
@@ -458,14 +432,10 @@ fn supervise_inner(
     plan: LaunchPlan,
     monitor: &mut Option<Monitor>,
 ) -> Result<(Result<()>, Option<Result<Outcome>>)> {
-    // Termination signals are read by the receiver thread (signalfd): block them in every
-    // thread, from here on (spawned modules get a clean mask from std).
-    let mut mask = SigSet::empty();
-    mask.add(Signal::SIGINT);
-    mask.add(Signal::SIGTERM);
-    mask.add(Signal::SIGHUP);
-    mask.thread_block()
-        .context("blocking termination signals")?;
+    // Termination signals are read by the receiver thread (signalfd); `main` blocked them
+    // before any thread started (this is for callers that did not). Modules start with an
+    // empty mask and default dispositions (the supervisor's pre_exec).
+    block_termination_signals();
 
     let run_dir = args
         .run_dir
@@ -668,6 +638,15 @@ impl Runner {
 
     fn on_event(&mut self, e: &Event) {
         tracing::info!("{e}");
+        if self.monitor.is_some()
+            && self.shutdown_signals == 0
+            && let EventKind::Exited { pid, cause, .. } = &e.kind
+            && cause.is_failure()
+        {
+            // The mission's progress names why a module went (a missed heartbeat above all:
+            // the monitor only sees that it died).
+            println!("[watchdog] module {} (pid {pid}) {cause}", e.module);
+        }
         let wire = match &e.kind {
             EventKind::Started { pid, .. } => {
                 Some(ModuleEvent::new(WireEvent::Started, &e.module, *pid))
@@ -783,7 +762,6 @@ impl Runner {
             status,
             commands_out,
             node,
-            prefix,
             monitor,
             ..
         } = self;
@@ -793,8 +771,7 @@ impl Runner {
         drop(sup);
         drop((events, status, commands_out));
         drop(node);
-        let n = shm::remove_prefix_files(&prefix);
-        tracing::info!(files = n, "stopped; prefix files removed");
+        // The prefix's files go in `supervise`, with the lock, last.
         outcome
     }
 }

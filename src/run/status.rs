@@ -298,6 +298,14 @@ pub type StatusReader = DocReader<StatusDoc>;
 /// Fails with a clear message when nothing has ever published a status under `prefix`
 /// (checked without creating any file of the prefix).
 pub fn ensure_system_exists(prefix: &str) -> Result<()> {
+    // A supervisor holds the prefix's lock while it runs: without it, no node is created
+    // (a tool racing with the end of a system would otherwise leave files behind).
+    if super::lock::running_supervisor(prefix).is_none() {
+        anyhow::bail!(
+            "no hng system runs under prefix {prefix:?} (no supervisor holds {}); start one with `hng run` or pass --prefix",
+            super::lock::lock_path(prefix).display()
+        );
+    }
     ensure_channel_exists(
         prefix,
         SUPERVISOR_STATUS,

@@ -77,6 +77,8 @@ use toml::de::{DeTable, DeValue, ValueDeserializer};
 
 use crate::units::{parse_duration, parse_size};
 
+pub use self::check::{ModuleCheck, ModuleProblem};
+
 // ---------------------------------------------------------------------------
 // Validated plan
 // ---------------------------------------------------------------------------
@@ -220,7 +222,7 @@ pub struct LaunchPlan {
 }
 
 /// How `command[0]` is resolved.
-#[derive(Debug, Clone)]
+#[derive(Clone)]
 pub struct LoadOptions {
     /// What `hng` / `@hng` means; `None`: [`std::env::current_exe`].
     pub self_exe: Option<PathBuf>,
@@ -228,6 +230,19 @@ pub struct LoadOptions {
     pub path: Option<OsString>,
     /// Check that programs exist and are executable.
     pub check_binaries: bool,
+    /// Check every module whose program was resolved (see [`ModuleCheck`]).
+    pub check_module: Option<ModuleCheck>,
+}
+
+impl fmt::Debug for LoadOptions {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("LoadOptions")
+            .field("self_exe", &self.self_exe)
+            .field("path", &self.path)
+            .field("check_binaries", &self.check_binaries)
+            .field("check_module", &self.check_module.is_some())
+            .finish()
+    }
 }
 
 impl Default for LoadOptions {
@@ -236,6 +251,7 @@ impl Default for LoadOptions {
             self_exe: None,
             path: None,
             check_binaries: true,
+            check_module: None,
         }
     }
 }
@@ -587,7 +603,12 @@ impl Cx<'_> {
             }
         };
 
-        let mut raws: Vec<(usize, RawModule, std::ops::Range<usize>)> = Vec::new();
+        let mut raws: Vec<(
+            usize,
+            RawModule,
+            std::ops::Range<usize>,
+            Option<DeTable<'_>>,
+        )> = Vec::new();
         match modules_value {
             None => {
                 if let Some(top) = &top {
@@ -609,7 +630,7 @@ impl Cx<'_> {
                         };
                         let prefix = format!("module[{i}]");
                         match RawModule::deserialize(ValueDeserializer::from(el.clone())) {
-                            Ok(m) => raws.push((i, m, el.span())),
+                            Ok(m) => raws.push((i, m, el.span(), table)),
                             Err(e) => self.serde_err(&e, table.as_ref(), &prefix),
                         }
                     }
@@ -683,7 +704,7 @@ impl Cx<'_> {
         let mut seen: HashMap<String, usize> = HashMap::new();
         let mut manager: Option<(String, usize)> = None;
         let mut spans = Vec::new();
-        for (i, mut raw, span) in raws {
+        for (i, mut raw, span, table) in raws {
             let prefix = format!("module[{i}]");
             let name = raw.name.get_ref().clone();
             if !valid_name(&name) {
@@ -731,6 +752,7 @@ impl Cx<'_> {
                 m_prefix: prefix.clone(),
             };
             let program = self.resolve_program(&raw.command, &prefix, self_exe.as_deref(), opts);
+            let resolved = program.is_some();
             let mut spec = ModuleSpec::new(name, program.unwrap_or_default(), &[]);
             spec.args = raw
                 .command
@@ -764,6 +786,12 @@ impl Cx<'_> {
                         )),
                     ),
                 }
+            }
+            if resolved
+                && let Some(check) = &opts.check_module
+                && let Err(problem) = check(&spec)
+            {
+                self.module_problem(problem, &raw, table.as_ref(), &spec.config, &prefix);
             }
             specs.push(spec);
             spans.push((
@@ -925,19 +953,60 @@ impl Cx<'_> {
         if let Some(Some(d)) = dur(pick!(s, backoff_reset_after), false, &mut errs) {
             spec.backoff_reset_after = d;
         }
-        if let Some(Some(d)) = dur(pick!(s, give_up_window), false, &mut errs) {
-            spec.give_up_window = d;
+        // A zero here would switch a safety mechanism off without saying so.
+        let zero = |f: &Option<(&S<Scalar>, String)>, why: &str, errs: &mut Errs| {
+            if let Some((v, field)) = f
+                && report(field)
+            {
+                errs.push((
+                    v.span(),
+                    field.clone(),
+                    LaunchErrorKind::InvalidValue(why.to_owned()),
+                ));
+            }
+        };
+        let f = pick!(s, give_up_window);
+        match dur(f.clone(), false, &mut errs) {
+            Some(Some(d)) if d.is_zero() => zero(
+                &f,
+                "give_up_window = 0 would never count a restart, so a crash loop would never be stopped: give a window such as \"60s\"",
+                &mut errs,
+            ),
+            Some(Some(d)) => spec.give_up_window = d,
+            _ => {}
         }
-        if let Some(Some(d)) = dur(pick!(s, start_timeout), false, &mut errs) {
-            spec.start_timeout = d;
+        let f = pick!(s, start_timeout);
+        match dur(f.clone(), false, &mut errs) {
+            Some(Some(d)) if d.is_zero() => zero(
+                &f,
+                "start_timeout = 0 would count every start as a hang: give the time a module may take to its first heartbeat, such as \"5s\"",
+                &mut errs,
+            ),
+            Some(Some(d)) => spec.start_timeout = d,
+            _ => {}
         }
-        if let Some(Some(d)) = dur(pick!(s, stop_timeout), false, &mut errs) {
-            spec.stop_timeout = d;
+        let f = pick!(s, stop_timeout);
+        match dur(f.clone(), false, &mut errs) {
+            Some(Some(d)) if d.is_zero() => zero(
+                &f,
+                "stop_timeout = 0 would SIGKILL every module without letting it stop (no final checkpoint): give a time such as \"5s\"",
+                &mut errs,
+            ),
+            Some(Some(d)) => spec.stop_timeout = d,
+            _ => {}
         }
         if let Some(d) = dur(pick!(s, checkpoint_period), true, &mut errs) {
             spec.checkpoint_period = d.filter(|d| !d.is_zero());
         }
-        let period = dur(pick!(s, heartbeat_period), true, &mut errs).flatten();
+        let period_field = pick!(s, heartbeat_period);
+        let period = dur(period_field.clone(), true, &mut errs).flatten();
+        if period.is_some_and(|p| p.is_zero()) {
+            zero(
+                &period_field,
+                "heartbeat_period = 0 would switch hang detection off without saying so: give a period such as \"100ms\", or write \"off\"",
+                &mut errs,
+            );
+        }
         let timeout_field = pick!(s, heartbeat_timeout);
         let timeout = dur(timeout_field.clone(), false, &mut errs).flatten();
         match (period, timeout, timeout_field) {
@@ -1207,5 +1276,6 @@ fn is_executable(p: &Path) -> Result<(), String> {
     }
 }
 
+mod check;
 #[cfg(test)]
 mod tests;

@@ -666,13 +666,18 @@ impl<H: SupervisorHooks> Supervisor<H> {
         if self.opts.process_group {
             cmd.process_group(0);
         }
-        if self.opts.kill_on_supervisor_exit {
-            let parent = sys::getpid();
-            // SAFETY: the closure only makes async-signal-safe syscalls and
-            // does not allocate.
-            unsafe {
-                cmd.pre_exec(move || sys::set_parent_death_kill(parent));
-            }
+        let kill_on_exit = self.opts.kill_on_supervisor_exit;
+        let parent = sys::getpid();
+        // SAFETY: the closure only makes async-signal-safe syscalls and
+        // does not allocate.
+        unsafe {
+            cmd.pre_exec(move || {
+                sys::reset_signals()?;
+                if kill_on_exit {
+                    sys::set_parent_death_kill(parent)?;
+                }
+                Ok(())
+            });
         }
         let spawned = self
             .hooks

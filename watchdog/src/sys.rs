@@ -218,6 +218,56 @@ pub fn set_parent_death_kill(parent: libc::pid_t) -> io::Result<()> {
     Ok(())
 }
 
+/// For use between fork and exec: an empty signal mask and the default action for every
+/// signal, so a module starts like a program started from a shell, whatever the supervisor
+/// blocks or ignores (it blocks SIGINT, SIGTERM and SIGHUP in every thread to read them from
+/// a signalfd; Rust ignores SIGPIPE). Without this a module that is not an hng module (a
+/// shell script) inherited a blocked SIGTERM and was SIGKILLed after its stop timeout.
+pub fn reset_signals() -> io::Result<()> {
+    // The kernel's struct sigaction (all zero: SIG_DFL, no flags, empty mask, whatever the
+    // architecture's layout): rt_sigaction(2) itself, because glibc's wrapper refuses
+    // the signals it reserves (32, 33), which a parent may have set to SIG_IGN too.
+    #[repr(C)]
+    struct KernelSigaction {
+        handler: libc::c_ulong,
+        flags: libc::c_ulong,
+        restorer: libc::c_ulong,
+        mask: u64,
+    }
+    let default = KernelSigaction {
+        handler: 0, // SIG_DFL
+        flags: 0,
+        restorer: 0,
+        mask: 0,
+    };
+    for sig in 1..=64 {
+        if sig == libc::SIGKILL || sig == libc::SIGSTOP {
+            continue;
+        }
+        // SAFETY: async-signal-safe syscall with a valid struct of the kernel's layout and
+        // its sigset size (8 bytes); errors (none expected) leave the signal as it was.
+        unsafe {
+            libc::syscall(
+                libc::SYS_rt_sigaction,
+                sig,
+                &default as *const KernelSigaction,
+                std::ptr::null_mut::<KernelSigaction>(),
+                std::mem::size_of::<u64>(),
+            );
+        }
+    }
+    // SAFETY: as above; `set` is a valid sigset_t.
+    let r = unsafe {
+        let mut set: libc::sigset_t = std::mem::zeroed();
+        libc::sigemptyset(&mut set);
+        libc::pthread_sigmask(libc::SIG_SETMASK, &set, std::ptr::null_mut())
+    };
+    if r != 0 {
+        return Err(io::Error::from_raw_os_error(r));
+    }
+    Ok(())
+}
+
 /// Send `signal` to process group `pgid`. `ESRCH` (group empty) is not an error.
 pub fn kill_group(pgid: u32, signal: i32) -> io::Result<()> {
     let pgid = libc::pid_t::try_from(pgid)

@@ -5,6 +5,7 @@ fn opts() -> LoadOptions {
         self_exe: Some(PathBuf::from("/bin/sh")),
         path: Some(OsString::from("/nonexistent-dir:/bin:/usr/bin")),
         check_binaries: true,
+        check_module: None,
     }
 }
 

@@ -1,0 +1,198 @@
+//! A heartbeat kept during a long computation, for modules whose one callback can take longer
+//! than the watchdog's heartbeat timeout (Planning inflating and searching a 20000 x 20000
+//! map took tens of seconds: it missed its heartbeats, was SIGKILLed ten times and the
+//! mission ran into its time limit without saying why).
+//!
+//! The SDK sends a module's report (its heartbeat) from the module's thread, between
+//! callbacks. [`BusyHeartbeat`] adds a thread with its own node that sends the same report,
+//! pid and name while the module marks itself busy ([`BusyHeartbeat::busy`], a guard around
+//! the computation), at the report period, and for at most `max_busy`: a computation that
+//! runs longer than that is treated as a hang again (the thread falls silent and the watchdog
+//! kills the module after its heartbeat timeout). Outside computations the thread sleeps on a
+//! condition variable; nothing wakes on a period.
+
+use std::sync::{Arc, Condvar, Mutex, MutexGuard, PoisonError};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use hng_runtime::module::REPORT_CHANNEL;
+use hng_runtime::msg::{ModuleReport, ModuleState};
+use hng_runtime::{Context, Node, NodeOptions, RunOptions};
+
+#[derive(Debug, Default)]
+struct State {
+    /// Since when the module computes (`None`: idle), and the report to send meanwhile.
+    busy: Option<(Instant, ModuleReport)>,
+    stop: bool,
+}
+
+#[derive(Debug, Default)]
+struct Shared {
+    state: Mutex<State>,
+    wake: Condvar,
+}
+
+impl Shared {
+    fn lock(&self) -> MutexGuard<'_, State> {
+        self.state.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+}
+
+/// The heartbeat thread of a module (see the module documentation).
+#[derive(Debug)]
+pub struct BusyHeartbeat {
+    shared: Arc<Shared>,
+    period: Duration,
+    thread: Option<JoinHandle<()>>,
+}
+
+/// Marks the module busy while it lives.
+#[derive(Debug)]
+pub struct BusyGuard<'a> {
+    hb: &'a BusyHeartbeat,
+}
+
+impl Drop for BusyGuard<'_> {
+    fn drop(&mut self) {
+        self.hb.shared.lock().busy = None;
+    }
+}
+
+impl BusyHeartbeat {
+    /// Starts the thread for the module of `ctx` (its name, prefix and clock; the report
+    /// period from the environment the supervisor sets). Computations longer than
+    /// `max_busy` fall silent.
+    pub fn start(ctx: &Context, max_busy: Duration) -> Result<BusyHeartbeat, hng_runtime::Error> {
+        let opts = RunOptions::from_env(ctx.name())?;
+        let period = opts.report_period.max(Duration::from_millis(1));
+        let shared = Arc::new(Shared::default());
+        let name = ctx.name().to_owned();
+        let prefix = ctx.node().prefix().to_owned();
+        let clock = ctx.clock().clone();
+        let node_name = format!("{name}-heartbeat");
+        let (ready_tx, ready_rx) = std::sync::mpsc::channel();
+        let shared2 = Arc::clone(&shared);
+        let thread = std::thread::Builder::new()
+            .name(node_name.clone())
+            .spawn(move || {
+                let node = Node::new(NodeOptions::new(&node_name).prefix(&prefix).clock(clock));
+                let publisher = node.as_ref().map_err(|e| e.to_string()).and_then(|n| {
+                    n.publisher::<ModuleReport>(REPORT_CHANNEL)
+                        .map_err(|e| e.to_string())
+                });
+                match publisher {
+                    Ok(p) => {
+                        let _ = ready_tx.send(Ok(()));
+                        beat(&shared2, &p, period, max_busy);
+                    }
+                    Err(e) => {
+                        let _ = ready_tx.send(Err(e));
+                    }
+                }
+            })
+            .map_err(|e| hng_runtime::Error::Io {
+                context: "starting the heartbeat thread".to_owned(),
+                source: e,
+            })?;
+        match ready_rx.recv() {
+            Ok(Ok(())) => Ok(BusyHeartbeat {
+                shared,
+                period,
+                thread: Some(thread),
+            }),
+            Ok(Err(e)) => Err(hng_runtime::Error::Config(format!(
+                "{name}: heartbeat thread: {e}"
+            ))),
+            Err(_) => Err(hng_runtime::Error::Config(format!(
+                "{name}: the heartbeat thread ended before it was ready"
+            ))),
+        }
+    }
+
+    /// Marks the module busy until the guard drops: the thread sends its report meanwhile.
+    pub fn busy(&self, ctx: &Context) -> BusyGuard<'_> {
+        let c = ctx.node().counters();
+        let (aptitude, quality) = ctx.quality();
+        let mut report = ModuleReport {
+            pid: std::process::id(),
+            state: ModuleState::Running as u8,
+            aptitude: u8::from(aptitude),
+            quality,
+            period_ns: u64::try_from(self.period.as_nanos()).unwrap_or(u64::MAX),
+            msgs_in: c.msgs_in.get(),
+            msgs_out: c.msgs_out.get(),
+            msgs_dropped: c.msgs_dropped.get(),
+            deadline_misses: ctx.deadline_misses(),
+            ..ModuleReport::default()
+        };
+        report.set_name(ctx.name());
+        self.shared.lock().busy = Some((Instant::now(), report));
+        self.shared.wake.notify_one();
+        BusyGuard { hb: self }
+    }
+}
+
+impl Drop for BusyHeartbeat {
+    fn drop(&mut self) {
+        self.shared.lock().stop = true;
+        self.shared.wake.notify_one();
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+/// The thread's loop: asleep while idle, a report every `period` while busy (up to
+/// `max_busy`).
+fn beat(
+    shared: &Shared,
+    publisher: &hng_runtime::Publisher<ModuleReport>,
+    period: Duration,
+    max_busy: Duration,
+) {
+    let mut st = shared.lock();
+    loop {
+        if st.stop {
+            return;
+        }
+        let Some((since, report)) = st.busy else {
+            st = shared.wake.wait(st).unwrap_or_else(PoisonError::into_inner);
+            continue;
+        };
+        // The module's own report went out when its callback began: the first beat is due
+        // one period into the computation.
+        let busy_for = since.elapsed();
+        if busy_for >= period && busy_for <= max_busy {
+            drop(st);
+            if let Err(e) = publisher.publish(report) {
+                tracing::warn!("heartbeat during a computation: {e}");
+            }
+            st = shared.lock();
+        }
+        let wait = if busy_for > max_busy {
+            // Too long: silent until the computation ends (the watchdog decides).
+            None
+        } else {
+            Some(
+                period.saturating_sub(
+                    busy_for
+                        .as_nanos()
+                        .checked_rem(period.as_nanos())
+                        .map_or(Duration::ZERO, |r| {
+                            Duration::from_nanos(u64::try_from(r).unwrap_or(0))
+                        }),
+                ),
+            )
+        };
+        st = match wait {
+            Some(w) => {
+                shared
+                    .wake
+                    .wait_timeout(st, w.max(Duration::from_millis(1)))
+                    .unwrap_or_else(PoisonError::into_inner)
+                    .0
+            }
+            None => shared.wake.wait(st).unwrap_or_else(PoisonError::into_inner),
+        };
+    }
+}

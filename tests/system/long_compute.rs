@@ -1,0 +1,162 @@
+//! Planning keeps its heartbeat while it computes: a 4000 x 4000 map (16 M cells to read,
+//! inflate and search) takes far longer than the 100 ms heartbeat timeout of this test, and
+//! Planning must not be killed as hung (before, a 20000 x 20000 map got it SIGKILLed ten
+//! times). The test also checks that the computation did outlast the timeout, so that it
+//! shows something.
+
+use std::time::{Duration, Instant};
+
+use hng_modules::msgs::{GoalState, GoalStatus};
+use hng_runtime::msg::{FrameId, Goal, GridInfo, Header, Pose2D, PoseWithCovariance};
+use hng_runtime::system::{EventKind, ModuleEvent, SUPERVISOR_EVENTS};
+use hng_runtime::wait::{WaitMode, Waiter};
+use hng_runtime::{Node, NodeOptions, shm};
+use nix::sys::signal::Signal;
+
+use crate::signals::{Run, test_dir};
+
+const SIDE: u32 = 4000;
+const TIMEOUT: Duration = Duration::from_secs(180);
+
+#[test]
+fn planning_keeps_its_heartbeat_through_a_long_computation() {
+    let _heavy = crate::common::heavy();
+    let prefix = shm::unique_prefix("longplan");
+    let dir = test_dir(&prefix);
+    std::fs::create_dir_all(&dir).expect("dir");
+    let file = dir.join("plan.toml");
+    std::fs::write(
+        &file,
+        "system = \"longplan\"\n\n[defaults]\nheartbeat_period = \"30ms\"\nheartbeat_timeout = \"100ms\"\n\
+         start_timeout = \"10s\"\n\n[[module]]\nname = \"planning\"\ncommand = [\"hng\", \"module\", \"planning\"]\n\
+         [module.config]\nmap = \"test/map\"\npose = \"test/pose\"\ngoal = \"test/goal\"\n",
+    )
+    .expect("launch file");
+    let node = Node::new(NodeOptions::new("longplan-test").prefix(&prefix)).expect("node");
+    let events = node
+        .subscriber::<ModuleEvent>(SUPERVISOR_EVENTS)
+        .expect("events");
+    let status = node
+        .subscriber::<GoalStatus>("planning/status")
+        .expect("status");
+    let reports = node
+        .subscriber::<hng_runtime::msg::ModuleReport>(hng_runtime::module::REPORT_CHANNEL)
+        .expect("reports");
+    let map = node
+        .slice_publisher::<GridInfo>("test/map", (SIDE * SIDE) as usize)
+        .expect("map publisher");
+    let pose = node
+        .publisher::<PoseWithCovariance>("test/pose")
+        .expect("pose");
+    let goal = node.publisher::<Goal>("test/goal").expect("goal");
+    let mut waiter = Waiter::new(WaitMode::Blocking {
+        max_spin: Duration::ZERO,
+    })
+    .expect("waiter");
+    waiter.attach(&events).expect("attach");
+    waiter.attach(&status).expect("attach");
+    waiter.attach(&reports).expect("attach");
+    let mut run = Run::start_on(&prefix, &["--no-rm", file.to_str().expect("path")]);
+
+    // Its first report (configured: its inputs are open), then the inputs.
+    let deadline = Instant::now() + TIMEOUT;
+    let mut first = None;
+    loop {
+        while let Some(e) = events.receive().expect("event") {
+            if e.module() == "planning" && e.kind() == Some(EventKind::Started) {
+                first = Some(*e);
+            }
+        }
+        let reported = std::iter::from_fn(|| reports.receive().expect("report"))
+            .any(|r| r.name() == "planning");
+        if reported && first.is_some() {
+            break;
+        }
+        assert!(Instant::now() < deadline, "planning did not start");
+        waiter.wait(Some(deadline - Instant::now())).expect("wait");
+    }
+    let first = first.expect("started");
+    drop(reports);
+    // Free cells, 5 cm: 200 x 200 m.
+    let cells = vec![0i8; (SIDE * SIDE) as usize];
+    let info = GridInfo {
+        header: Header {
+            frame_id: FrameId::MAP,
+            ..Header::default()
+        },
+        resolution: 0.05,
+        width: SIDE,
+        height: SIDE,
+        origin: Pose2D::default(),
+    };
+    let sent = Instant::now();
+    node.update_connections();
+    map.publish_copy(info, &cells).expect("publish the map");
+    pose.update_connections();
+    let p = PoseWithCovariance {
+        pose: Pose2D {
+            x: 2.0,
+            y: 2.0,
+            theta: 0.0,
+        },
+        ..PoseWithCovariance::default()
+    };
+    pose.publish(p).expect("pose");
+    goal.update_connections();
+    let g = Goal {
+        id: 1,
+        pose: Pose2D {
+            x: 190.0,
+            y: 190.0,
+            theta: 0.0,
+        },
+        tolerance_m: 0.2,
+        ..Goal::default()
+    };
+    goal.publish(g).expect("goal");
+
+    // Its answer: a path (Active), with no death on the way.
+    let answer = loop {
+        node.update_connections();
+        while let Some(e) = events.receive().expect("event") {
+            assert!(
+                !(e.module() == "planning" && e.kind() == Some(EventKind::Died)),
+                "planning died while computing (pid {}); log:\n{}",
+                e.pid,
+                run.log()
+            );
+        }
+        if let Some(s) = status.receive().expect("status")
+            && s.goal_id == 1
+            && s.goal_state() != GoalState::Idle
+        {
+            break *s;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "no plan within {TIMEOUT:?}; log:\n{}",
+            run.log()
+        );
+        waiter.wait(Some(deadline - Instant::now())).expect("wait");
+    };
+    let took = sent.elapsed();
+    eprintln!(
+        "planning on {SIDE} x {SIDE}: answered {:?} after {took:?}",
+        answer.goal_state()
+    );
+    assert_eq!(answer.goal_state(), GoalState::Active, "a path was found");
+    assert!(
+        took > Duration::from_millis(300),
+        "the computation ({took:?}) did not outlast 3 heartbeat timeouts: the test shows nothing"
+    );
+    drop((events, status, map, pose, goal, waiter, node));
+    run.signal(Signal::SIGTERM);
+    let exit = run.wait();
+    let log = run.assert_left_nothing();
+    assert_eq!(exit.code(), Some(0));
+    assert!(
+        !log.contains("hang detected"),
+        "no hang was detected; log:\n{log}"
+    );
+    assert!(log.contains(&format!("planning: started, pid {}", first.pid)));
+}
