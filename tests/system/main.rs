@@ -8,6 +8,7 @@ mod faults;
 mod mission;
 mod mission_cmd;
 mod modules;
+mod recording;
 mod rm;
 mod sdk;
 mod sim;
