@@ -292,7 +292,7 @@ pub fn eval_replay(args: &EvalReplayArgs) -> Result<()> {
         bail!("no poses to compare on {}", args.channel);
     }
     if let Some(t) = args.tolerance_m
-        && !(c.p95_position_error_m <= t)
+        && (c.p95_position_error_m.is_nan() || c.p95_position_error_m > t)
     {
         bail!(
             "p95 position difference {:.4} m exceeds the tolerance {t} m",

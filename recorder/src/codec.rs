@@ -395,7 +395,7 @@ fn elems_as_bytes<E: Copy>(data: &[E]) -> &[u8] {
 
 fn elems_from_bytes<E: Copy + Default>(b: &[u8]) -> Result<Vec<E>, String> {
     let n = size_of::<E>().max(1);
-    if b.len() % n != 0 {
+    if !b.len().is_multiple_of(n) {
         return Err(format!(
             "{} payload bytes are not a whole number of {n}-byte elements",
             b.len()

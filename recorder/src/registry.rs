@@ -16,13 +16,15 @@ pub fn type_name<T: ZeroCopySend>() -> String {
     unsafe { <T as ZeroCopySend>::type_name() }.to_string()
 }
 
+/// Where a tap hands each encoded message, with its header.
+pub(crate) type Sink<'a> = dyn FnMut(&Header, &[u8]) -> Result<(), crate::Error> + 'a;
+type OpenTap = fn(&Node, &str) -> Result<Box<dyn Tap>, hng_runtime::Error>;
+type OpenOutlet = fn(&Node, &str) -> Result<Box<dyn Outlet>, hng_runtime::Error>;
+
 /// What a subscribed channel hands the recorder.
 pub(crate) trait Tap {
     /// Encodes every waiting message and hands it to `sink` with its header.
-    fn drain(
-        &mut self,
-        sink: &mut dyn FnMut(&Header, &[u8]) -> Result<(), crate::Error>,
-    ) -> Result<u64, crate::Error>;
+    fn drain(&mut self, sink: &mut Sink<'_>) -> Result<u64, crate::Error>;
     /// The subscriber's counters (drops from sequence gaps).
     fn stats(&self) -> ChannelStats;
 }
@@ -41,8 +43,8 @@ pub struct TypeEntry {
     pub kind: hng_runtime::qos::ChannelKind,
     /// The schema a channel of this type is written with.
     pub schema: fn() -> SchemaDesc,
-    pub(crate) tap: fn(&Node, &str) -> Result<Box<dyn Tap>, hng_runtime::Error>,
-    pub(crate) outlet: fn(&Node, &str) -> Result<Box<dyn Outlet>, hng_runtime::Error>,
+    pub(crate) tap: OpenTap,
+    pub(crate) outlet: OpenOutlet,
     pub(crate) decode_header: fn(&[u8]) -> Result<Header, String>,
 }
 
@@ -52,10 +54,7 @@ struct FixedTap<T: FixedCodec> {
 }
 
 impl<T: FixedCodec> Tap for FixedTap<T> {
-    fn drain(
-        &mut self,
-        sink: &mut dyn FnMut(&Header, &[u8]) -> Result<(), crate::Error>,
-    ) -> Result<u64, crate::Error> {
+    fn drain(&mut self, sink: &mut Sink<'_>) -> Result<u64, crate::Error> {
         let mut n = 0;
         while let Some(s) = self.sub.receive()? {
             self.buf.clear();
@@ -79,10 +78,7 @@ struct SliceTap<H: SliceCodec> {
 }
 
 impl<H: SliceCodec> Tap for SliceTap<H> {
-    fn drain(
-        &mut self,
-        sink: &mut dyn FnMut(&Header, &[u8]) -> Result<(), crate::Error>,
-    ) -> Result<u64, crate::Error> {
+    fn drain(&mut self, sink: &mut Sink<'_>) -> Result<u64, crate::Error> {
         let mut n = 0;
         while let Some(s) = self.sub.receive()? {
             self.buf.clear();

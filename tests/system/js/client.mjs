@@ -4,10 +4,12 @@
 // server advertised (a protobuf FileDescriptorSet, or JSON) and prints one JSON object.
 //
 // Usage: node client.mjs ws://127.0.0.1:PORT TOPIC [WANT] [TIMEOUT_MS]
-import { FoxgloveClient } from "@foxglove/ws-protocol";
+import wsProtocol from "@foxglove/ws-protocol";
 import protobuf from "protobufjs";
 import descriptor from "protobufjs/ext/descriptor/index.js";
 import WebSocket from "ws";
+
+const { FoxgloveClient } = wsProtocol;
 
 const [url, topic, wantArg, timeoutArg] = process.argv.slice(2);
 const want = Number(wantArg ?? 5);
