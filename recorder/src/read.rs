@@ -129,6 +129,10 @@ pub fn scan(path: &Path, buf: &[u8], on_message: &mut OnMessage<'_>) -> Result<C
         };
         match record {
             Record::Chunk { header, data } => {
+                if let Err(detail) = check_chunk_crc(&header, &data) {
+                    st.contents.damage = Some(damaged(o, detail));
+                    break;
+                }
                 let reader = match mcap::read::ChunkReader::new(header, &data) {
                     Ok(r) => r,
                     Err(e) => {
@@ -157,6 +161,31 @@ pub fn scan(path: &Path, buf: &[u8], on_message: &mut OnMessage<'_>) -> Result<C
         o = end;
     }
     Ok(st.contents)
+}
+
+/// Checks a chunk's CRC of its uncompressed records (when the writer set one): corruption
+/// that still decompresses is caught here.
+fn check_chunk_crc(header: &mcap::records::ChunkHeader, data: &[u8]) -> Result<(), String> {
+    if header.uncompressed_crc == 0 {
+        return Ok(());
+    }
+    let raw = match header.compression.as_str() {
+        "" => std::borrow::Cow::Borrowed(data),
+        "zstd" => std::borrow::Cow::Owned(
+            zstd::bulk::decompress(data, header.uncompressed_size as usize)
+                .map_err(|e| format!("chunk: zstd: {e}"))?,
+        ),
+        // Other compressions: the mcap crate's reader checks what it can.
+        _ => return Ok(()),
+    };
+    let crc = crc32fast::hash(&raw);
+    if crc != header.uncompressed_crc {
+        return Err(format!(
+            "chunk CRC {crc:08x} differs from the recorded {:08x}: corrupted",
+            header.uncompressed_crc
+        ));
+    }
+    Ok(())
 }
 
 struct State<'p> {
