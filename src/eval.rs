@@ -43,6 +43,8 @@ pub enum EvalCommand {
         #[arg(long, value_name = "OUT.yaml")]
         map: Option<PathBuf>,
     },
+    /// Compare the poses of two recordings (a run and a module replayed alone against it).
+    Replay(crate::recording::EvalReplayArgs),
 }
 
 fn print(fields: Map<String, Value>, json: bool) {
@@ -73,6 +75,7 @@ fn object(v: Value) -> Map<String, Value> {
 
 pub fn run(cmd: EvalCommand) -> Result<()> {
     match cmd {
+        EvalCommand::Replay(args) => crate::recording::eval_replay(&args),
         EvalCommand::Planner { map, scen, json } => {
             let e = eval_movingai(&map, &scen).context("planner evaluation failed")?;
             print(

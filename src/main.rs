@@ -26,6 +26,7 @@ mod doc;
 mod eval;
 mod mission;
 mod modules;
+mod recording;
 mod run;
 mod sim;
 mod top;
@@ -116,6 +117,14 @@ enum Command {
         #[command(subcommand)]
         command: sim::SimCommand,
     },
+    /// Record channels of a running system to an MCAP file (`--all`: every channel).
+    Record(recording::RecordArgs),
+    /// What a recording holds: channels, schemas, counts, rates, duration, drops.
+    Info(recording::InfoArgs),
+    /// Republish a recording (or run one module alone against it: --module).
+    Replay(recording::ReplayArgs),
+    /// Live view of a running system for Foxglove / Lichtblick (WebSocket).
+    Foxglove(recording::FoxgloveArgs),
     /// The peer side of a two-process benchmark (started by `hng bench`).
     #[command(hide = true, name = "__bench-peer")]
     BenchPeer(bench::ipc::PeerArgs),
@@ -150,6 +159,10 @@ fn main() -> ExitCode {
         Command::Sim { command } => sim::run(command),
         Command::Iox2Config => topic::iox2_config(&cli.prefix),
         Command::BenchPeer(args) => bench::ipc::peer(&args),
+        Command::Record(args) => recording::record(&cli.prefix, &args),
+        Command::Info(args) => recording::info(&args),
+        Command::Replay(args) => recording::replay(&cli.prefix, &args),
+        Command::Foxglove(args) => recording::foxglove(&cli.prefix, &args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

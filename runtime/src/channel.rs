@@ -41,7 +41,7 @@ use serde::Serialize;
 use crate::clock::Clock;
 use crate::error::Error;
 use crate::msg::{Header, Message, SliceMessage, module_id};
-use crate::qos::Qos;
+use crate::qos::{ChannelKind, Qos};
 use crate::wait::Waiter;
 use crate::wake::WakeFlag;
 
@@ -162,6 +162,7 @@ impl Node {
     /// way (iceoryx2's dead-node cleanup).
     pub fn new(opts: NodeOptions) -> Result<Node, Error> {
         silence_iceoryx_log();
+        crate::qos::ChannelLimits::from_env().map_err(Error::Config)?;
         let config = iceoryx_config(&opts.prefix)?;
         let node_name = NodeName::new(&opts.name).map_err(|e| Error::Node {
             name: opts.name.clone(),
@@ -268,6 +269,7 @@ impl Node {
         &self,
         channel: &str,
         name: &ServiceName,
+        kind: ChannelKind,
         expected: String,
         e: PublishSubscribeOpenOrCreateError,
     ) -> Error {
@@ -295,15 +297,16 @@ impl Node {
                 found,
             };
         }
-        Error::channel(channel, "open", e)
+        self.port_error(channel, name, kind, "open", e)
     }
 
     fn events(
         &self,
         channel: &str,
         name: &ServiceName,
-        qos: Qos,
+        kind: ChannelKind,
     ) -> Result<iceoryx2::service::port_factory::event::PortFactory<Service>, Error> {
+        let qos = kind.qos();
         self.inner
             .service_builder(name)
             .event()
@@ -311,7 +314,68 @@ impl Node {
             .max_listeners(qos.max_subscribers)
             .max_nodes(qos.max_publishers + qos.max_subscribers)
             .open_or_create()
-            .map_err(|e| Error::channel(channel, "open event service", e))
+            .map_err(|e| self.port_error(channel, name, kind, "open event service", e))
+    }
+
+    /// The error of a failed open or port creation: [`Error::ChannelFull`] naming the channel
+    /// and its limit when a limit was hit (iceoryx2's `ExceedsMaxSupportedSubscribers`,
+    /// `ExceedsMaxNumberOfNodes`, ...), else the operation and iceoryx2's error.
+    fn port_error(
+        &self,
+        channel: &str,
+        name: &ServiceName,
+        kind: ChannelKind,
+        op: &'static str,
+        e: impl fmt::Debug,
+    ) -> Error {
+        let detail = format!("{e:?}");
+        let hit = if detail.contains("ExceedsMaxSupportedSubscribers")
+            || detail.contains("ExceedsMaxSupportedListeners")
+        {
+            Some(("subscribers", "subscribers"))
+        } else if detail.contains("ExceedsMaxSupportedPublishers")
+            || detail.contains("ExceedsMaxSupportedNotifiers")
+        {
+            Some(("publishers", "publishers"))
+        } else if detail.contains("ExceedsMaxNumberOfNodes") {
+            Some(("processes (publishers + subscribers)", "subscribers"))
+        } else {
+            None
+        };
+        let Some((what, key)) = hit else {
+            return Error::channel(channel, op, e);
+        };
+        let qos = kind.qos();
+        // The limits the channel was created with (its creator's), if it can be read.
+        let actual = <Service as iceoryx2::service::Service>::details(
+            name,
+            &self.config,
+            MessagingPattern::PublishSubscribe,
+        )
+        .ok()
+        .flatten()
+        .map(|d| {
+            let ps = d.static_details.publish_subscribe();
+            (ps.max_publishers(), ps.max_subscribers(), ps.max_nodes())
+        });
+        let (pubs, subs, nodes) = actual.unwrap_or((
+            qos.max_publishers,
+            qos.max_subscribers,
+            qos.max_publishers + qos.max_subscribers,
+        ));
+        let limit = match what {
+            "subscribers" => subs,
+            "publishers" => pubs,
+            _ => nodes,
+        };
+        Error::ChannelFull {
+            channel: channel.to_string(),
+            kind: kind.name(),
+            what,
+            key,
+            limit,
+            env: crate::qos::LIMITS_ENV,
+        }
     }
 
     fn fixed_service<T: Message>(
@@ -324,7 +388,7 @@ impl Node {
             T::KIND.qos(),
         )
         .open_or_create()
-        .map_err(|e| self.open_error(channel, &name, type_name::<T>(), e))?;
+        .map_err(|e| self.open_error(channel, &name, T::KIND, type_name::<T>(), e))?;
         Ok((service, name))
     }
 
@@ -341,7 +405,7 @@ impl Node {
             H::KIND.qos(),
         )
         .open_or_create()
-        .map_err(|e| self.open_error(channel, &name, slice_type_name::<H>(), e))?;
+        .map_err(|e| self.open_error(channel, &name, H::KIND, slice_type_name::<H>(), e))?;
         Ok((service, name))
     }
 
@@ -351,7 +415,7 @@ impl Node {
         let port = service
             .publisher_builder()
             .create()
-            .map_err(|e| Error::channel(channel, "create publisher", e))?;
+            .map_err(|e| self.port_error(channel, &name, T::KIND, "create publisher", e))?;
         let (port, out) = self.outlet(channel, &name, T::KIND, port)?;
         Ok(Publisher {
             spare: Cell::new(None),
@@ -367,8 +431,8 @@ impl Node {
         let port = service
             .subscriber_builder()
             .create()
-            .map_err(|e| Error::channel(channel, "create subscriber", e))?;
-        self.receiver(channel, &name, T::KIND.qos(), port)
+            .map_err(|e| self.port_error(channel, &name, T::KIND, "create subscriber", e))?;
+        self.receiver(channel, &name, T::KIND, port)
     }
 
     /// Opens (or creates) a variable-size channel and returns a publisher whose samples may
@@ -381,7 +445,12 @@ impl Node {
     ) -> Result<SlicePublisher<H>, Error> {
         let (service, name) = self.slice_service::<H>(channel)?;
         let max_len = max_len.max(1);
-        let port = SlicePort::create(&service, channel, max_len)?;
+        let port = SlicePort::create(&service, channel, max_len).map_err(|e| match e {
+            Error::Channel { detail, .. } if detail.contains("ExceedsMax") => {
+                self.port_error(channel, &name, H::KIND, "create publisher", detail)
+            }
+            e => e,
+        })?;
         let port = SlicePort {
             service,
             spare: Cell::new(None),
@@ -402,8 +471,8 @@ impl Node {
         let port = service
             .subscriber_builder()
             .create()
-            .map_err(|e| Error::channel(channel, "create subscriber", e))?;
-        self.receiver(channel, &name, H::KIND.qos(), port)
+            .map_err(|e| self.port_error(channel, &name, H::KIND, "create subscriber", e))?;
+        self.receiver(channel, &name, H::KIND, port)
     }
 
     /// The sending side shared by both publisher kinds: notifier, wake flag, header stamping.
@@ -411,14 +480,14 @@ impl Node {
         &self,
         channel: &str,
         name: &ServiceName,
-        kind: crate::qos::ChannelKind,
+        kind: ChannelKind,
         port: P,
     ) -> Result<(Rc<P>, Outlet), Error> {
         let notifier = self
-            .events(channel, name, kind.qos())?
+            .events(channel, name, kind)?
             .notifier_builder()
             .create()
-            .map_err(|e| Error::channel(channel, "create notifier", e))?;
+            .map_err(|e| self.port_error(channel, name, kind, "create notifier", e))?;
         let _ = port.update_connections();
         let port = Rc::new(port);
         self.track_state(kind, &port);
@@ -439,14 +508,14 @@ impl Node {
         &self,
         channel: &str,
         name: &ServiceName,
-        qos: Qos,
+        kind: ChannelKind,
         port: K::Port,
     ) -> Result<Receiver<K>, Error> {
         let listener = self
-            .events(channel, name, qos)?
+            .events(channel, name, kind)?
             .listener_builder()
             .create()
-            .map_err(|e| Error::channel(channel, "create listener", e))?;
+            .map_err(|e| self.port_error(channel, name, kind, "create listener", e))?;
         let inlet = Rc::new(Inlet {
             listener,
             wake: WakeFlag::open(&self.prefix, channel)?,
@@ -514,6 +583,14 @@ impl Outlet {
         h.seq = seq;
         h.stamp_ns = self.clock.now_ns();
         h.source = self.source;
+    }
+
+    /// Numbers a recorded header (replay): the sequence is this publisher's, the stamp and
+    /// the source are the recording's.
+    fn stamp_recorded(&self, h: &mut Header) {
+        let seq = self.seq.get() + 1;
+        self.seq.set(seq);
+        h.seq = seq;
     }
 
     #[inline]
@@ -616,6 +693,14 @@ impl<T: Message> Publisher<T> {
     #[inline]
     pub fn publish(&self, mut msg: T) -> Result<(), Error> {
         self.out.stamp(msg.header_mut());
+        self.send(self.uninit()?.write_payload(msg))
+    }
+
+    /// Publishes a copy of a recorded message (replay): its time stamp and source stay as
+    /// recorded, only the sequence number is this publisher's (so subscribers still count
+    /// gaps).
+    pub fn publish_recorded(&self, mut msg: T) -> Result<(), Error> {
+        self.out.stamp_recorded(msg.header_mut());
         self.send(self.uninit()?.write_payload(msg))
     }
 
@@ -1047,6 +1132,22 @@ impl<H: SliceMessage> SlicePublisher<H> {
             sample,
             publisher: self,
         })
+    }
+
+    /// Publishes a copy of a recorded payload (replay): the header's time stamp and source
+    /// stay as recorded, only the sequence number is this publisher's.
+    pub fn publish_recorded(&self, header: H, data: &[H::Elem]) -> Result<(), Error> {
+        let mut loan = self.loan_uninit(data.len())?;
+        *loan.header_mut() = header;
+        let mut loan = loan.write_from_slice(data);
+        let out = &self.out;
+        out.stamp_recorded(loan.sample.user_header_mut().header_mut());
+        loan.sample
+            .send()
+            .map_err(|e| Error::channel(&out.channel, "send", e))?;
+        let sent = out.sent();
+        self.port.refill(data.len());
+        sent
     }
 
     /// Publishes a copy of `data` with header `header`.

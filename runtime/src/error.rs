@@ -43,6 +43,25 @@ pub enum Error {
         /// What failed.
         detail: String,
     },
+    /// A channel has as many ports (or processes) as its limit allows.
+    #[error(
+        "channel {channel:?} ({kind} channel) admits at most {limit} {what} and has them all; \
+         raise the limit for the whole system with {env}=\"{kind}.{key}=N\" (see docs/data-plane.md)"
+    )]
+    ChannelFull {
+        /// The channel.
+        channel: String,
+        /// The channel's kind (as `HNG_CHANNEL_LIMITS` spells it).
+        kind: &'static str,
+        /// `subscribers`, `publishers` or `processes (publishers + subscribers)`.
+        what: &'static str,
+        /// The limit key to raise (`subscribers` or `publishers`).
+        key: &'static str,
+        /// The channel's limit.
+        limit: usize,
+        /// The variable to set.
+        env: &'static str,
+    },
     /// A slice larger than the channel's largest allowed sample.
     #[error("channel {channel:?}: a payload of {len} elements exceeds the limit of {max}")]
     TooLarge {

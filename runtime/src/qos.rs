@@ -7,15 +7,30 @@
 //!
 //! | kind | history (late joiners get) | buffer | safe overflow | publishers | subscribers |
 //! |---|---|---|---|---|---|
-//! | `Sensor` | 0 | 8 | yes | 4 | 16 |
-//! | `Command` | 0 | 4 | yes | 16 | 8 |
+//! | `Sensor` | 0 | 8 | yes | 4 | 24 |
+//! | `Command` | 0 | 4 | yes | 16 | 16 |
 //! | `State` | 1 (the latest) | 4 | yes | 4 | 64 |
-//! | `StateBulk` | 1 (the latest) | 2 | yes | 2 | 8 |
-//! | `Bulk` | 0 | 2 | yes | 2 | 8 |
+//! | `StateBulk` | 1 (the latest) | 2 | yes | 4 | 16 |
+//! | `Bulk` | 0 | 2 | yes | 2 | 16 |
 //! | `Control` | 0 | 64 | yes | 128 | 128 |
 //! | `Contract` | 0 | 16 | yes | 128 | 32 |
-//! | `Report` | 0 | 64 | yes | 128 | 8 |
+//! | `Report` | 0 | 64 | yes | 128 | 32 |
 //!
+//! The subscriber limits leave room, beside the modules, for the tools that watch a running
+//! system at once: a recorder (`hng record`), a live view (`hng foxglove`), an operator page
+//! and several `hng topic echo`. A channel holds at most `publishers + subscribers` processes.
+//!
+//! ## Changing the limits
+//! `HNG_CHANNEL_LIMITS` overrides them per kind, e.g.
+//! `HNG_CHANNEL_LIMITS="sensor.subscribers=48,report.subscribers=64,bulk.publishers=4"`.
+//! The first process to open a channel fixes its limits (iceoryx2 keeps the creator's QoS),
+//! so every process of a system must see the same value: set it where `hng run` starts
+//! (its modules inherit the environment). A port beyond a limit fails with
+//! [`crate::Error::ChannelFull`], which names the channel, the limit and this variable.
+//! Each publisher preallocates `subscribers x (buffer + 2)` samples, so a higher limit costs
+//! shared memory on channels of large messages.
+//!
+
 //! Every kind uses safe overflow: a full buffer drops the subscriber's oldest sample, so a
 //! slow or killed subscriber can never block a publisher. Drops are detected from sequence
 //! gaps and counted ([`crate::channel::ChannelStats`]).
@@ -61,17 +76,43 @@ pub struct Qos {
 }
 
 impl ChannelKind {
-    /// The QoS of this kind of channel.
-    pub const fn qos(self) -> Qos {
+    /// Every kind, in the order of the table above.
+    pub const ALL: [ChannelKind; 8] = [
+        ChannelKind::Sensor,
+        ChannelKind::Command,
+        ChannelKind::State,
+        ChannelKind::StateBulk,
+        ChannelKind::Bulk,
+        ChannelKind::Control,
+        ChannelKind::Contract,
+        ChannelKind::Report,
+    ];
+
+    /// The kind's name as `HNG_CHANNEL_LIMITS` spells it.
+    pub const fn name(self) -> &'static str {
+        match self {
+            ChannelKind::Sensor => "sensor",
+            ChannelKind::Command => "command",
+            ChannelKind::State => "state",
+            ChannelKind::StateBulk => "state_bulk",
+            ChannelKind::Bulk => "bulk",
+            ChannelKind::Control => "control",
+            ChannelKind::Contract => "contract",
+            ChannelKind::Report => "report",
+        }
+    }
+
+    /// The built-in QoS of this kind of channel (without `HNG_CHANNEL_LIMITS`).
+    pub const fn default_qos(self) -> Qos {
         let (history, buffer, max_publishers, max_subscribers) = match self {
-            ChannelKind::Sensor => (0, 8, 4, 16),
-            ChannelKind::Command => (0, 4, 16, 8),
+            ChannelKind::Sensor => (0, 8, 4, 24),
+            ChannelKind::Command => (0, 4, 16, 16),
             ChannelKind::State => (1, 4, 4, 64),
-            ChannelKind::StateBulk => (1, 2, 2, 8),
-            ChannelKind::Bulk => (0, 2, 2, 8),
+            ChannelKind::StateBulk => (1, 2, 4, 16),
+            ChannelKind::Bulk => (0, 2, 2, 16),
             ChannelKind::Control => (0, 64, 128, 128),
             ChannelKind::Contract => (0, 16, 128, 32),
-            ChannelKind::Report => (0, 64, 128, 8),
+            ChannelKind::Report => (0, 64, 128, 32),
         };
         Qos {
             history,
@@ -79,6 +120,148 @@ impl ChannelKind {
             borrowed: 2,
             max_publishers,
             max_subscribers,
+        }
+    }
+
+    /// The QoS of this kind of channel: the built-in values with the limits of
+    /// `HNG_CHANNEL_LIMITS` (an invalid variable is reported by [`crate::Node::new`] and
+    /// leaves the built-in values).
+    pub fn qos(self) -> Qos {
+        match ChannelLimits::from_env() {
+            Ok(l) => l.qos(self),
+            Err(_) => self.default_qos(),
+        }
+    }
+}
+
+/// The environment variable that overrides the publisher and subscriber limits.
+pub const LIMITS_ENV: &str = "HNG_CHANNEL_LIMITS";
+
+/// Largest limit accepted (iceoryx2 preallocates per port).
+pub const MAX_LIMIT: usize = 1024;
+
+/// Publisher and subscriber limits per channel kind (see the module docs).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ChannelLimits {
+    limits: [(usize, usize); 8],
+}
+
+impl Default for ChannelLimits {
+    fn default() -> Self {
+        let mut limits = [(0, 0); 8];
+        for (i, k) in ChannelKind::ALL.iter().enumerate() {
+            let q = k.default_qos();
+            limits[i] = (q.max_publishers, q.max_subscribers);
+        }
+        ChannelLimits { limits }
+    }
+}
+
+impl ChannelLimits {
+    /// Parses `kind.publishers=N,kind.subscribers=N,...` (whitespace and empty items are
+    /// ignored); the error names the item and what is wrong with it.
+    pub fn parse(spec: &str) -> Result<ChannelLimits, String> {
+        let mut out = ChannelLimits::default();
+        for item in spec
+            .split([',', ';'])
+            .map(str::trim)
+            .filter(|s| !s.is_empty())
+        {
+            let (key, value) = item.split_once('=').ok_or_else(|| {
+                format!("{item:?}: expected KIND.publishers=N or KIND.subscribers=N")
+            })?;
+            let (kind, what) = key.trim().split_once('.').ok_or_else(|| {
+                format!("{item:?}: expected KIND.publishers=N or KIND.subscribers=N")
+            })?;
+            let idx = ChannelKind::ALL
+                .iter()
+                .position(|k| k.name() == kind.trim())
+                .ok_or_else(|| {
+                    let names: Vec<&str> = ChannelKind::ALL.iter().map(|k| k.name()).collect();
+                    format!(
+                        "{item:?}: unknown channel kind {kind:?} (kinds: {})",
+                        names.join(", ")
+                    )
+                })?;
+            let n: usize = value
+                .trim()
+                .parse()
+                .ok()
+                .filter(|n| (1..=MAX_LIMIT).contains(n))
+                .ok_or_else(|| {
+                    format!("{item:?}: the limit must be a number from 1 to {MAX_LIMIT}")
+                })?;
+            match what.trim() {
+                "publishers" => out.limits[idx].0 = n,
+                "subscribers" => out.limits[idx].1 = n,
+                other => {
+                    return Err(format!(
+                        "{item:?}: unknown limit {other:?} (publishers or subscribers)"
+                    ));
+                }
+            }
+        }
+        Ok(out)
+    }
+
+    /// The limits of this process: `HNG_CHANNEL_LIMITS`, read once.
+    pub fn from_env() -> Result<ChannelLimits, String> {
+        static LIMITS: std::sync::OnceLock<Result<ChannelLimits, String>> =
+            std::sync::OnceLock::new();
+        LIMITS
+            .get_or_init(|| match std::env::var(LIMITS_ENV) {
+                Ok(spec) => ChannelLimits::parse(&spec).map_err(|e| format!("{LIMITS_ENV}: {e}")),
+                Err(_) => Ok(ChannelLimits::default()),
+            })
+            .clone()
+    }
+
+    /// The QoS of `kind` with these limits.
+    pub fn qos(&self, kind: ChannelKind) -> Qos {
+        let mut q = kind.default_qos();
+        if let Some(i) = ChannelKind::ALL.iter().position(|k| *k == kind) {
+            (q.max_publishers, q.max_subscribers) = self.limits[i];
+        }
+        q
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn limits_parse_and_override_only_what_they_name() {
+        let l = ChannelLimits::parse(" sensor.subscribers=48, bulk.publishers=3 ,").unwrap();
+        assert_eq!(l.qos(ChannelKind::Sensor).max_subscribers, 48);
+        assert_eq!(l.qos(ChannelKind::Sensor).max_publishers, 4);
+        assert_eq!(l.qos(ChannelKind::Bulk).max_publishers, 3);
+        assert_eq!(
+            l.qos(ChannelKind::Report),
+            ChannelKind::Report.default_qos()
+        );
+        assert_eq!(ChannelLimits::parse("").unwrap(), ChannelLimits::default());
+    }
+
+    #[test]
+    fn bad_limits_name_the_item() {
+        for (spec, needle) in [
+            ("sensors.subscribers=4", "unknown channel kind \"sensors\""),
+            ("sensor.subs=4", "unknown limit \"subs\""),
+            ("sensor.subscribers=0", "from 1 to 1024"),
+            ("sensor.subscribers=x", "from 1 to 1024"),
+            ("sensor=4", "expected KIND.publishers=N"),
+        ] {
+            let e = ChannelLimits::parse(spec).unwrap_err();
+            assert!(e.contains(needle), "{spec}: {e}");
+        }
+    }
+
+    #[test]
+    fn defaults_fit_the_tools() {
+        // Beside the modules: recorder, live view, operator page, four `hng topic echo`.
+        for k in [ChannelKind::Sensor, ChannelKind::Report, ChannelKind::Bulk] {
+            assert!(k.default_qos().max_subscribers >= 16, "{k:?}");
         }
     }
 }

@@ -10,6 +10,7 @@ use hng_runtime::stats::{BenchRow, table};
 pub mod contracts;
 pub mod ipc;
 pub mod loop_;
+pub mod record;
 pub mod recovery;
 pub mod rm;
 pub mod sim;
@@ -28,6 +29,8 @@ pub enum BenchCommand {
     Recovery(recovery::RecoveryArgs),
     /// Control loop across processes: lidar scan -> Security decision -> command out of Robot.
     Loop(loop_::LoopArgs),
+    /// Flight recorder: 64 B and 1 MiB messages to an MCAP file, MB/s and drops.
+    Record(record::BenchRecordArgs),
 }
 
 /// Prints rows as JSON lines or as a table.
@@ -49,5 +52,6 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
         BenchCommand::Rm(args) => rm::run(&args),
         BenchCommand::Recovery(args) => recovery::run(&args),
         BenchCommand::Loop(args) => loop_::run(&args),
+        BenchCommand::Record(args) => record::run(&args),
     }
 }

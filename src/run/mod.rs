@@ -102,6 +102,8 @@ pub struct RunArgs {
     /// Built-in mission: also write the summary as JSON to this file.
     #[arg(long, conflicts_with = "file")]
     pub summary: Option<PathBuf>,
+    #[command(flatten)]
+    pub recording: crate::recording::RunRecordArgs,
 }
 
 impl RunArgs {
@@ -401,6 +403,7 @@ struct Runner {
     last_command: Option<CommandResult>,
     shutdown_signals: u32,
     monitor: Option<Monitor>,
+    recorder: Option<hng_recorder::RecorderThread>,
 }
 
 /// Runs the system until it stops; with a mission `monitor`, also returns its outcome (the
@@ -512,6 +515,7 @@ fn supervise_inner(
         caps: HashMap::new(),
         software_enforcer: plan.modules.iter().any(|m| m.name == "rm"),
     };
+    let recorder = crate::recording::start_for_run(prefix, &args.recording, &plan)?;
     let sup = Supervisor::with_hooks(
         plan.modules,
         SupervisorOptions {
@@ -536,6 +540,7 @@ fn supervise_inner(
         last_command: None,
         shutdown_signals: 0,
         monitor: monitor.take(),
+        recorder,
     };
     tracing::info!(
         system = %runner.system,
@@ -763,10 +768,12 @@ impl Runner {
             commands_out,
             node,
             monitor,
+            recorder,
             ..
         } = self;
         let _ = sup.shutdown();
         let outcome = monitor.map(Monitor::finish);
+        crate::recording::finish_for_run(recorder);
         sup.hooks_mut().remove_cgroups();
         drop(sup);
         drop((events, status, commands_out));

@@ -1,0 +1,657 @@
+//! The recorder: subscribes to the channels of a running system and writes every message to
+//! an MCAP file and/or a Foxglove live view.
+//!
+//! It polls its subscribers every millisecond instead of sleeping on them, so a module
+//! publishing never pays a wake-up for the recorder (a publisher notifies only blocked
+//! subscribers). Channels are discovered as they appear (every 20 ms for the first seconds,
+//! then every 500 ms). A message lost before the recorder read it (its buffer overflowed) is
+//! counted per channel from the sequence gaps, printed at the end and stored in the file's
+//! metadata (`hng.drops`).
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::fs::File;
+use std::io::BufWriter;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+use hng_runtime::channel::{Node, NodeOptions, Service, iceoryx_config};
+use hng_runtime::msg::Header;
+use hng_runtime::wait::{WaitMode, Waiter, Wake};
+use iceoryx2::prelude::*;
+use serde::Serialize;
+
+use crate::Error;
+use crate::codec::SchemaDesc;
+use crate::live::Live;
+use crate::registry::{Tap, TypeEntry, lookup, registry};
+
+/// What to record and where.
+#[derive(Debug, Clone)]
+pub struct RecordOptions {
+    /// The system's prefix.
+    pub prefix: String,
+    /// Channels to record (exact names, or a prefix ending in `*`); empty: every channel.
+    pub channels: Vec<String>,
+    /// The MCAP file.
+    pub output: Option<PathBuf>,
+    /// Address of the Foxglove live view (`ws://HOST:PORT` or `HOST:PORT`).
+    pub live: Option<String>,
+    /// Metadata records written at the start (name, key-value pairs).
+    pub metadata: Vec<(String, BTreeMap<String, String>)>,
+    /// Keep only messages published by this module id (replay of one module).
+    pub only_source: Option<u32>,
+    /// Stop after this long.
+    pub duration: Option<Duration>,
+    /// Period of the subscriber polls.
+    pub poll: Duration,
+    /// Stop on SIGINT/SIGTERM (a foreground `hng record`); off in a thread of a process that
+    /// handles signals itself.
+    pub catch_signals: bool,
+    /// zstd level of the chunks (1 fastest; 0: zstd's default).
+    pub compression_level: u32,
+}
+
+impl RecordOptions {
+    /// Every channel of `prefix`, nowhere yet.
+    pub fn new(prefix: &str) -> RecordOptions {
+        RecordOptions {
+            prefix: prefix.to_string(),
+            channels: Vec::new(),
+            output: None,
+            live: None,
+            metadata: Vec::new(),
+            only_source: None,
+            duration: None,
+            poll: Duration::from_millis(1),
+            catch_signals: false,
+            compression_level: 1,
+        }
+    }
+}
+
+/// What was recorded on one channel.
+#[derive(Debug, Clone, Serialize)]
+pub struct ChannelSummary {
+    /// The channel.
+    pub channel: String,
+    /// The hng type.
+    pub r#type: String,
+    /// The schema written.
+    pub schema: String,
+    /// Messages recorded.
+    pub messages: u64,
+    /// Messages lost before the recorder read them.
+    pub dropped: u64,
+    /// Encoded bytes.
+    pub bytes: u64,
+}
+
+/// What a recording holds.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct RecordSummary {
+    /// The file (if any).
+    pub output: Option<PathBuf>,
+    /// Recorded channels.
+    pub channels: Vec<ChannelSummary>,
+    /// Channels seen but not recorded: name and type (a type this recorder does not know).
+    pub skipped: BTreeMap<String, String>,
+    /// Wall time recorded, s.
+    pub wall_s: f64,
+    /// Messages recorded.
+    pub messages: u64,
+    /// Messages lost.
+    pub dropped: u64,
+    /// Encoded bytes.
+    pub bytes: u64,
+    /// Why recording stopped early (a write error such as a full disk), if it did.
+    pub error: Option<String>,
+}
+
+impl std::fmt::Display for RecordSummary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let file = self
+            .output
+            .as_ref()
+            .map_or("live view".to_string(), |p| p.display().to_string());
+        writeln!(
+            f,
+            "recorded {} message(s) on {} channel(s) in {:.1} s to {file}; {} dropped",
+            self.messages,
+            self.channels.len(),
+            self.wall_s,
+            self.dropped
+        )?;
+        for c in self.channels.iter().filter(|c| c.dropped > 0) {
+            writeln!(f, "  dropped {:>6} on {}", c.dropped, c.channel)?;
+        }
+        if !self.skipped.is_empty() {
+            let mut names: Vec<String> = self
+                .skipped
+                .iter()
+                .take(6)
+                .map(|(c, t)| format!("{c} ({t})"))
+                .collect();
+            if self.skipped.len() > 6 {
+                names.push("...".into());
+            }
+            writeln!(
+                f,
+                "  not recorded: {} channel(s) of types hng record does not know: {}",
+                self.skipped.len(),
+                names.join(", ")
+            )?;
+        }
+        if let Some(e) = &self.error {
+            writeln!(f, "  recording stopped early: {e}")?;
+        }
+        Ok(())
+    }
+}
+
+/// What the recorder has done so far (for callers that must wait for it).
+#[derive(Debug, Clone, Default)]
+pub struct Progress(Arc<ProgressInner>);
+
+#[derive(Debug, Default)]
+struct ProgressInner {
+    channels: Mutex<BTreeSet<String>>,
+    messages: std::sync::atomic::AtomicU64,
+}
+
+impl Progress {
+    /// True when `channel` is being recorded.
+    pub fn has(&self, channel: &str) -> bool {
+        self.0
+            .channels
+            .lock()
+            .map(|s| s.contains(channel))
+            .unwrap_or(false)
+    }
+
+    /// Messages recorded so far.
+    pub fn messages(&self) -> u64 {
+        self.0.messages.load(Ordering::Acquire)
+    }
+
+    /// Waits until no message was recorded for `quiet`, or `limit` passed.
+    pub fn wait_quiet(&self, quiet: Duration, limit: Duration) {
+        let t0 = Instant::now();
+        let mut last = self.messages();
+        let mut since = Instant::now();
+        while t0.elapsed() < limit {
+            std::thread::sleep(Duration::from_millis(20));
+            let n = self.messages();
+            if n != last {
+                last = n;
+                since = Instant::now();
+            } else if since.elapsed() >= quiet {
+                return;
+            }
+        }
+    }
+
+    fn add(&self, channel: &str) {
+        if let Ok(mut s) = self.0.channels.lock() {
+            s.insert(channel.to_string());
+        }
+    }
+
+    fn count(&self, n: u64) {
+        self.0.messages.fetch_add(n, Ordering::AcqRel);
+    }
+}
+
+/// A channel of the bus: its name and iceoryx2 type name (a slice channel's header type).
+pub fn list_channels(prefix: &str) -> Result<Vec<(String, String)>, Error> {
+    let config = iceoryx_config(prefix)?;
+    let mut out = Vec::new();
+    <Service as iceoryx2::service::Service>::list(&config, |d| {
+        if let iceoryx2::service::static_config::messaging_pattern::MessagingPattern::PublishSubscribe(ps) =
+            d.static_details.messaging_pattern()
+        {
+            let t = ps.message_type_details();
+            let payload = t.payload.type_name().to_string();
+            let header = t.user_header.type_name().to_string();
+            let ty = if header == "()" { payload } else { header };
+            out.push((d.static_details.name().to_string(), ty));
+        }
+        CallbackProgression::Continue
+    })
+    .map_err(|e| Error::Other(format!("listing the channels of prefix {prefix:?}: {e:?}")))?;
+    out.sort();
+    Ok(out)
+}
+
+fn wanted(filters: &[String], channel: &str) -> bool {
+    filters.is_empty()
+        || filters.iter().any(|f| match f.strip_suffix('*') {
+            Some(p) => channel.starts_with(p),
+            None => f == channel,
+        })
+}
+
+/// Nanoseconds since the Unix epoch.
+pub(crate) fn now_unix_ns() -> u64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map(|d| d.as_nanos() as u64)
+        .unwrap_or(0)
+}
+
+struct Chan {
+    name: String,
+    type_name: String,
+    schema: SchemaDesc,
+    tap: Box<dyn Tap>,
+    mcap_id: Option<u16>,
+    live: Option<Arc<foxglove::RawChannel>>,
+    messages: u64,
+    bytes: u64,
+}
+
+/// The MCAP side of the recorder.
+pub(crate) struct McapOut {
+    pub(crate) writer: mcap::Writer<BufWriter<File>>,
+    pub(crate) path: PathBuf,
+}
+
+impl McapOut {
+    pub(crate) fn create(path: &std::path::Path, level: u32) -> Result<McapOut, Error> {
+        let file = File::create(path).map_err(|e| Error::Io {
+            path: path.display().to_string(),
+            source: e,
+        })?;
+        let writer = mcap::WriteOptions::new()
+            .compression(Some(mcap::Compression::Zstd))
+            .compression_level(level)
+            .chunk_size(Some(1 << 20))
+            .profile("")
+            .library(format!("hng-recorder {}", env!("CARGO_PKG_VERSION")))
+            .create(BufWriter::with_capacity(1 << 20, file))
+            .map_err(|e| Error::mcap(path, e))?;
+        Ok(McapOut {
+            writer,
+            path: path.to_path_buf(),
+        })
+    }
+
+    pub(crate) fn add_channel(
+        &mut self,
+        name: &str,
+        type_name: &str,
+        schema: &SchemaDesc,
+    ) -> Result<u16, Error> {
+        let sid = self
+            .writer
+            .add_schema(&schema.name, schema.encoding, &schema.data)
+            .map_err(|e| Error::mcap(&self.path, e))?;
+        let mut meta = BTreeMap::new();
+        meta.insert("hng.type".to_string(), type_name.to_string());
+        self.writer
+            .add_channel(sid, name, schema.message_encoding, &meta)
+            .map_err(|e| Error::mcap(&self.path, e))
+    }
+
+    pub(crate) fn write(
+        &mut self,
+        id: u16,
+        h: &Header,
+        log_time: u64,
+        data: &[u8],
+    ) -> Result<(), Error> {
+        self.writer
+            .write_to_known_channel(
+                &mcap::records::MessageHeader {
+                    channel_id: id,
+                    sequence: h.seq as u32,
+                    log_time,
+                    publish_time: h.stamp_ns,
+                },
+                data,
+            )
+            .map_err(|e| Error::mcap(&self.path, e))
+    }
+
+    pub(crate) fn metadata(
+        &mut self,
+        name: &str,
+        metadata: BTreeMap<String, String>,
+    ) -> Result<(), Error> {
+        self.writer
+            .write_metadata(&mcap::records::Metadata {
+                name: name.to_string(),
+                metadata,
+            })
+            .map_err(|e| Error::mcap(&self.path, e))
+    }
+
+    pub(crate) fn finish(mut self) -> Result<(), Error> {
+        self.writer
+            .finish()
+            .map_err(|e| Error::mcap(&self.path, e))?;
+        Ok(())
+    }
+}
+
+/// Records until `stop` is set (or a signal / the duration ends); returns what was recorded.
+/// `progress` lists the channels subscribed so far.
+pub fn record(
+    opts: &RecordOptions,
+    stop: &AtomicBool,
+    progress: &Progress,
+) -> Result<RecordSummary, Error> {
+    record_impl(opts, stop, progress, &mut || {})
+}
+
+/// [`record`], calling `started` once after the first pass over the channels.
+fn record_impl(
+    opts: &RecordOptions,
+    stop: &AtomicBool,
+    progress: &Progress,
+    started_hook: &mut dyn FnMut(),
+) -> Result<RecordSummary, Error> {
+    let reg = registry();
+    let node = Node::new(
+        NodeOptions::new(&format!(
+            "hng-recorder-{}-{}",
+            std::process::id(),
+            crate::unique()
+        ))
+        .prefix(&opts.prefix),
+    )?;
+    let mut mcap = match &opts.output {
+        Some(p) => Some(McapOut::create(p, opts.compression_level)?),
+        None => None,
+    };
+    if let Some(m) = mcap.as_mut() {
+        for (name, kv) in &opts.metadata {
+            m.metadata(name, kv.clone())?;
+        }
+    }
+    // Signals first: the live view's threads inherit the blocked mask, so SIGTERM reaches
+    // the signalfd and not a thread that would die of it.
+    let mut waiter = if opts.catch_signals {
+        let mut w = Waiter::new(WaitMode::Blocking {
+            max_spin: Duration::ZERO,
+        })?;
+        w.catch_termination_signals()?;
+        Some(w)
+    } else {
+        None
+    };
+    let live = match &opts.live {
+        Some(addr) => Some(Live::start(addr)?),
+        None => None,
+    };
+
+    let started = Instant::now();
+    let mut chans: Vec<Chan> = Vec::new();
+    let mut skipped = BTreeMap::new();
+    let mut next_discovery = started;
+    let mut error = None;
+    let mut stopping = false;
+    let mut first_pass = true;
+    loop {
+        let now = Instant::now();
+        if now >= next_discovery && !stopping {
+            discover(
+                opts,
+                &node,
+                &reg,
+                &mut chans,
+                &mut skipped,
+                &mut mcap,
+                &live,
+                progress,
+            )?;
+            if first_pass {
+                first_pass = false;
+                started_hook();
+            }
+            let early = now.duration_since(started) < Duration::from_secs(3);
+            next_discovery = now
+                + if early {
+                    Duration::from_millis(20)
+                } else {
+                    Duration::from_millis(500)
+                };
+        }
+        let log_time = now_unix_ns();
+        for c in chans.iter_mut() {
+            let before = c.messages;
+            let r = drain(c, opts.only_source, log_time, &mut mcap);
+            progress.count(c.messages - before);
+            if let Err(e) = r {
+                // A write error (a full disk): stop cleanly, keep what was written.
+                tracing::error!("recording stopped: {e}");
+                error = Some(e.to_string());
+                mcap = None;
+                stopping = true;
+                break;
+            }
+        }
+        if stopping {
+            break;
+        }
+        if stop.load(Ordering::Acquire) || opts.duration.is_some_and(|d| started.elapsed() >= d) {
+            // One more pass to take what arrived meanwhile.
+            stopping = true;
+            continue;
+        }
+        match waiter.as_mut() {
+            Some(w) => {
+                if let Wake::Signal(_) = w.wait(Some(opts.poll))? {
+                    stop_flag_signal(stop);
+                }
+            }
+            None => std::thread::sleep(opts.poll),
+        }
+    }
+    let summary = RecordSummary {
+        output: opts.output.clone(),
+        channels: chans
+            .iter()
+            .map(|c| ChannelSummary {
+                channel: c.name.clone(),
+                r#type: c.type_name.clone(),
+                schema: c.schema.name.clone(),
+                messages: c.messages,
+                dropped: c.tap.stats().dropped,
+                bytes: c.bytes,
+            })
+            .collect(),
+        skipped,
+        wall_s: started.elapsed().as_secs_f64(),
+        messages: chans.iter().map(|c| c.messages).sum(),
+        dropped: chans.iter().map(|c| c.tap.stats().dropped).sum(),
+        bytes: chans.iter().map(|c| c.bytes).sum(),
+        error,
+    };
+    if let Some(mut m) = mcap {
+        let drops: BTreeMap<String, String> = summary
+            .channels
+            .iter()
+            .map(|c| (c.channel.clone(), c.dropped.to_string()))
+            .collect();
+        m.metadata("hng.drops", drops)?;
+        let mut rec = BTreeMap::new();
+        rec.insert("messages".into(), summary.messages.to_string());
+        rec.insert("dropped".into(), summary.dropped.to_string());
+        rec.insert("wall_s".into(), format!("{:.3}", summary.wall_s));
+        rec.insert(
+            "skipped".into(),
+            serde_json::to_string(&summary.skipped).unwrap_or_default(),
+        );
+        m.metadata("hng.recorder", rec)?;
+        m.finish()?;
+    }
+    drop(chans);
+    if let Some(l) = live {
+        l.stop();
+    }
+    Ok(summary)
+}
+
+fn stop_flag_signal(stop: &AtomicBool) {
+    stop.store(true, Ordering::Release);
+}
+
+fn drain(
+    c: &mut Chan,
+    only_source: Option<u32>,
+    log_time: u64,
+    mcap: &mut Option<McapOut>,
+) -> Result<(), Error> {
+    let Chan {
+        tap,
+        mcap_id,
+        live,
+        messages,
+        bytes,
+        ..
+    } = c;
+    tap.drain(&mut |h, data| {
+        if only_source.is_some_and(|s| s != h.source) {
+            return Ok(());
+        }
+        *messages += 1;
+        *bytes += data.len() as u64;
+        if let (Some(m), Some(id)) = (mcap.as_mut(), *mcap_id) {
+            m.write(id, h, log_time, data)?;
+        }
+        if let Some(l) = live {
+            l.log_with_meta(data, foxglove::PartialMetadata::with_log_time(log_time));
+        }
+        Ok(())
+    })?;
+    Ok(())
+}
+
+#[allow(clippy::too_many_arguments)]
+fn discover(
+    opts: &RecordOptions,
+    node: &Node,
+    reg: &[TypeEntry],
+    chans: &mut Vec<Chan>,
+    skipped: &mut BTreeMap<String, String>,
+    mcap: &mut Option<McapOut>,
+    live: &Option<Live>,
+    progress: &Progress,
+) -> Result<(), Error> {
+    for (name, ty) in list_channels(&opts.prefix)? {
+        if !wanted(&opts.channels, &name)
+            || chans.iter().any(|c| c.name == name)
+            || skipped.contains_key(&name)
+        {
+            continue;
+        }
+        let Some(entry) = lookup(reg, &ty) else {
+            skipped.insert(name, ty);
+            continue;
+        };
+        let tap = match (entry.tap)(node, &name) {
+            Ok(t) => t,
+            Err(e @ hng_runtime::Error::ChannelFull { .. }) => {
+                // Say it once, record the rest.
+                tracing::warn!("not recording {name}: {e}");
+                skipped.insert(name, format!("{ty}: {e}"));
+                continue;
+            }
+            Err(e) => return Err(e.into()),
+        };
+        let schema = (entry.schema)();
+        let mcap_id = match mcap.as_mut() {
+            Some(m) => Some(m.add_channel(&name, &ty, &schema)?),
+            None => None,
+        };
+        let live = live
+            .as_ref()
+            .map(|l| l.channel(&name, &ty, &schema))
+            .transpose()?;
+        progress.add(&name);
+        chans.push(Chan {
+            name,
+            type_name: ty,
+            schema,
+            tap,
+            mcap_id,
+            live,
+            messages: 0,
+            bytes: 0,
+        });
+    }
+    Ok(())
+}
+
+/// A recorder running in a thread of its own (`hng run --record`, `hng replay --module`).
+pub struct RecorderThread {
+    stop: Arc<AtomicBool>,
+    progress: Progress,
+    thread: Option<std::thread::JoinHandle<Result<RecordSummary, Error>>>,
+}
+
+impl RecorderThread {
+    /// Starts recording; returns once the recorder has made its first pass over the
+    /// channels that exist (or failed to start).
+    pub fn spawn(mut opts: RecordOptions) -> Result<RecorderThread, Error> {
+        opts.catch_signals = false;
+        let stop = Arc::new(AtomicBool::new(false));
+        let progress = Progress::default();
+        let (ready_tx, ready_rx) = std::sync::mpsc::channel::<()>();
+        let (s2, p2) = (Arc::clone(&stop), progress.clone());
+        let thread = std::thread::Builder::new()
+            .name("hng-recorder".into())
+            .spawn(move || {
+                let mut ready = Some(ready_tx);
+                let r = record_impl(&opts, &s2, &p2, &mut || {
+                    if let Some(tx) = ready.take() {
+                        let _ = tx.send(());
+                    }
+                });
+                if let Err(e) = &r {
+                    tracing::error!("recorder: {e}");
+                }
+                r
+            })
+            .map_err(|e| Error::Other(format!("starting the recorder thread: {e}")))?;
+        let mut t = RecorderThread {
+            stop,
+            progress,
+            thread: Some(thread),
+        };
+        if ready_rx.recv().is_err() {
+            // The thread ended before it was ready: its error.
+            return Err(match t.finish() {
+                Err(e) => e,
+                Ok(_) => Error::Other("the recorder ended before it started".into()),
+            });
+        }
+        Ok(t)
+    }
+
+    /// The channels subscribed so far.
+    pub fn progress(&self) -> &Progress {
+        &self.progress
+    }
+
+    /// Stops recording, closes the file, returns what was recorded.
+    pub fn finish(&mut self) -> Result<RecordSummary, Error> {
+        self.stop.store(true, Ordering::Release);
+        match self.thread.take() {
+            Some(t) => t
+                .join()
+                .map_err(|_| Error::Other("the recorder thread panicked".into()))?,
+            None => Err(Error::Other("the recorder was already finished".into())),
+        }
+    }
+}
+
+impl Drop for RecorderThread {
+    fn drop(&mut self) {
+        if self.thread.is_some() {
+            let _ = self.finish();
+        }
+    }
+}

@@ -1,0 +1,51 @@
+"""The recording test's independent reader: the PyPI `mcap` package with
+`mcap-protobuf-support` reads an hng recording, decodes every message with the schema the file
+names (protobuf for Foxglove's well-known schemas, JSON otherwise) and prints, as one JSON
+object, each channel's schema, encoding and message count, and what it checked while decoding.
+
+Usage: python read_mcap.py FILE.mcap
+"""
+
+import json
+import sys
+
+from mcap.decoder import DecoderFactory
+from mcap.reader import make_reader
+from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoderFactory
+
+
+class JsonDecoderFactory(DecoderFactory):
+    """Messages with message encoding `json`."""
+
+    def decoder_for(self, message_encoding, schema):
+        if message_encoding != "json":
+            return None
+        return lambda data: json.loads(data)
+
+
+def main(path):
+    out = {"channels": {}, "decoded": 0, "scans_with_ranges": 0, "poses_with_position": 0}
+    with open(path, "rb") as f:
+        reader = make_reader(f, decoder_factories=[ProtobufDecoderFactory(), JsonDecoderFactory()])
+        summary = reader.get_summary()
+        schemas = summary.schemas
+        for ch in summary.channels.values():
+            schema = schemas.get(ch.schema_id)
+            out["channels"][ch.topic] = {
+                "messages": 0,
+                "schema": schema.name if schema else "",
+                "message_encoding": ch.message_encoding,
+            }
+        for schema, channel, message, decoded in reader.iter_decoded_messages():
+            out["channels"][channel.topic]["messages"] += 1
+            out["decoded"] += 1
+            if schema.name == "foxglove.LaserScan" and len(decoded.ranges) > 0:
+                out["scans_with_ranges"] += 1
+            if schema.name == "foxglove.PoseInFrame" and decoded.HasField("pose"):
+                out["poses_with_position"] += 1
+        out["metadata"] = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
+    print(json.dumps(out))
+
+
+if __name__ == "__main__":
+    main(sys.argv[1])
