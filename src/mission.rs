@@ -224,7 +224,9 @@ mod tests {
         assert!(parse_goal("1", 0.2).is_err());
         assert!(parse_goal("1,2,3,4", 0.2).is_err());
         // Beyond any map: refused with the reason, before anything is sent.
-        let e = parse_goal("1e300,1e300", 0.2).err().map(|e| format!("{e:#}"));
+        let e = parse_goal("1e300,1e300", 0.2)
+            .err()
+            .map(|e| format!("{e:#}"));
         assert!(
             e.as_deref()
                 .is_some_and(|e| e.contains("1e300,1e300") && e.contains("within")),

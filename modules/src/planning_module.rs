@@ -337,14 +337,17 @@ impl PlanningCore {
         }
         let gcell = grid.world_to_cell(gx, gy);
         if grid.index(gcell.0, gcell.1).is_none() {
-            return Err((RefusalReason::OutsideMap, format!(
-                "goal {} at ({gx:.2}, {gy:.2}) is outside the map (x {:.2}..{:.2}, y {:.2}..{:.2})",
-                goal.id,
-                o[0],
-                o[0] + f64::from(w) * res,
-                o[1],
-                o[1] + f64::from(h) * res
-            )));
+            return Err((
+                RefusalReason::OutsideMap,
+                format!(
+                    "goal {} at ({gx:.2}, {gy:.2}) is outside the map (x {:.2}..{:.2}, y {:.2}..{:.2})",
+                    goal.id,
+                    o[0],
+                    o[0] + f64::from(w) * res,
+                    o[1],
+                    o[1] + f64::from(h) * res
+                ),
+            ));
         }
         let free = |x: i64, y: i64| grid.get(x, y).is_some_and(|v| cfg.passable(v));
         let tol_cells = (goal.tolerance_m.max(0.0) / res).floor() as i64;
@@ -360,15 +363,23 @@ impl PlanningCore {
         // clearance): start from the nearest free cell.
         let reach = ((self.params.robot_radius + self.params.clearance) / res).ceil() as i64 + 2;
         let start_cell = nearest_cell(scell, reach, free).ok_or_else(|| {
-            (RefusalReason::Unreachable, format!(
-                "the robot at ({:.2}, {:.2}) is inside an obstacle or outside the map",
-                pose.x, pose.y
-            ))
+            (
+                RefusalReason::Unreachable,
+                format!(
+                    "the robot at ({:.2}, {:.2}) is inside an obstacle or outside the map",
+                    pose.x, pose.y
+                ),
+            )
         })?;
         let gp = self
             .planner
             .plan_cells(grid, start_cell, goal_cell)
-            .map_err(|e| (RefusalReason::Unreachable, format!("goal {} at ({gx:.2}, {gy:.2}) is unreachable: {e}", goal.id)))?;
+            .map_err(|e| {
+                (
+                    RefusalReason::Unreachable,
+                    format!("goal {} at ({gx:.2}, {gy:.2}) is unreachable: {e}", goal.id),
+                )
+            })?;
         let mut points = simplify(grid, &cfg, &gp);
         if let Some(first) = points.first_mut() {
             *first = [pose.x, pose.y];
@@ -855,7 +866,10 @@ pub(crate) mod tests {
         p.set_map(&partial);
         p.set_goal(goal(1, 12.0, 1.0));
         let s = p.update(&at(2.0, 1.0));
-        assert!(s.refused.is_none() && s.status.is_none(), "not final: {s:?}");
+        assert!(
+            s.refused.is_none() && s.status.is_none(),
+            "not final: {s:?}"
+        );
         assert!(s.pending.unwrap().contains("outside the map"));
         assert!(!p.is_refused());
         // The map grows (a new map): planned again, still provisional.
@@ -883,7 +897,10 @@ pub(crate) mod tests {
         }
         p.set_map(&bigger);
         let s = p.update(&at(2.0, 1.0));
-        assert!(s.waypoint.is_some() && s.refused.is_none() && s.pending.is_none(), "{s:?}");
+        assert!(
+            s.waypoint.is_some() && s.refused.is_none() && s.pending.is_none(),
+            "{s:?}"
+        );
     }
 
     #[test]

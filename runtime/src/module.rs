@@ -589,7 +589,9 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
         if manager && let Err(e) = module.on_activation(&mut ctx, true) {
             tracing::warn!(module = %opts.name, "on_activation: {e}");
         }
-        poll_contracts(&mut module, &mut ctx, &opts.name);
+        if !clock.is_sim() || clock.now_ns() > 0 {
+            poll_contracts(&mut module, &mut ctx, &opts.name);
+        }
     }
 
     let report_ns = opts.report_period.as_nanos() as u64;
@@ -599,8 +601,26 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
     let mut next_checkpoint = monotonic_ns().saturating_add(checkpoint_ns);
     let clock_id = clock_sub.as_ref().map(|s| s.id());
     // Lockstep: acknowledge each barrier round of the simulator (see crate::clock::lockstep).
-    let mut acker = clock_sub.is_some().then(|| Acker::new(&ctx.node)).transpose()?;
+    let mut acker = clock_sub
+        .is_some()
+        .then(|| Acker::new(&ctx.node))
+        .transpose()?;
     let mut round = 0;
+    // Between acknowledging a round and the next one, inputs wait: they belong to the next
+    // round (this waiter watches only the clock, and the termination signals).
+    let mut round_waiter = match &clock_sub {
+        Some(sub) => {
+            let mut w = Waiter::new(WaitMode::Blocking {
+                max_spin: Duration::ZERO,
+            })?;
+            w.attach(sub)?;
+            if opts.catch_signals {
+                w.catch_termination_signals()?;
+            }
+            Some(w)
+        }
+        None => None,
+    };
 
     while !ctx.stop_requested {
         // Wall-clock wake-ups: report and checkpoint; clock-time ones: timers and deadlines
@@ -624,7 +644,12 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
             }
         }
         let timeout = Duration::from_nanos(wake_at.saturating_sub(wall_now));
-        match ctx.waiter.wait(Some(timeout))? {
+        let held = acker.as_ref().is_some_and(|a| a.holds(round));
+        let waiter = match round_waiter.as_mut() {
+            Some(w) if held => w,
+            _ => &mut ctx.waiter,
+        };
+        match waiter.wait(Some(timeout))? {
             Wake::Signal(sig) => {
                 tracing::info!(module = %opts.name, signal = sig, "stopping on signal");
                 break;
@@ -640,47 +665,55 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
             round = c.round;
         }
         let now = clock.now_ns();
-        let mut busy = ctx.waiter.ready().any(|id| Some(id) != clock_id);
-        let ready: Vec<InputId> = ctx
-            .waiter
-            .ready()
-            .filter(|id| Some(*id) != clock_id)
-            .filter(|id| !ctx.plane.as_ref().is_some_and(|p| p.owns(*id)))
-            .collect();
-        poll_contracts(&mut module, &mut ctx, &opts.name);
-        for id in ready {
-            for d in ctx.deadlines.iter_mut().filter(|d| d.input == id) {
-                d.last_ns = now;
-                d.missed = false;
+        let mut busy = false;
+        if !acker.as_ref().is_some_and(|a| a.holds(round)) {
+            busy = ctx.waiter.ready().any(|id| Some(id) != clock_id);
+            let ready: Vec<InputId> = ctx
+                .waiter
+                .ready()
+                .filter(|id| Some(*id) != clock_id)
+                .filter(|id| !ctx.plane.as_ref().is_some_and(|p| p.owns(*id)))
+                .collect();
+            // In simulated time, contracts are negotiated from the first simulated instant on (a
+            // paused start negotiates nothing), so the order in which processes came up does not
+            // shape the contract tree.
+            if !clock.is_sim() || now > 0 {
+                poll_contracts(&mut module, &mut ctx, &opts.name);
             }
-            if let Err(e) = module.on_input(&mut ctx, id) {
-                tracing::warn!(module = %opts.name, "on_input: {e}");
-            }
-        }
-        for i in 0..ctx.timers.len() {
-            let t = &mut ctx.timers[i];
-            if now >= t.next_ns {
-                // Skip missed periods rather than firing a burst.
-                let behind = (now - t.next_ns) / t.period_ns;
-                t.next_ns = t.next_ns.saturating_add((behind + 1) * t.period_ns);
-                busy = true;
-                if let Err(e) = module.on_tick(&mut ctx, TimerId(i)) {
-                    tracing::warn!(module = %opts.name, "on_tick: {e}");
+            for id in ready {
+                for d in ctx.deadlines.iter_mut().filter(|d| d.input == id) {
+                    d.last_ns = now;
+                    d.missed = false;
+                }
+                if let Err(e) = module.on_input(&mut ctx, id) {
+                    tracing::warn!(module = %opts.name, "on_input: {e}");
                 }
             }
-        }
-        let mut missed = Vec::new();
-        for d in ctx.deadlines.iter_mut() {
-            if !d.missed && now.saturating_sub(d.last_ns) > d.deadline_ns {
-                d.missed = true;
-                missed.push(d.input);
+            for i in 0..ctx.timers.len() {
+                let t = &mut ctx.timers[i];
+                if now >= t.next_ns {
+                    // Skip missed periods rather than firing a burst.
+                    let behind = (now - t.next_ns) / t.period_ns;
+                    t.next_ns = t.next_ns.saturating_add((behind + 1) * t.period_ns);
+                    busy = true;
+                    if let Err(e) = module.on_tick(&mut ctx, TimerId(i)) {
+                        tracing::warn!(module = %opts.name, "on_tick: {e}");
+                    }
+                }
             }
-        }
-        for id in missed {
-            busy = true;
-            ctx.deadline_misses += 1;
-            if let Err(e) = module.on_deadline_missed(&mut ctx, id) {
-                tracing::warn!(module = %opts.name, "on_deadline_missed: {e}");
+            let mut missed = Vec::new();
+            for d in ctx.deadlines.iter_mut() {
+                if !d.missed && now.saturating_sub(d.last_ns) > d.deadline_ns {
+                    d.missed = true;
+                    missed.push(d.input);
+                }
+            }
+            for id in missed {
+                busy = true;
+                ctx.deadline_misses += 1;
+                if let Err(e) = module.on_deadline_missed(&mut ctx, id) {
+                    tracing::warn!(module = %opts.name, "on_deadline_missed: {e}");
+                }
             }
         }
         let wall_now = monotonic_ns();

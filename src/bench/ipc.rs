@@ -783,12 +783,10 @@ pub fn run_mode(
             .with("round_p50_max_ns", p50s.iter().copied().max().unwrap_or(0))
             .with("hng_spins", t == Transport::Hng && mode.hng_spins());
             if let Some(b) = baseline.filter(|&b| b != ti) {
-                row = row
-                    .with("baseline", transports[b].name())
-                    .with(
-                        "p50_vs_baseline",
-                        paired_ratio(p50s, &round_p50[case(si, b)]),
-                    );
+                row = row.with("baseline", transports[b].name()).with(
+                    "p50_vs_baseline",
+                    paired_ratio(p50s, &round_p50[case(si, b)]),
+                );
             }
             if let Some(f) = floor.filter(|&f| f != ti) {
                 row = row.with(

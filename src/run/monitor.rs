@@ -305,7 +305,11 @@ impl State {
             .iter()
             .filter(|g| g.state != "reached")
             .map(|g| {
-                let why = g.reason.as_deref().map(|r| format!(": {r}")).unwrap_or_default();
+                let why = g
+                    .reason
+                    .as_deref()
+                    .map(|r| format!(": {r}"))
+                    .unwrap_or_default();
                 format!("goal {} ({:.2}, {:.2}) {}{why}", g.id, g.x, g.y, g.state)
             })
             .collect::<Vec<_>>()
@@ -483,7 +487,10 @@ impl State {
                     g.true_error_m = error;
                     match error {
                         Some(err) if err <= g.tolerance_m => {
-                            format!("goal reached ({:.2}, {:.2}), id {}: true error {err:.3} m", g.x, g.y, g.id)
+                            format!(
+                                "goal reached ({:.2}, {:.2}), id {}: true error {err:.3} m",
+                                g.x, g.y, g.id
+                            )
                         }
                         Some(err) => {
                             g.state = "missed".to_owned();
@@ -496,8 +503,13 @@ impl State {
                         }
                         None => {
                             g.state = "missed".to_owned();
-                            g.reason = Some("reported reached, but no ground truth to check it".to_owned());
-                            format!("goal MISSED ({:.2}, {:.2}), id {}: reported reached, no ground truth to check it", g.x, g.y, g.id)
+                            g.reason = Some(
+                                "reported reached, but no ground truth to check it".to_owned(),
+                            );
+                            format!(
+                                "goal MISSED ({:.2}, {:.2}), id {}: reported reached, no ground truth to check it",
+                                g.x, g.y, g.id
+                            )
                         }
                     }
                 }
@@ -519,7 +531,10 @@ impl State {
                 .iter()
                 .filter(|g| matches!(g.state.as_str(), "reached" | "missed" | "refused"))
                 .count();
-            self.say(&format!("{line}; {done} of {} goals done", self.goals.len()));
+            self.say(&format!(
+                "{line}; {done} of {} goals done",
+                self.goals.len()
+            ));
         }
         self.done = p.done && p.goals_total > 0;
     }
@@ -549,7 +564,11 @@ impl std::fmt::Display for Summary {
             let err = g
                 .true_error_m
                 .map_or_else(|| "-".to_owned(), |e| format!("{e:.3} m"));
-            let why = g.reason.as_deref().map(|r| format!(" ({r})")).unwrap_or_default();
+            let why = g
+                .reason
+                .as_deref()
+                .map(|r| format!(" ({r})"))
+                .unwrap_or_default();
             writeln!(
                 f,
                 "  goal {:<3} ({:6.2}, {:6.2})  {:<8} true error {err}{why}",

@@ -105,6 +105,14 @@ impl Acker {
         })
     }
 
+    /// True while the module holds its inputs for the next round: it acknowledged `round`
+    /// (the latest it saw, not 0). Inputs that arrive then were published in the round
+    /// acknowledged or later, and are handled with the next one, so a module handles a
+    /// step's sensor data together, whatever the scheduling.
+    pub fn holds(&self, round: u64) -> bool {
+        round != 0 && round == self.acked_round
+    }
+
     /// The module did something (handled an input, fired a timer, missed a deadline).
     pub fn note_busy(&mut self) {
         self.busy = true;
@@ -354,7 +362,11 @@ mod tests {
         b.ack(&ack("slam", r, false));
         assert_eq!(b.poll(6).0, Verdict::Waiting);
         b.ack(&ack("laser", r - 1, false));
-        assert_eq!(b.poll(6).0, Verdict::Waiting, "an old round's answer counts for nothing");
+        assert_eq!(
+            b.poll(6).0,
+            Verdict::Waiting,
+            "an old round's answer counts for nothing"
+        );
         b.ack(&ack("laser", r, false));
         assert_eq!(b.poll(7).0, Verdict::Quiet);
         assert_eq!(b.max_reported_sim_ns(), r * 10);
@@ -368,7 +380,11 @@ mod tests {
         b.ack(&ack("laser", r, false));
         assert_eq!(b.poll(1).0, Verdict::Waiting);
         assert!(b.left("slam"));
-        assert_eq!(b.poll(2).0, Verdict::Quiet, "a dead module never freezes the world");
+        assert_eq!(
+            b.poll(2).0,
+            Verdict::Quiet,
+            "a dead module never freezes the world"
+        );
         assert_eq!(b.left_out().collect::<Vec<_>>(), ["slam"]);
         // Started again: waited for.
         assert!(b.joined("slam"));

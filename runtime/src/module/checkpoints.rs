@@ -41,7 +41,10 @@ impl Checkpoints {
     /// `Err` when none is usable and the module refuses a clean start.
     pub(super) fn restore<M: Module>(&self, module: &mut M, name: &str) -> Result<(), ModuleError> {
         let mut problems = Vec::new();
-        for (which, store) in [("latest", Some(&self.latest)), ("previous", self.previous.as_ref())] {
+        for (which, store) in [
+            ("latest", Some(&self.latest)),
+            ("previous", self.previous.as_ref()),
+        ] {
             let Some(store) = store else { continue };
             match store.load(M::STATE_VERSION) {
                 Ok(Some(bytes)) => match module.restore(&bytes) {

@@ -3,7 +3,7 @@
 
 use std::time::Duration;
 
-use super::{manager, ms, module, sim};
+use super::{manager, module, ms, sim};
 use crate::contract::ModuleId;
 use crate::contract::sim::Sim;
 
@@ -16,7 +16,12 @@ const B: ModuleId = ModuleId(4);
 fn setup() -> Sim {
     let mut s = sim();
     s.add(manager(MANAGER.0, &["Navigation"]));
-    s.add(module(CLIENT.0, 0.9, &["Navigation"], &[("Localization", 1)]));
+    s.add(module(
+        CLIENT.0,
+        0.9,
+        &["Navigation"],
+        &[("Localization", 1)],
+    ));
     s.add(module(A.0, 0.8, &["Localization"], &[]));
     s.add(module(B.0, 0.5, &["Localization"], &[]));
     s.run_for(ms(1000));
@@ -88,7 +93,12 @@ fn a_zero_dwell_switches_back_with_the_next_better_offer() {
         crate::contract::ContractAgent::new(cfg).unwrap()
     };
     s.add(with_timing(manager(MANAGER.0, &["Navigation"])));
-    let mut client = with_timing(module(CLIENT.0, 0.9, &["Navigation"], &[("Localization", 1)]));
+    let mut client = with_timing(module(
+        CLIENT.0,
+        0.9,
+        &["Navigation"],
+        &[("Localization", 1)],
+    ));
     client.set_quality(0.9);
     s.add(client);
     for (id, q) in [(A, 0.8), (B, 0.5)] {
