@@ -15,8 +15,9 @@
 //! supervisor sets (`HNG_*` variables), silences iceoryx2's log, turns SIGINT/SIGTERM/SIGHUP
 //! into a clean stop (iceoryx2's own signal handlers stay disabled), restores the last
 //! checkpoint, publishes a [`ModuleReport`] on [`REPORT_CHANNEL`] every report period (the
-//! heartbeat the watchdog watches), writes checkpoints periodically and on stop, and releases
-//! its shared memory on exit.
+//! heartbeat the watchdog watches), writes checkpoints periodically and on stop (keeping the
+//! previous one beside the latest), and releases its shared memory on exit. On the simulation
+//! clock it also acknowledges the simulator's lockstep rounds ([`crate::clock::lockstep`]).
 
 use std::process::ExitCode;
 use std::time::Duration;
@@ -552,11 +553,15 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
     if opts.catch_signals {
         ctx.waiter.catch_termination_signals()?;
     }
+    // The latest lockstep round (0: none): a module started while the simulator waits for
+    // a round's answers must answer it, not wait for the next one.
+    let mut round = 0;
     let clock_sub = if clock.is_sim() {
         let sub = ctx.node.subscriber::<msg::Clock>(CLOCK_CHANNEL)?;
         ctx.waiter.attach(&sub)?;
         if let Some(c) = sub.latest()? {
             clock.set_sim_ns(c.sim_time_ns);
+            round = c.round;
         }
         Some(sub)
     } else {
@@ -605,7 +610,6 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
         .is_some()
         .then(|| Acker::new(&ctx.node))
         .transpose()?;
-    let mut round = 0;
     // Between acknowledging a round and the next one, inputs wait: they belong to the next
     // round (this waiter watches only the clock, and the termination signals).
     let mut round_waiter = match &clock_sub {

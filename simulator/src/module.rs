@@ -21,6 +21,12 @@
 //! started, its contract agent running), so a system whose processes take a while to start
 //! (a loaded machine, an accelerated simulation) does not lose simulated seconds to it and
 //! runs repeat. After `wait_timeout_s` of wall time it starts anyway and names who is missing.
+//!
+//! Lockstep: with `lockstep = [...]`, each step's data and then a clock sample carrying a
+//! barrier round go out, and the next step waits until every listed module has acknowledged
+//! a round in which none of them was busy ([`hng_runtime::clock::lockstep`], glue in
+//! `module/lockstep.rs`). A restored simulator publishes its clock only once it knows, from
+//! the reports of the modules following it, that it is not behind them.
 
 use std::collections::BTreeSet;
 use std::process::ExitCode;
