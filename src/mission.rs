@@ -136,10 +136,7 @@ fn parse_goal(s: &str, tolerance: f64) -> Result<GoalConfig> {
         tolerance: Some(tolerance),
     };
     if let Err(e) = mission_goals(&[goal]) {
-        // The field is the goal itself here, not the index in a list.
-        let why = e.to_string();
-        let why = why.split_once(": ").map_or(why.as_str(), |(_, w)| w);
-        bail!("goal {s:?}: {why}");
+        bail!("goal {s:?}: {e}");
     }
     Ok(goal)
 }

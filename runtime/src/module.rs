@@ -15,8 +15,9 @@
 //! supervisor sets (`HNG_*` variables), silences iceoryx2's log, turns SIGINT/SIGTERM/SIGHUP
 //! into a clean stop (iceoryx2's own signal handlers stay disabled), restores the last
 //! checkpoint, publishes a [`ModuleReport`] on [`REPORT_CHANNEL`] every report period (the
-//! heartbeat the watchdog watches), writes checkpoints periodically and on stop, and releases
-//! its shared memory on exit.
+//! heartbeat the watchdog watches), writes checkpoints periodically and on stop (keeping the
+//! previous one beside the latest), and releases its shared memory on exit. On the simulation
+//! clock it also acknowledges the simulator's lockstep rounds ([`crate::clock::lockstep`]).
 
 use std::process::ExitCode;
 use std::time::Duration;
@@ -558,11 +559,15 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
     if opts.catch_signals {
         ctx.waiter.catch_termination_signals()?;
     }
+    // The latest lockstep round (0: none): a module started while the simulator waits for
+    // a round's answers must answer it, not wait for the next one.
+    let mut round = 0;
     let clock_sub = if clock.is_sim() {
         let sub = ctx.node.subscriber::<msg::Clock>(CLOCK_CHANNEL)?;
         ctx.waiter.attach(&sub)?;
         if let Some(c) = sub.latest()? {
             clock.set_sim_ns(c.sim_time_ns);
+            round = c.round;
         }
         Some(sub)
     } else {
@@ -595,7 +600,9 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
         if manager && let Err(e) = module.on_activation(&mut ctx, true) {
             tracing::warn!(module = %opts.name, "on_activation: {e}");
         }
-        poll_contracts(&mut module, &mut ctx, &opts.name);
+        if !clock.is_sim() || clock.now_ns() > 0 {
+            poll_contracts(&mut module, &mut ctx, &opts.name);
+        }
     }
 
     let report_ns = opts.report_period.as_nanos() as u64;
@@ -609,7 +616,21 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
         .is_some()
         .then(|| Acker::new(&ctx.node))
         .transpose()?;
-    let mut round = 0;
+    // Between acknowledging a round and the next one, inputs wait: they belong to the next
+    // round (this waiter watches only the clock, and the termination signals).
+    let mut round_waiter = match &clock_sub {
+        Some(sub) => {
+            let mut w = Waiter::new(WaitMode::Blocking {
+                max_spin: Duration::ZERO,
+            })?;
+            w.attach(sub)?;
+            if opts.catch_signals {
+                w.catch_termination_signals()?;
+            }
+            Some(w)
+        }
+        None => None,
+    };
 
     while !ctx.stop_requested {
         // Wall-clock wake-ups: report and checkpoint; clock-time ones: timers and deadlines
@@ -633,7 +654,12 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
             }
         }
         let timeout = Duration::from_nanos(wake_at.saturating_sub(wall_now));
-        match ctx.waiter.wait(Some(timeout))? {
+        let held = acker.as_ref().is_some_and(|a| a.holds(round));
+        let waiter = match round_waiter.as_mut() {
+            Some(w) if held => w,
+            _ => &mut ctx.waiter,
+        };
+        match waiter.wait(Some(timeout))? {
             Wake::Signal(sig) => {
                 tracing::info!(module = %opts.name, signal = sig, "stopping on signal");
                 break;
@@ -649,47 +675,55 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
             round = c.round;
         }
         let now = clock.now_ns();
-        let mut busy = ctx.waiter.ready().any(|id| Some(id) != clock_id);
-        let ready: Vec<InputId> = ctx
-            .waiter
-            .ready()
-            .filter(|id| Some(*id) != clock_id)
-            .filter(|id| !ctx.plane.as_ref().is_some_and(|p| p.owns(*id)))
-            .collect();
-        poll_contracts(&mut module, &mut ctx, &opts.name);
-        for id in ready {
-            for d in ctx.deadlines.iter_mut().filter(|d| d.input == id) {
-                d.last_ns = now;
-                d.missed = false;
+        let mut busy = false;
+        if !acker.as_ref().is_some_and(|a| a.holds(round)) {
+            busy = ctx.waiter.ready().any(|id| Some(id) != clock_id);
+            let ready: Vec<InputId> = ctx
+                .waiter
+                .ready()
+                .filter(|id| Some(*id) != clock_id)
+                .filter(|id| !ctx.plane.as_ref().is_some_and(|p| p.owns(*id)))
+                .collect();
+            // In simulated time, contracts are negotiated from the first simulated instant on (a
+            // paused start negotiates nothing), so the order in which processes came up does not
+            // shape the contract tree.
+            if !clock.is_sim() || now > 0 {
+                poll_contracts(&mut module, &mut ctx, &opts.name);
             }
-            if let Err(e) = module.on_input(&mut ctx, id) {
-                tracing::warn!(module = %opts.name, "on_input: {e}");
-            }
-        }
-        for i in 0..ctx.timers.len() {
-            let t = &mut ctx.timers[i];
-            if now >= t.next_ns {
-                // Skip missed periods rather than firing a burst.
-                let behind = (now - t.next_ns) / t.period_ns;
-                t.next_ns = t.next_ns.saturating_add((behind + 1) * t.period_ns);
-                busy = true;
-                if let Err(e) = module.on_tick(&mut ctx, TimerId(i)) {
-                    tracing::warn!(module = %opts.name, "on_tick: {e}");
+            for id in ready {
+                for d in ctx.deadlines.iter_mut().filter(|d| d.input == id) {
+                    d.last_ns = now;
+                    d.missed = false;
+                }
+                if let Err(e) = module.on_input(&mut ctx, id) {
+                    tracing::warn!(module = %opts.name, "on_input: {e}");
                 }
             }
-        }
-        let mut missed = Vec::new();
-        for d in ctx.deadlines.iter_mut() {
-            if !d.missed && now.saturating_sub(d.last_ns) > d.deadline_ns {
-                d.missed = true;
-                missed.push(d.input);
+            for i in 0..ctx.timers.len() {
+                let t = &mut ctx.timers[i];
+                if now >= t.next_ns {
+                    // Skip missed periods rather than firing a burst.
+                    let behind = (now - t.next_ns) / t.period_ns;
+                    t.next_ns = t.next_ns.saturating_add((behind + 1) * t.period_ns);
+                    busy = true;
+                    if let Err(e) = module.on_tick(&mut ctx, TimerId(i)) {
+                        tracing::warn!(module = %opts.name, "on_tick: {e}");
+                    }
+                }
             }
-        }
-        for id in missed {
-            busy = true;
-            ctx.deadline_misses += 1;
-            if let Err(e) = module.on_deadline_missed(&mut ctx, id) {
-                tracing::warn!(module = %opts.name, "on_deadline_missed: {e}");
+            let mut missed = Vec::new();
+            for d in ctx.deadlines.iter_mut() {
+                if !d.missed && now.saturating_sub(d.last_ns) > d.deadline_ns {
+                    d.missed = true;
+                    missed.push(d.input);
+                }
+            }
+            for id in missed {
+                busy = true;
+                ctx.deadline_misses += 1;
+                if let Err(e) = module.on_deadline_missed(&mut ctx, id) {
+                    tracing::warn!(module = %opts.name, "on_deadline_missed: {e}");
+                }
             }
         }
         let wall_now = monotonic_ns();

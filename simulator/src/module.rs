@@ -21,6 +21,12 @@
 //! started, its contract agent running), so a system whose processes take a while to start
 //! (a loaded machine, an accelerated simulation) does not lose simulated seconds to it and
 //! runs repeat. After `wait_timeout_s` of wall time it starts anyway and names who is missing.
+//!
+//! Lockstep: with `lockstep = [...]`, each step's data and then a clock sample carrying a
+//! barrier round go out, and the next step waits until every listed module has acknowledged
+//! a round in which none of them was busy ([`hng_runtime::clock::lockstep`], glue in
+//! `module/lockstep.rs`). A restored simulator publishes its clock only once it knows, from
+//! the reports of the modules following it, that it is not behind them.
 
 use std::collections::BTreeSet;
 use std::process::ExitCode;
@@ -517,6 +523,7 @@ impl SimulatorModule {
             }
             self.sim_clock.set_sim_ns(self.sim.now_ns());
             self.publish_clock()?;
+            self.publish_status(ctx)?;
         }
         self.pacer = Pacer::new(self.speed, self.sim.now_ns());
         Ok(())
@@ -592,15 +599,22 @@ impl SimulatorModule {
         }
         self.last_true = Some((gt.x, gt.y));
         self.steps_since_clock += 1;
-        // Lockstep: every step opens a round, announced by the clock sample.
-        let lockstep = self.lockstep.as_mut().map(|l| l.open(false)).is_some();
-        // The clock goes first, so a module woken by sensor data already has the new time.
-        let result = if lockstep || self.steps_since_clock >= self.clock_every || !out.is_empty() {
+        let result = if self.lockstep.is_some() {
+            // Lockstep: the step's data first, then the clock sample that opens the round.
+            // Modules hold their inputs until they see the round, so they handle the whole
+            // step together, at its time.
+            let sent = out.iter().try_for_each(|o| self.publish(o));
+            if let Some(l) = self.lockstep.as_mut() {
+                l.open(false);
+            }
+            sent.and_then(|()| self.publish_clock())
+        } else if self.steps_since_clock >= self.clock_every || !out.is_empty() {
+            // The clock goes first, so a module woken by sensor data already has the new time.
             self.publish_clock()
+                .and_then(|()| out.iter().try_for_each(|o| self.publish(o)))
         } else {
             Ok(())
         };
-        let result = result.and_then(|()| out.iter().try_for_each(|o| self.publish(o)));
         self.out = out;
         result
     }
@@ -730,6 +744,10 @@ impl SimulatorModule {
     }
 
     fn publish_status(&mut self, ctx: &mut Context) -> ModuleResult {
+        if self.restored && self.waiting.is_some() {
+            // Restarted, not yet at the system's time: no status that would go back.
+            return Ok(());
+        }
         let now = self.sim.now_ns();
         let wall = self.last_status.elapsed().as_secs_f64();
         let factor = if wall > 0.0 {

@@ -105,6 +105,14 @@ impl Acker {
         })
     }
 
+    /// True while the module holds its inputs for the next round: it acknowledged `round`
+    /// (the latest it saw, not 0). Inputs that arrive then were published in the round
+    /// acknowledged or later, and are handled with the next one, so a module handles a
+    /// step's sensor data together, whatever the scheduling.
+    pub fn holds(&self, round: u64) -> bool {
+        round != 0 && round == self.acked_round
+    }
+
     /// The module did something (handled an input, fired a timer, missed a deadline).
     pub fn note_busy(&mut self) {
         self.busy = true;

@@ -87,25 +87,23 @@ impl Lockstep {
         while let Some(e) = self.events.receive()? {
             let name = e.module();
             match e.kind() {
-                Some(EventKind::Died | EventKind::Deactivated | EventKind::Stopped) => {
-                    if self.barrier.left(name) {
-                        tracing::info!(
-                            module = ctx.name(),
-                            participant = name,
-                            "lockstep: not waited for (it stopped)"
-                        );
-                    }
+                Some(EventKind::Died | EventKind::Deactivated | EventKind::Stopped)
+                    if self.barrier.left(name) =>
+                {
+                    tracing::info!(
+                        module = ctx.name(),
+                        participant = name,
+                        "lockstep: not waited for (it stopped)"
+                    );
                 }
-                Some(EventKind::Started) => {
-                    if self.barrier.joined(name) {
-                        tracing::info!(
-                            module = ctx.name(),
-                            participant = name,
-                            "lockstep: started again, waited for"
-                        );
-                    }
+                Some(EventKind::Started) if self.barrier.joined(name) => {
+                    tracing::info!(
+                        module = ctx.name(),
+                        participant = name,
+                        "lockstep: started again, waited for"
+                    );
                 }
-                None => {}
+                _ => {}
             }
         }
         Ok(())
