@@ -49,18 +49,24 @@
 //! new, cluttered or the match poor; it is 0 when there is nothing to match
 //! against yet, as the HNG paper asks for a module that cannot evaluate itself.
 
+mod backend;
 mod carmen;
 mod eval;
 mod frontend;
 mod mapping;
 mod matcher;
+mod posegraph;
 
+pub use backend::{BackendConfig, BackendStats, LoopClosure, Slam};
 pub use carmen::{
-    CarmenError, CarmenLog, LaserConfig, LaserRecord, OdomRecord, Record, parse_log, pose_from,
-    pose_to, read_log,
+    CarmenError, CarmenLog, LaserConfig, LaserRecord, LogOptions, OdomRecord, Record, parse_log,
+    parse_log_with, pose_from, pose_to, read_log, read_log_with,
 };
-pub use eval::{SlamEval, SlamEvalError, eval_slam, eval_slam_with};
-pub use frontend::{EstimateSource, PoseEstimate, SlamConfig, SlamFrontEnd};
+pub use eval::{EvalOptions, SlamEval, SlamEvalError, ate_rmse, eval_slam, eval_slam_with, logs_in};
+pub use frontend::{
+    EstimateSource, PoseEstimate, SlamConfig, SlamFrontEnd, WideSearch, match_robust,
+};
+pub use posegraph::{Edge, Optimised, PoseGraphError, optimise};
 pub use mapping::{
     LogOddsMap, MapWriteError, MapperConfig, PGM_FREE_THRESHOLD, PGM_OCCUPIED_THRESHOLD,
     write_pgm_yaml,
