@@ -135,9 +135,9 @@ fn eval_slam_errors_name_the_file_and_line() {
 
 #[test]
 fn eval_slam_reports_relative_and_absolute_errors_and_writes_the_map() {
-    let log = carmen("orebro-corrected.log");
+    let log = carmen("seattle-corrected.log");
     let dir = Scratch::new("slam");
-    let yaml = dir.0.join("orebro.yaml");
+    let yaml = dir.0.join("seattle.yaml");
     let v = json(&hng(&[
         "eval",
         "slam",
@@ -146,8 +146,8 @@ fn eval_slam_reports_relative_and_absolute_errors_and_writes_the_map() {
         "--map-out",
         &yaml.to_string_lossy(),
     ]));
-    assert_eq!(v["scans"], 237, "{v}");
-    assert_eq!(v["beams"], 181, "{v}");
+    assert_eq!(v["scans"], 241, "{v}");
+    assert_eq!(v["beams"], 361, "{v}");
     assert!(f(&v, "trans_err_mean_m") <= 0.03, "{v}");
     assert!(f(&v, "rot_err_mean_deg") <= 0.5, "{v}");
     assert!(f(&v, "trans_err_mean_m") < f(&v, "odom_trans_err_mean_m"), "{v}");
@@ -157,10 +157,10 @@ fn eval_slam_reports_relative_and_absolute_errors_and_writes_the_map() {
     assert!(f(&v, "trans_err_p95_m") >= f(&v, "trans_err_mean_m") * 0.5);
     let y = std::fs::read_to_string(&yaml).expect("map yaml written");
     assert!(
-        y.contains("image: orebro.pgm") && y.contains("resolution"),
+        y.contains("image: seattle.pgm") && y.contains("resolution"),
         "{y}"
     );
-    let pgm = std::fs::read(dir.0.join("orebro.pgm")).expect("map pgm written");
+    let pgm = std::fs::read(dir.0.join("seattle.pgm")).expect("map pgm written");
     assert!(pgm.starts_with(b"P5"));
 }
 
