@@ -86,7 +86,11 @@ fn whole_logs() {
                 sorted.last().copied().unwrap_or(0),
                 ns.len(),
                 rate,
-                if duration > 0.0 { duration / total } else { f64::NAN },
+                if duration > 0.0 {
+                    duration / total
+                } else {
+                    f64::NAN
+                },
                 slam.stats().closures
             );
         }

@@ -128,9 +128,9 @@ pub fn run(cmd: EvalCommand) -> Result<()> {
                 let mut rows = Vec::new();
                 for l in logs {
                     let mut o = opts.clone();
-                    o.map_out = map_out.as_ref().and_then(|d| {
-                        l.file_stem().map(|s| d.join(s).with_extension("yaml"))
-                    });
+                    o.map_out = map_out
+                        .as_ref()
+                        .and_then(|d| l.file_stem().map(|s| d.join(s).with_extension("yaml")));
                     let e = eval_slam_with(&l, &o).context("SLAM evaluation failed")?;
                     if json {
                         println!("{}", Value::Object(slam_fields(&e, o.map_out.as_deref())));

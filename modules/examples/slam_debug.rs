@@ -9,7 +9,10 @@ use hng_modules::slam::{BackendConfig, Slam, SlamConfig, pose_from, read_log};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut args = std::env::args().skip(1);
-    let log = PathBuf::from(args.next().ok_or("usage: slam_debug <log> [wide_below] [thresh_m]")?);
+    let log = PathBuf::from(
+        args.next()
+            .ok_or("usage: slam_debug <log> [wide_below] [thresh_m]")?,
+    );
     let mut cfg = SlamConfig::default();
     if let Some(w) = args.next() {
         cfg.wide_below_score = w.parse()?;

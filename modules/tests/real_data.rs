@@ -234,8 +234,12 @@ fn loop_closure_reduces_the_final_error_on_a_simulated_loop() {
     let scans: Vec<(LaserConfig, Vec<f32>)> = truth
         .iter()
         .map(|p| {
-            sim.teleport(Pose2D::new(p.translation.x, p.translation.y, p.rotation.angle()))
-                .expect("teleport");
+            sim.teleport(Pose2D::new(
+                p.translation.x,
+                p.translation.y,
+                p.rotation.angle(),
+            ))
+            .expect("teleport");
             let s = sim.scan_lidar();
             (
                 LaserConfig {
@@ -272,7 +276,10 @@ fn loop_closure_reduces_the_final_error_on_a_simulated_loop() {
         }
         slam.finish();
         let end = *slam.trajectory().last().expect("poses");
-        let err = (truth[truth.len() - 1].inverse() * end).translation.vector.norm();
+        let err = (truth[truth.len() - 1].inverse() * end)
+            .translation
+            .vector
+            .norm();
         (err, slam.stats())
     };
     let (without, _) = run(false);
@@ -280,10 +287,7 @@ fn loop_closure_reduces_the_final_error_on_a_simulated_loop() {
     println!("final error without loop closure {without:.3} m, with {with:.3} m, {stats:?}");
     assert!(stats.closures > 0, "{stats:?}");
     // Measured: 0.54 m without, 0.145 m with (91 closures).
-    assert!(
-        with < 0.5 * without,
-        "with {with} m, without {without} m"
-    );
+    assert!(with < 0.5 * without, "with {with} m, without {without} m");
 }
 
 /// The five logs are shipped (a fresh clone must not skip the accuracy tests).

@@ -122,7 +122,10 @@ fn eval_slam_errors_name_the_file_and_line() {
     let out = hng(&["eval", "slam", &log.to_string_lossy()]);
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(err.contains("short.log:3: FLASER field `range[2]`: missing (line too short)"), "{err}");
+    assert!(
+        err.contains("short.log:3: FLASER field `range[2]`: missing (line too short)"),
+        "{err}"
+    );
     let empty = Scratch::new("emptydir");
     let out = hng(&["eval", "slam", "--all", &empty.0.to_string_lossy()]);
     assert!(!out.status.success());
@@ -150,7 +153,10 @@ fn eval_slam_reports_relative_and_absolute_errors_and_writes_the_map() {
     assert_eq!(v["beams"], 361, "{v}");
     assert!(f(&v, "trans_err_mean_m") <= 0.03, "{v}");
     assert!(f(&v, "rot_err_mean_deg") <= 0.5, "{v}");
-    assert!(f(&v, "trans_err_mean_m") < f(&v, "odom_trans_err_mean_m"), "{v}");
+    assert!(
+        f(&v, "trans_err_mean_m") < f(&v, "odom_trans_err_mean_m"),
+        "{v}"
+    );
     assert!(f(&v, "ate_rmse_m") < f(&v, "odom_ate_rmse_m"), "{v}");
     assert!(f(&v, "ate_front_end_rmse_m") > 0.0, "{v}");
     assert!(f(&v, "scans_per_s") > 0.0, "{v}");
@@ -192,10 +198,19 @@ fn eval_slam_all_evaluates_every_log_in_a_folder() {
     assert_eq!(rows[0]["beams"], 181);
     assert_eq!(rows[1]["beams"], 361);
     for r in &rows {
-        assert!(f(r, "trans_err_mean_m") < f(r, "odom_trans_err_mean_m"), "{r}");
+        assert!(
+            f(r, "trans_err_mean_m") < f(r, "odom_trans_err_mean_m"),
+            "{r}"
+        );
         assert_eq!(r["loop_closures"], 0, "{r}");
     }
-    let table = hng(&["eval", "slam", "--all", &dir.0.to_string_lossy(), "--no-loop-closure"]);
+    let table = hng(&[
+        "eval",
+        "slam",
+        "--all",
+        &dir.0.to_string_lossy(),
+        "--no-loop-closure",
+    ]);
     let text = String::from_utf8_lossy(&table.stdout);
     assert!(text.lines().count() == 3, "header and two rows: {text}");
     assert!(text.contains("seattle-corrected.log"), "{text}");

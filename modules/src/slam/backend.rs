@@ -157,7 +157,11 @@ struct JobResult {
 
 fn run_job(job: &Job, render: bool) -> JobResult {
     let nodes = job.poses.len();
-    let sent_last = job.poses.last().copied().unwrap_or_else(Isometry2::identity);
+    let sent_last = job
+        .poses
+        .last()
+        .copied()
+        .unwrap_or_else(Isometry2::identity);
     let poses = optimise(&job.poses, &job.edges, job.iterations)
         .ok()
         .map(|o| o.poses);
@@ -238,8 +242,9 @@ fn information(cov: &Matrix3<f64>, floor: (f64, f64)) -> Matrix3<f64> {
     if !c.iter().all(|v| v.is_finite()) {
         c = Matrix3::from_diagonal(&nalgebra::Vector3::new(t2, t2, r2));
     }
-    c.try_inverse()
-        .unwrap_or_else(|| Matrix3::from_diagonal(&nalgebra::Vector3::new(1.0 / t2, 1.0 / t2, 1.0 / r2)))
+    c.try_inverse().unwrap_or_else(|| {
+        Matrix3::from_diagonal(&nalgebra::Vector3::new(1.0 / t2, 1.0 / t2, 1.0 / r2))
+    })
 }
 
 impl Slam {
@@ -331,7 +336,8 @@ impl Slam {
         if !self.be.loop_closure {
             // Front end alone: no graph, the scan's pose is kept as is.
             self.poses.push(est.pose);
-            self.scan_nodes.push((self.poses.len() - 1, Isometry2::identity()));
+            self.scan_nodes
+                .push((self.poses.len() - 1, Isometry2::identity()));
             return est;
         }
         let last = self.poses.len().checked_sub(1);
@@ -345,7 +351,8 @@ impl Slam {
         };
         if !new_node {
             if let Some(l) = last {
-                self.scan_nodes.push((l, self.poses[l].inverse() * est.pose));
+                self.scan_nodes
+                    .push((l, self.poses[l].inverse() * est.pose));
             }
             return est;
         }
@@ -386,7 +393,7 @@ impl Slam {
             all,
         }));
         self.scan_nodes.push((k, Isometry2::identity()));
-        if self.be.loop_closure && k > 0 && k % self.be.loop_every.max(1) == 0 {
+        if self.be.loop_closure && k > 0 && k.is_multiple_of(self.be.loop_every.max(1)) {
             self.try_close(k);
         }
         if self.dirty {
@@ -558,11 +565,10 @@ impl Slam {
     pub fn finish(&mut self) {
         if let Some(w) = &mut self.worker
             && w.busy
+            && let Ok(r) = w.results.recv()
         {
-            if let Ok(r) = w.results.recv() {
-                w.busy = false;
-                self.apply(r);
-            }
+            w.busy = false;
+            self.apply(r);
         }
         if self.dirty {
             let r = run_job(&self.job(), false);

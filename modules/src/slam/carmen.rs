@@ -226,9 +226,8 @@ impl CarmenLog {
             match r {
                 Record::Odom(o) => {
                     let p = pose_from(o.pose);
-                    let reanchored = crossed.is_some_and(|s| {
-                        s.iter().zip(&o.pose).all(|(a, b)| (a - b).abs() < 1e-6)
-                    });
+                    let reanchored = crossed
+                        .is_some_and(|s| s.iter().zip(&o.pose).all(|(a, b)| (a - b).abs() < 1e-6));
                     if let (Some(q), false) = (prev, reanchored) {
                         acc *= q.inverse() * p;
                     }
@@ -535,8 +534,11 @@ mod tests {
         let pts = s.laser.points(&s.ranges);
         assert_eq!(pts.len(), 2, "30.0 is the maximum: no return");
         assert!((pts[1] - Vector2::new(2.5 * 0.0f64.cos(), 0.0)).norm() < 1e-6);
-        let e = parse_log("ROBOTLASER1 0 -1.0 1.0 0.5 30.0 0.01 0 3 1.5 30.0\n", Path::new("r.log"))
-            .expect_err("short");
+        let e = parse_log(
+            "ROBOTLASER1 0 -1.0 1.0 0.5 30.0 0.01 0 3 1.5 30.0\n",
+            Path::new("r.log"),
+        )
+        .expect_err("short");
         assert_eq!(
             e.to_string(),
             "r.log:1: ROBOTLASER1 field `range[2]`: missing (line too short)"

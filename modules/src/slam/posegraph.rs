@@ -92,7 +92,8 @@ fn linearise(
     a[(1, 2)] = a_th.y;
     a[(2, 2)] = -1.0;
     let mut b = Matrix3::zeros();
-    b.fixed_view_mut::<2, 2>(0, 0).copy_from(&(rz.transpose() * ri.transpose()));
+    b.fixed_view_mut::<2, 2>(0, 0)
+        .copy_from(&(rz.transpose() * ri.transpose()));
     b[(2, 2)] = 1.0;
     (e, a, b)
 }
@@ -235,11 +236,17 @@ mod tests {
         let before = (truth[16].inverse() * poses[16]).translation.vector.norm();
         edges.push(edge(0, 16, truth[0].inverse() * truth[16], 1e4));
         let o = optimise(&poses, &edges, 20).expect("optimise");
-        let after = (truth[16].inverse() * o.poses[16]).translation.vector.norm();
+        let after = (truth[16].inverse() * o.poses[16])
+            .translation
+            .vector
+            .norm();
         assert!(before > 1.0, "drift {before}");
         assert!(after < 0.05, "after {after}, before {before}");
         assert!(o.final_chi2 < o.initial_chi2);
-        assert!(o.poses[0].translation.vector.norm() < 1e-6, "first node fixed");
+        assert!(
+            o.poses[0].translation.vector.norm() < 1e-6,
+            "first node fixed"
+        );
     }
 
     #[test]
