@@ -2,6 +2,11 @@
 //! error exceeds a threshold, with the match score and source.
 //!
 //! `cargo run --release -p hng-modules --example slam_debug -- <log> [wide_below] [thresh_m]`
+//!
+//! Front end alone (no loop closure). Parameters to try, from the environment: `WIDE_WEIGHT`,
+//! `MATCH_RANGE`, `FUSE` (1: fuse with odometry), `FUSE_SCALE`, `ODOM_NOISE`, `LOCAL`
+//! (local-map scans), `SIGMA` (field width), `TW` (prior penalty weights). Ends with the mean
+//! per-scan error.
 
 use std::path::PathBuf;
 
