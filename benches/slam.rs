@@ -1,21 +1,106 @@
-//! SLAM benchmarks (hng-modules::slam): scan matching and mapping per scan,
-//! on the Intel CARMEN log if present (`../shared/data/carmen/`), otherwise
-//! on synthetic scans of a rectangular room.
+//! SLAM benchmarks (hng-modules::slam).
+//!
+//! 1. Whole logs (`tests/data/carmen/*.log`): every scan of each log through the front end
+//!    alone and through the whole pipeline (front end, pose graph, loop closures, inline
+//!    optimisation, final map), one JSON line per (pipeline, log) with the per-scan time
+//!    distribution (`p50_ns`, `p99_ns`, `max_ns`, `samples`), `scans_per_s` and
+//!    `realtime_factor` (log duration / processing time), on one core.
+//! 2. Criterion micro-benchmarks: scan matching and mapping per scan on the Intel log
+//!    (synthetic scans of a rectangular room if it is missing).
+//!
+//! `cargo bench --bench slam` (`-- --logs-only` skips the criterion part).
 
 use std::hint::black_box;
 use std::path::PathBuf;
+use std::time::Instant;
 
-use criterion::{Criterion, criterion_group, criterion_main};
+use criterion::Criterion;
 use hng_modules::nalgebra::{Isometry2, Point2, Vector2};
 use hng_modules::slam::{
-    LaserConfig, LogOddsMap, MapperConfig, MatcherConfig, ReferenceMap, match_scan, pose_from,
-    read_log, scan_normals,
+    BackendConfig, LaserConfig, LogOddsMap, MapperConfig, MatcherConfig, ReferenceMap, Slam,
+    SlamConfig, logs_in, match_scan, pose_from, read_log, scan_normals,
 };
+
+fn carmen_dir() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/carmen")
+}
+
+fn percentile(sorted: &[u64], q: f64) -> u64 {
+    if sorted.is_empty() {
+        return 0;
+    }
+    let k = ((q * sorted.len() as f64).ceil() as usize).clamp(1, sorted.len()) - 1;
+    sorted[k]
+}
+
+/// Runs every log through the front end alone and the whole pipeline; one JSON line each.
+fn whole_logs() {
+    let Ok(logs) = logs_in(&carmen_dir()) else {
+        println!("no logs in {}", carmen_dir().display());
+        return;
+    };
+    for path in logs {
+        let Ok(log) = read_log(&path) else {
+            println!("cannot read {}", path.display());
+            continue;
+        };
+        let scans: Vec<_> = log.scans().collect();
+        let deltas = log.odometry_deltas();
+        let Some(first) = scans.first() else {
+            continue;
+        };
+        let ts: Vec<f64> = scans.iter().map(|s| s.timestamp).collect();
+        let duration = ts.iter().copied().fold(f64::MIN, f64::max)
+            - ts.iter().copied().fold(f64::MAX, f64::min);
+        let name = path
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        for (case, loop_closure) in [("front_end", false), ("pipeline", true)] {
+            let mut slam = Slam::new(
+                SlamConfig::default(),
+                BackendConfig {
+                    loop_closure,
+                    ..BackendConfig::default()
+                },
+                pose_from(first.laser_pose),
+            );
+            let mut ns = Vec::with_capacity(scans.len());
+            let t0 = Instant::now();
+            for (s, d) in scans.iter().zip(&deltas) {
+                let t = Instant::now();
+                black_box(slam.process(d, &s.laser, &s.ranges));
+                ns.push(t.elapsed().as_nanos() as u64);
+            }
+            let tf = Instant::now();
+            slam.finish();
+            ns.push(tf.elapsed().as_nanos() as u64);
+            let total = t0.elapsed().as_secs_f64();
+            let mut sorted = ns.clone();
+            sorted.sort_unstable();
+            let rate = scans.len() as f64 / total;
+            // JSON has no NaN: a log without timestamps has no real-time factor.
+            let realtime = if duration > 0.0 {
+                format!("{:.1}", duration / total)
+            } else {
+                "null".to_owned()
+            };
+            println!(
+                "{{\"bench\":\"slam\",\"case\":\"{case}/{name}\",\"p50_ns\":{},\"p99_ns\":{},\"max_ns\":{},\"samples\":{},\"scans_per_s\":{:.1},\"realtime_factor\":{realtime},\"loop_closures\":{}}}",
+                percentile(&sorted, 0.5),
+                percentile(&sorted, 0.99),
+                sorted.last().copied().unwrap_or(0),
+                ns.len(),
+                rate,
+                slam.stats().closures
+            );
+        }
+    }
+}
 
 /// (scan end points in the sensor frame, true pose) for a run of scans.
 fn scans() -> Vec<(Vec<Vector2<f64>>, Isometry2<f64>)> {
-    let path =
-        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data/carmen/intel-corrected.log");
+    let path = carmen_dir().join("intel-corrected.log");
     let laser = LaserConfig::default();
     match read_log(&path) {
         Ok(log) => {
@@ -116,5 +201,12 @@ fn benches(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(slam, benches);
-criterion_main!(slam);
+fn main() {
+    whole_logs();
+    if std::env::args().any(|a| a == "--logs-only") {
+        return;
+    }
+    let mut c = Criterion::default().configure_from_args();
+    benches(&mut c);
+    c.final_summary();
+}

@@ -1,13 +1,18 @@
 //! SLAM: localization and mapping from lidar and odometry (Table 1: provides "Localization"
 //! and "Mapping", needs "Odometry" and "LIDAR data"; data out: position, map).
 //!
-//! [`SlamTracker`] (pure logic) runs the [`SlamFrontEnd`] (correlative scan matching with
-//! PL-ICP refinement against a sliding local map, log-odds occupancy mapping; see
-//! [`crate::slam`]) on every scan, with the odometry motion since the previous scan as the
-//! prior. Between scans the pose is the last matched pose plus the odometry since, so the
-//! position is published at the odometry rate (50 Hz in the simulator) rather than the scan
-//! rate. The beam geometry comes from the first scan. The map frame is fixed by
-//! `initial_pose` (the robot's start in the world, for the map to line up with a known map).
+//! [`SlamTracker`] (pure logic) runs the SLAM pipeline [`Slam`] (front end: correlative scan
+//! matching with PL-ICP refinement against a sliding local map, a wide search for large steps;
+//! back end: pose graph over submaps with loop closures, optimised on a background thread so
+//! the scan loop never waits; see [`crate::slam`]) on every scan, with the odometry motion
+//! since the previous scan as the prior. The pose and the map it publishes are the corrected
+//! ones: an optimisation's correction moves the pose, and the map is re-rendered from the
+//! optimised poses by the background thread. Between scans the pose is the last scan's pose
+//! plus the odometry since, so the position is published at the odometry rate (50 Hz in the
+//! simulator) rather than the scan rate. Each scan's beam geometry (`angle_min`,
+//! `angle_increment`, `range_min`, `range_max`) is taken from that scan's message. The map
+//! frame is fixed by `initial_pose` (the robot's start in the world, for the map to line up
+//! with a known map).
 //!
 //! Contracts: provides "Localization" on `pose_out` and "Mapping" on `map_out`; needs
 //! "Odometry" (rank 1, from the Robot) and "LIDAR data" (rank 2, from the Laser), followed on
@@ -37,7 +42,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::common::{ContractedInput, compose, decode_state, encode_state, relative, seconds};
 use crate::maps::msg_from_grid;
-use crate::slam::{EstimateSource, LaserConfig, SlamConfig, SlamFrontEnd};
+use crate::slam::{BackendConfig, EstimateSource, LaserConfig, Slam, SlamConfig};
 
 /// SLAM's contract Q is its smoothed match quality times this: at most 0.4, below the Q of a
 /// nominal GPS fix (about 0.56 at σ 0.3 m) by more than the hysteresis (0.1), so the GPS
@@ -60,7 +65,8 @@ fn pose(i: &Isometry2<f64>) -> Pose2D {
 #[derive(Debug)]
 pub struct SlamTracker {
     cfg: SlamConfig,
-    fe: Option<SlamFrontEnd>,
+    backend: BackendConfig,
+    slam: Option<Slam>,
     /// Pose at the last scan, map frame.
     pose_at_scan: Pose2D,
     /// Odometry at the last scan.
@@ -90,7 +96,11 @@ impl SlamTracker {
     pub fn new(cfg: SlamConfig, initial: Pose2D) -> SlamTracker {
         SlamTracker {
             cfg,
-            fe: None,
+            backend: BackendConfig {
+                background: true,
+                ..BackendConfig::default()
+            },
+            slam: None,
             pose_at_scan: initial,
             odom_at_scan: None,
             odom: None,
@@ -142,26 +152,24 @@ impl SlamTracker {
         self.quality
     }
 
-    /// A scan arrived (beam geometry of the scan; the first one fixes the front end's).
+    /// A scan arrived (matched with its own beam geometry).
     pub fn on_scan(&mut self, scan: &LaserScan) -> Option<ScanResult> {
         let odom = self.odom?;
         let delta = match self.odom_at_scan {
             Some(a) => relative(&a, &odom),
             None => Pose2D::default(),
         };
-        let start = self.pose();
-        let fe = self.fe.get_or_insert_with(|| {
-            let mut cfg = self.cfg;
-            cfg.laser = LaserConfig {
-                angle_min: f64::from(scan.angle_min),
-                angle_increment: f64::from(scan.angle_increment),
-                range_min: f64::from(scan.range_min),
-                range_max: f64::from(scan.range_max),
-            };
-            SlamFrontEnd::new(cfg, iso(&self.pose_at_scan))
-        });
-        let _ = start;
-        let est = fe.process(&iso(&delta), scan.ranges());
+        let laser = LaserConfig {
+            angle_min: f64::from(scan.angle_min),
+            angle_increment: f64::from(scan.angle_increment),
+            range_min: f64::from(scan.range_min),
+            range_max: f64::from(scan.range_max),
+        };
+        let (cfg, backend, start) = (self.cfg, self.backend, iso(&self.pose_at_scan));
+        let slam = self
+            .slam
+            .get_or_insert_with(|| Slam::new(cfg, backend, start));
+        let est = slam.process(&iso(&delta), &laser, scan.ranges());
         self.pose_at_scan = pose(&est.pose);
         self.odom_at_scan = Some(odom);
         let c = est.covariance;
@@ -194,12 +202,17 @@ impl SlamTracker {
 
     /// The map built so far.
     pub fn map(&self) -> Option<crate::planning::OccupancyGrid> {
-        self.fe.as_ref().and_then(|f| f.map().to_occupancy_grid())
+        self.slam.as_ref().and_then(|f| f.map().to_occupancy_grid())
     }
 
     /// Scans processed.
     pub fn scans(&self) -> u64 {
         self.scans
+    }
+
+    /// Loop closures accepted so far.
+    pub fn loop_closures(&self) -> usize {
+        self.slam.as_ref().map_or(0, |s| s.stats().closures)
     }
 }
 
@@ -406,16 +419,21 @@ mod tests {
 
     /// A 360° scan from `p` inside the axis-aligned box [0, 8] x [0, 5].
     fn box_scan(p: &Pose2D) -> LaserScan {
+        box_scan_with(p, -PI, PI / 180.0, 360)
+    }
+
+    /// A scan of `n` beams from `angle_min` in steps of `inc` inside the box.
+    fn box_scan_with(p: &Pose2D, angle_min: f64, inc: f64, n: usize) -> LaserScan {
         let mut s = LaserScan {
-            angle_min: -PI as f32,
-            angle_increment: (PI / 180.0) as f32,
+            angle_min: angle_min as f32,
+            angle_increment: inc as f32,
             range_min: 0.05,
             range_max: 10.0,
-            count: 360,
+            count: n as u32,
             ..Default::default()
         };
-        for i in 0..360 {
-            let a = p.theta - PI + i as f64 * PI / 180.0;
+        for i in 0..n {
+            let a = p.theta + angle_min + i as f64 * inc;
             let (c, sn) = (a.cos(), a.sin());
             let mut r = f64::INFINITY;
             for (d, wall) in [(c, 8.0 - p.x), (-c, p.x), (sn, 5.0 - p.y), (-sn, p.y)] {
@@ -462,6 +480,46 @@ mod tests {
         );
         assert!(t.quality() > 0.5, "Q {}", t.quality());
         assert!(t.map().is_some());
+    }
+
+    /// Each scan is read with its own geometry: a 360-beam full circle, then a 361-beam
+    /// half circle at 0.5 degrees, alternating. Read with the first scan's geometry, the half
+    /// circles would be mirrored and rotated and fail to match.
+    #[test]
+    fn tracker_reads_each_scan_with_its_own_geometry() {
+        let start = Pose2D {
+            x: 3.0,
+            y: 2.0,
+            theta: 0.3,
+        };
+        let mut t = SlamTracker::new(SlamConfig::default(), start);
+        let mut truth = start;
+        let mut odom = Pose2D::default();
+        t.on_odometry(odom);
+        for k in 0..20 {
+            let step = Pose2D {
+                x: 0.05,
+                y: 0.0,
+                theta: 0.02,
+            };
+            truth = compose(&truth, &step);
+            odom = compose(&odom, &step);
+            t.on_odometry(odom);
+            let scan = if k % 2 == 0 {
+                box_scan(&truth)
+            } else {
+                box_scan_with(&truth, -PI / 2.0, PI / 360.0, 361)
+            };
+            let r = t.on_scan(&scan).expect("odometry is known");
+            if k > 1 {
+                assert!(r.matched && r.quality > 0.5, "scan {k}: {r:?}");
+            }
+        }
+        let p = t.pose();
+        assert!(
+            (p.x - truth.x).hypot(p.y - truth.y) < 0.03,
+            "{p:?} vs {truth:?}"
+        );
     }
 
     #[test]

@@ -1,5 +1,6 @@
-//! `hng eval planner|slam`: the real binary on the shared data sets (skipped with a message
-//! when `../shared/data` is absent), and its error messages on bad input.
+//! `hng eval planner|slam`: the real binary on the shared MovingAI data (skipped with a message
+//! when `../shared/data` is absent) and on the CARMEN logs in `tests/data/carmen/` (always
+//! present), and its error messages on bad input.
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -103,37 +104,119 @@ fn eval_planner_errors_name_file_line_and_field() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("bad.scen:3"), "names the line: {err}");
     assert!(err.contains("field"), "names the field: {err}");
-    let out = hng(&["eval", "slam", "/nonexistent/log.clf", "--json"]);
-    assert!(!out.status.success());
-    assert!(String::from_utf8_lossy(&out.stderr).contains("/nonexistent/log.clf"));
+}
+
+fn carmen(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/data/carmen")
+        .join(name)
 }
 
 #[test]
-fn eval_slam_on_the_intel_log_matches_scans_and_writes_the_map() {
-    let Some(log) = data("carmen/intel-corrected.log") else {
-        return;
-    };
+fn eval_slam_errors_name_the_file_and_line() {
+    let out = hng(&["eval", "slam", "/nonexistent/log.clf", "--json"]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("/nonexistent/log.clf"));
+    let dir = Scratch::new("badlog");
+    let log = dir.0.join("short.log");
+    std::fs::write(
+        &log,
+        "ODOM 0 0 0 0 0 0 1 h 1\nFLASER 3 1.0 2.0 3.0 0 0 0 0 0 0 2 h 2\nFLASER 3 1.0 2.0\n",
+    )
+    .expect("write log");
+    let out = hng(&["eval", "slam", &log.to_string_lossy()]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("short.log:3: FLASER field `range[2]`: missing (line too short)"),
+        "{err}"
+    );
+    let empty = Scratch::new("emptydir");
+    let out = hng(&["eval", "slam", "--all", &empty.0.to_string_lossy()]);
+    assert!(!out.status.success());
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("no .log or .clf files"),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+#[test]
+fn eval_slam_reports_relative_and_absolute_errors_and_writes_the_map() {
+    let log = carmen("seattle-corrected.log");
     let dir = Scratch::new("slam");
-    let yaml = dir.0.join("intel.yaml");
+    let yaml = dir.0.join("seattle.yaml");
     let v = json(&hng(&[
         "eval",
         "slam",
         &log.to_string_lossy(),
         "--json",
-        "--map",
+        "--map-out",
         &yaml.to_string_lossy(),
     ]));
-    assert_eq!(v["scans"], 910, "{v}");
-    // The aim: under 5 cm and 1 degree between consecutive scans.
-    assert!(f(&v, "trans_err_mean_m") < 0.05, "{v}");
-    assert!(f(&v, "rot_err_mean_deg") < 1.0, "{v}");
+    assert_eq!(v["scans"], 241, "{v}");
+    assert_eq!(v["beams"], 361, "{v}");
+    assert!(f(&v, "trans_err_mean_m") <= 0.03, "{v}");
+    assert!(f(&v, "rot_err_mean_deg") <= 0.5, "{v}");
+    assert!(
+        f(&v, "trans_err_mean_m") < f(&v, "odom_trans_err_mean_m"),
+        "{v}"
+    );
+    assert!(f(&v, "ate_rmse_m") < f(&v, "odom_ate_rmse_m"), "{v}");
+    assert!(f(&v, "ate_front_end_rmse_m") > 0.0, "{v}");
+    assert!(f(&v, "scans_per_s") > 0.0, "{v}");
     assert!(f(&v, "trans_err_p95_m") >= f(&v, "trans_err_mean_m") * 0.5);
-    assert!(f(&v, "rot_err_p95_deg") > 0.0);
     let y = std::fs::read_to_string(&yaml).expect("map yaml written");
     assert!(
-        y.contains("image: intel.pgm") && y.contains("resolution"),
+        y.contains("image: seattle.pgm") && y.contains("resolution"),
         "{y}"
     );
-    let pgm = std::fs::read(dir.0.join("intel.pgm")).expect("map pgm written");
+    let pgm = std::fs::read(dir.0.join("seattle.pgm")).expect("map pgm written");
     assert!(pgm.starts_with(b"P5"));
+}
+
+#[test]
+fn eval_slam_all_evaluates_every_log_in_a_folder() {
+    let dir = Scratch::new("all");
+    for name in ["orebro-corrected.log", "seattle-corrected.log"] {
+        std::fs::copy(carmen(name), dir.0.join(name)).expect("copy log");
+    }
+    std::fs::write(dir.0.join("notes.txt"), "not a log").expect("write");
+    let out = hng(&[
+        "eval",
+        "slam",
+        "--all",
+        &dir.0.to_string_lossy(),
+        "--json",
+        "--no-loop-closure",
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let rows: Vec<serde_json::Value> = String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .map(|l| serde_json::from_str(l).expect("one JSON object per line"))
+        .collect();
+    assert_eq!(rows.len(), 2, "{rows:?}");
+    assert_eq!(rows[0]["beams"], 181);
+    assert_eq!(rows[1]["beams"], 361);
+    for r in &rows {
+        assert!(
+            f(r, "trans_err_mean_m") < f(r, "odom_trans_err_mean_m"),
+            "{r}"
+        );
+        assert_eq!(r["loop_closures"], 0, "{r}");
+    }
+    let table = hng(&[
+        "eval",
+        "slam",
+        "--all",
+        &dir.0.to_string_lossy(),
+        "--no-loop-closure",
+    ]);
+    let text = String::from_utf8_lossy(&table.stdout);
+    assert!(text.lines().count() == 3, "header and two rows: {text}");
+    assert!(text.contains("seattle-corrected.log"), "{text}");
 }

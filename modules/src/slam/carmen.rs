@@ -1,14 +1,38 @@
 //! CARMEN log files (<http://carmen.sourceforge.net/logger_playback.html>):
-//! `ODOM` and `FLASER` lines; all other lines (`PARAM`, `SYNC`, `NEFF`,
-//! comments, ...) are skipped.
+//! `ODOM`, `FLASER` and `ROBOTLASER1` lines are read; every other line is
+//! skipped and counted by message type ([`CarmenLog::skipped`]).
 //!
-//! Laser geometry: an old-style `FLASER` line carries no angles. CARMEN's
-//! convention for a 180-reading front laser is a 180° field of view starting at
-//! −90° (the robot's right) with 1° between beams, i.e. beam `i` at
-//! `−90° + i·1°` (the last beam is at +89°). On the Intel log this convention
-//! matched consecutive scans better than the alternatives (−89.5° start, or
-//! 180/179° steps); see [`LaserConfig`].
+//! # Laser geometry, from the data
+//!
+//! A `ROBOTLASER1` line carries its geometry: start angle, field of view,
+//! angular resolution and maximum range; those are used as they are.
+//!
+//! An old-style `FLASER` line carries only its beam count `n`. The field of
+//! view is taken as 180° (a front SICK LMS; override with
+//! [`LogOptions::fov`], `hng eval slam --fov DEG`), centred on the robot's
+//! heading, and the convention depends on the parity of `n`:
+//!
+//! | beams `n` | convention | beam `i` at | example |
+//! |---|---|---|---|
+//! | even | `n` steps of `fov/n`, the last end excluded | `−fov/2 + i·fov/n` | 180 beams: 1° from −90° to +89°; 360: 0.5° from −90° to +89.5° |
+//! | odd | `n − 1` steps of `fov/(n−1)`, both ends included | `−fov/2 + i·fov/(n−1)` | 181 beams: 1° from −90° to +90°; 361: 0.5° from −90° to +90° |
+//!
+//! These are the SICK LMS settings (180/181 readings at 1°, 360/361 at 0.5°).
+//! On the Intel log (180 beams) the even rule matched consecutive scans better
+//! than the alternatives (−89.5° start, or 180°/179° steps). `FLASER` lines
+//! give no maximum range: readings at or above [`LogOptions::range_max`]
+//! (50 m) are "no return" (SICK lasers log 81.83 m or 81.91 m for no echo).
+//!
+//! # Bad input
+//!
+//! A line of a known type that is cut short, or has a field that is not a
+//! number, is an error naming the file, the line and the field. A `NaN`,
+//! infinite or negative *range* is kept as an invalid reading (it yields no
+//! point) and counted in [`CarmenLog::invalid_ranges`]: lasers report such
+//! values, and one bad beam is no reason to drop a scan.
 
+use std::collections::BTreeMap;
+use std::f64::consts::PI;
 use std::path::{Path, PathBuf};
 
 use nalgebra::{Isometry2, Vector2};
@@ -31,7 +55,7 @@ pub enum CarmenError {
         path: PathBuf,
         /// 1-based line.
         line: usize,
-        /// Message type (`ODOM`, `FLASER`).
+        /// Message type (`ODOM`, `FLASER`, `ROBOTLASER1`).
         kind: &'static str,
         /// Field name.
         field: String,
@@ -49,8 +73,7 @@ pub struct LaserConfig {
     pub angle_increment: f64,
     /// Readings below this are invalid (m). Default 0.05.
     pub range_min: f64,
-    /// Readings at or above this are "no return" (m). The Intel log uses
-    /// 81.83 for no return; default 50.
+    /// Readings at or above this are "no return" (m). Default 50.
     pub range_max: f64,
 }
 
@@ -66,6 +89,19 @@ impl Default for LaserConfig {
 }
 
 impl LaserConfig {
+    /// The geometry of an `n`-beam `FLASER` scan over `fov` radians centred on
+    /// the heading (see the [module docs](self)): `fov/n` steps for even `n`,
+    /// `fov/(n − 1)` steps with both ends included for odd `n`.
+    pub fn flaser(n: usize, fov: f64, range_max: f64) -> Self {
+        let steps = if n % 2 == 1 { n.saturating_sub(1) } else { n }.max(1);
+        Self {
+            angle_min: -fov / 2.0,
+            angle_increment: fov / steps as f64,
+            range_min: 0.05,
+            range_max,
+        }
+    }
+
     /// End points of the valid readings in the sensor frame.
     pub fn points(&self, ranges: &[f32]) -> Vec<Vector2<f64>> {
         ranges
@@ -80,6 +116,24 @@ impl LaserConfig {
                 Vector2::new(f64::from(r) * a.cos(), f64::from(r) * a.sin())
             })
             .collect()
+    }
+}
+
+/// How to read a log.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LogOptions {
+    /// Field of view of `FLASER` scans (rad); `None`: 180° (see the module docs).
+    pub fov: Option<f64>,
+    /// `FLASER` readings at or above this are "no return" (m). Default 50.
+    pub range_max: f64,
+}
+
+impl Default for LogOptions {
+    fn default() -> Self {
+        Self {
+            fov: None,
+            range_max: 50.0,
+        }
     }
 }
 
@@ -98,13 +152,17 @@ pub struct OdomRecord {
     pub timestamp: f64,
 }
 
-/// A `FLASER n r1..rn x y theta odom_x odom_y odom_theta timestamp hostname logger_timestamp` line.
+/// A laser scan: an old-style `FLASER n r1..rn x y theta odom_x odom_y
+/// odom_theta timestamp hostname logger_timestamp` line, or a `ROBOTLASER1`
+/// line.
 #[derive(Debug, Clone, PartialEq)]
 pub struct LaserRecord {
     /// 1-based line.
     pub line: usize,
-    /// Range readings (m).
+    /// Range readings (m); invalid readings (NaN, negative) are NaN.
     pub ranges: Vec<f32>,
+    /// Beam geometry of this scan.
+    pub laser: LaserConfig,
     /// Laser pose (x, y, theta); in a corrected log, the corrected pose.
     pub laser_pose: [f64; 3],
     /// Robot odometry pose at the scan (x, y, theta).
@@ -118,15 +176,19 @@ pub struct LaserRecord {
 pub enum Record {
     /// `ODOM`.
     Odom(OdomRecord),
-    /// `FLASER`.
+    /// `FLASER` or `ROBOTLASER1`.
     Laser(LaserRecord),
 }
 
 /// A parsed log.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct CarmenLog {
-    /// `ODOM` and `FLASER` records in file order.
+    /// `ODOM` and laser records in file order.
     pub records: Vec<Record>,
+    /// Lines skipped, by message type (`PARAM`, `NEFF`, `#` for comments, ...).
+    pub skipped: BTreeMap<String, usize>,
+    /// Range readings that were NaN, infinite or negative (kept as invalid).
+    pub invalid_ranges: usize,
 }
 
 impl CarmenLog {
@@ -138,38 +200,48 @@ impl CarmenLog {
         })
     }
 
+    /// Lines skipped in all.
+    pub fn skipped_lines(&self) -> usize {
+        self.skipped.values().sum()
+    }
+
     /// Odometry motion since the previous scan, one entry per scan (identity
     /// for the first), composed from the increments between consecutive `ODOM`
     /// lines.
     ///
-    /// Increments across a `FLASER` line are left out: in corrected logs such
-    /// as Intel's, the `ODOM` stream is re-anchored to the corrected pose at
-    /// each scan, so that jump would leak the ground truth into the prior. The
-    /// `odom_*` fields of `FLASER` are not used either, for the same reason
-    /// (in the Intel log they equal the corrected pose).
+    /// In corrected logs (all five shipped ones) the `ODOM` stream is
+    /// re-anchored to the corrected pose at each scan: the first `ODOM` after
+    /// a laser line equals that line's pose. That jump would leak the ground
+    /// truth into the prior, so an increment across a laser line is left out
+    /// when the `ODOM` after it equals the scan's pose; in a raw log (no such
+    /// equality) it is kept. The `odom_*` fields of `FLASER` are not used
+    /// either, for the same reason (in corrected logs they equal the
+    /// corrected pose).
     pub fn odometry_deltas(&self) -> Vec<Isometry2<f64>> {
         let mut out = Vec::new();
         let mut acc = Isometry2::identity();
         let mut prev: Option<Isometry2<f64>> = None;
-        let mut crossed = false;
+        let mut crossed: Option<[f64; 3]> = None;
         for r in &self.records {
             match r {
                 Record::Odom(o) => {
                     let p = pose_from(o.pose);
-                    if let (Some(q), false) = (prev, crossed) {
+                    let reanchored = crossed
+                        .is_some_and(|s| s.iter().zip(&o.pose).all(|(a, b)| (a - b).abs() < 1e-6));
+                    if let (Some(q), false) = (prev, reanchored) {
                         acc *= q.inverse() * p;
                     }
                     prev = Some(p);
-                    crossed = false;
+                    crossed = None;
                 }
-                Record::Laser(_) => {
+                Record::Laser(l) => {
                     out.push(if out.is_empty() {
                         Isometry2::identity()
                     } else {
                         acc
                     });
                     acc = Isometry2::identity();
-                    crossed = true;
+                    crossed = Some(l.laser_pose);
                 }
             }
         }
@@ -187,13 +259,19 @@ pub fn pose_to(p: &Isometry2<f64>) -> [f64; 3] {
     [p.translation.x, p.translation.y, p.rotation.angle()]
 }
 
-/// Reads and parses a log file.
+/// Reads and parses a log file with default [`LogOptions`].
 pub fn read_log(path: &Path) -> Result<CarmenLog, CarmenError> {
-    let text = std::fs::read_to_string(path).map_err(|source| CarmenError::Io {
+    read_log_with(path, &LogOptions::default())
+}
+
+/// Reads and parses a log file.
+pub fn read_log_with(path: &Path, opts: &LogOptions) -> Result<CarmenLog, CarmenError> {
+    let bytes = std::fs::read(path).map_err(|source| CarmenError::Io {
         path: path.to_path_buf(),
         source,
     })?;
-    parse_log(&text, path)
+    // Hostnames and comments may hold any bytes; numbers are ASCII.
+    parse_log_with(&String::from_utf8_lossy(&bytes), path, opts)
 }
 
 struct Fields<'a> {
@@ -225,6 +303,26 @@ impl<'a> Fields<'a> {
             _ => Err(self.err(field, format!("{s:?} is not a finite number"))),
         }
     }
+    fn count(&mut self, field: &str) -> Result<usize, CarmenError> {
+        let s = self.raw(field)?;
+        s.parse()
+            .ok()
+            .filter(|&n| n <= 10_000)
+            .ok_or_else(|| self.err(field, format!("{s:?} is not a count in 0..=10000")))
+    }
+    /// A range reading: NaN, infinite or negative readings become NaN and are
+    /// counted; text that is not a number is an error.
+    fn range(&mut self, k: usize, invalid: &mut usize) -> Result<f32, CarmenError> {
+        let s = self.raw(&format!("range[{k}]"))?;
+        match s.parse::<f64>() {
+            Ok(v) if v.is_finite() && v >= 0.0 => Ok(v as f32),
+            Ok(_) => {
+                *invalid += 1;
+                Ok(f32::NAN)
+            }
+            Err(_) => Err(self.err(format!("range[{k}]"), format!("{s:?} is not a number"))),
+        }
+    }
     fn pose(&mut self, prefix: &str) -> Result<[f64; 3], CarmenError> {
         Ok([
             self.f64(&format!("{prefix}x"))?,
@@ -234,16 +332,32 @@ impl<'a> Fields<'a> {
     }
 }
 
-/// Parses log text; `path` is only used in errors.
+/// Parses log text with default [`LogOptions`]; `path` is only used in errors.
 pub fn parse_log(text: &str, path: &Path) -> Result<CarmenLog, CarmenError> {
-    let mut records = Vec::new();
+    parse_log_with(text, path, &LogOptions::default())
+}
+
+/// Parses log text; `path` is only used in errors.
+pub fn parse_log_with(
+    text: &str,
+    path: &Path,
+    opts: &LogOptions,
+) -> Result<CarmenLog, CarmenError> {
+    let mut log = CarmenLog::default();
+    let fov = opts.fov.unwrap_or(PI);
     for (i, l) in text.lines().enumerate() {
         let line = i + 1;
         let mut it = l.split_whitespace();
         let kind = match it.next() {
             Some("ODOM") => "ODOM",
             Some("FLASER") => "FLASER",
-            _ => continue,
+            Some("ROBOTLASER1") => "ROBOTLASER1",
+            Some(other) => {
+                let key = if other.starts_with('#') { "#" } else { other };
+                *log.skipped.entry(key.to_owned()).or_default() += 1;
+                continue;
+            }
+            None => continue,
         };
         let mut f = Fields {
             it,
@@ -251,49 +365,91 @@ pub fn parse_log(text: &str, path: &Path) -> Result<CarmenLog, CarmenError> {
             line,
             kind,
         };
-        if kind == "ODOM" {
-            let pose = f.pose("")?;
-            let tv = f.f64("tv")?;
-            let rv = f.f64("rv")?;
-            let _accel = f.f64("accel")?;
-            let timestamp = f.f64("timestamp")?;
-            records.push(Record::Odom(OdomRecord {
-                line,
-                pose,
-                tv,
-                rv,
-                timestamp,
-            }));
-        } else {
-            let ns = f.raw("num_readings")?;
-            let n: usize = ns.parse().ok().filter(|&n| n <= 10_000).ok_or_else(|| {
-                f.err(
-                    "num_readings",
-                    format!("{ns:?} is not a count in 0..=10000"),
-                )
-            })?;
-            let mut ranges = Vec::with_capacity(n);
-            for k in 0..n {
-                let field = format!("range[{k}]");
-                let r = f.f64(&field)?;
-                if r < 0.0 {
-                    return Err(f.err(field, format!("negative range {r}")));
-                }
-                ranges.push(r as f32);
+        let invalid = &mut log.invalid_ranges;
+        let record = match kind {
+            "ODOM" => {
+                let pose = f.pose("")?;
+                let tv = f.f64("tv")?;
+                let rv = f.f64("rv")?;
+                let _accel = f.f64("accel")?;
+                let timestamp = f.f64("timestamp")?;
+                Record::Odom(OdomRecord {
+                    line,
+                    pose,
+                    tv,
+                    rv,
+                    timestamp,
+                })
             }
-            let laser_pose = f.pose("")?;
-            let odom_pose = f.pose("odom_")?;
-            let timestamp = f.f64("timestamp")?;
-            records.push(Record::Laser(LaserRecord {
-                line,
-                ranges,
-                laser_pose,
-                odom_pose,
-                timestamp,
-            }));
-        }
+            "FLASER" => {
+                let n = f.count("num_readings")?;
+                let ranges = (0..n)
+                    .map(|k| f.range(k, &mut *invalid))
+                    .collect::<Result<Vec<_>, _>>()?;
+                let laser_pose = f.pose("")?;
+                let odom_pose = f.pose("odom_")?;
+                let timestamp = f.f64("timestamp")?;
+                Record::Laser(LaserRecord {
+                    line,
+                    laser: LaserConfig::flaser(n, fov, opts.range_max),
+                    ranges,
+                    laser_pose,
+                    odom_pose,
+                    timestamp,
+                })
+            }
+            _ => {
+                // ROBOTLASER1 laser_type start_angle field_of_view angular_resolution
+                // maximum_range accuracy remission_mode num_readings [ranges]
+                // num_remissions [remissions] laser_x laser_y laser_theta robot_x
+                // robot_y robot_theta tv rv forward_safety_dist side_safety_dist
+                // turn_axis timestamp hostname logger_timestamp
+                let _type = f.raw("laser_type")?;
+                let start = f.f64("start_angle")?;
+                let _fov = f.f64("field_of_view")?;
+                let res = f.f64("angular_resolution")?;
+                let max = f.f64("maximum_range")?;
+                if res <= 0.0 || max <= 0.0 {
+                    return Err(f.err(
+                        "angular_resolution",
+                        format!("resolution {res} and maximum range {max} must be positive"),
+                    ));
+                }
+                let _accuracy = f.f64("accuracy")?;
+                let _mode = f.raw("remission_mode")?;
+                let n = f.count("num_readings")?;
+                let ranges = (0..n)
+                    .map(|k| f.range(k, &mut *invalid))
+                    .collect::<Result<Vec<_>, _>>()?;
+                let nr = f.count("num_remissions")?;
+                for k in 0..nr {
+                    f.f64(&format!("remission[{k}]"))?;
+                }
+                let laser_pose = f.pose("laser_")?;
+                let odom_pose = f.pose("robot_")?;
+                for field in ["tv", "rv", "forward_safety_dist", "side_safety_dist"] {
+                    f.f64(field)?;
+                }
+                let _turn_axis = f.f64("turn_axis")?;
+                let timestamp = f.f64("timestamp")?;
+                Record::Laser(LaserRecord {
+                    line,
+                    laser: LaserConfig {
+                        angle_min: start,
+                        angle_increment: res,
+                        range_min: 0.05f64.min(max / 2.0),
+                        range_max: max,
+                    },
+                    ranges,
+                    laser_pose,
+                    odom_pose,
+                    timestamp,
+                })
+            }
+        };
+        log.records.push(record);
     }
-    Ok(CarmenLog { records })
+    Ok(log)
 }
 
 #[cfg(test)]
@@ -315,9 +471,78 @@ mod tests {
         assert_eq!(s[0].ranges, vec![1.0, 2.0, 81.83]);
         assert_eq!(s[0].laser_pose, [0.5, 0.6, 0.7]);
         assert_eq!(s[0].odom_pose, [1.0, 2.0, 0.5]);
-        let pts = LaserConfig::default().points(&s[0].ranges);
+        let pts = s[0].laser.points(&s[0].ranges);
         assert_eq!(pts.len(), 2, "81.83 is no return");
         assert!((pts[0] - Vector2::new(0.0, -1.0)).norm() < 1e-12);
+        assert_eq!(log.skipped.get("#"), Some(&1));
+        assert_eq!(log.skipped.get("PARAM"), Some(&1));
+        assert_eq!(log.skipped.get("NEFF"), Some(&1));
+        assert_eq!(log.skipped_lines(), 3);
+    }
+
+    fn flaser_line(n: usize) -> String {
+        let mut s = format!("FLASER {n}");
+        for _ in 0..n {
+            s.push_str(" 2.0");
+        }
+        s.push_str(" 0 0 0 0 0 0 1 h 1\n");
+        s
+    }
+
+    /// The convention per beam count: first and last beam angle.
+    #[test]
+    fn flaser_geometry_follows_the_beam_count() {
+        for (n, step, last) in [
+            (180, 1.0, 89.0),
+            (181, 1.0, 90.0),
+            (360, 0.5, 89.5),
+            (361, 0.5, 90.0),
+        ] {
+            let log = parse_log(&flaser_line(n), Path::new("x.log")).expect("log");
+            let s = log.scans().next().expect("scan");
+            let g = s.laser;
+            assert!((g.angle_min.to_degrees() + 90.0).abs() < 1e-9, "{n}: {g:?}");
+            assert!((g.angle_increment.to_degrees() - step).abs() < 1e-9, "{n}");
+            let l = (g.angle_min + (n - 1) as f64 * g.angle_increment).to_degrees();
+            assert!((l - last).abs() < 1e-9, "{n}: last beam at {l}");
+        }
+        // --fov 270 on a 1081-beam (odd) scan: 0.25 degrees, both ends.
+        let opts = LogOptions {
+            fov: Some(270f64.to_radians()),
+            ..LogOptions::default()
+        };
+        let log = parse_log_with(&flaser_line(1081), Path::new("x.log"), &opts).expect("log");
+        let g = log.scans().next().expect("scan").laser;
+        assert!((g.angle_min.to_degrees() + 135.0).abs() < 1e-9);
+        assert!((g.angle_increment.to_degrees() - 0.25).abs() < 1e-9);
+    }
+
+    #[test]
+    fn parses_robotlaser1_with_its_own_geometry() {
+        // 3 readings from -1.0 rad in 0.5 rad steps, max range 30; 2 remissions.
+        let text = "ROBOTLASER1 0 -1.0 1.0 0.5 30.0 0.01 0 3 1.5 30.0 2.5 2 7 8 \
+                    1 2 0.3 1.1 2.1 0.4 0 0 0.5 0.2 0 12.5 host 12.5\n";
+        let log = parse_log(text, Path::new("r.log")).expect("log");
+        let s = log.scans().next().expect("scan");
+        assert_eq!(s.ranges, vec![1.5, 30.0, 2.5]);
+        assert_eq!(s.laser.angle_min, -1.0);
+        assert_eq!(s.laser.angle_increment, 0.5);
+        assert_eq!(s.laser.range_max, 30.0);
+        assert_eq!(s.laser_pose, [1.0, 2.0, 0.3]);
+        assert_eq!(s.odom_pose, [1.1, 2.1, 0.4]);
+        assert_eq!(s.timestamp, 12.5);
+        let pts = s.laser.points(&s.ranges);
+        assert_eq!(pts.len(), 2, "30.0 is the maximum: no return");
+        assert!((pts[1] - Vector2::new(2.5 * 0.0f64.cos(), 0.0)).norm() < 1e-6);
+        let e = parse_log(
+            "ROBOTLASER1 0 -1.0 1.0 0.5 30.0 0.01 0 3 1.5 30.0\n",
+            Path::new("r.log"),
+        )
+        .expect_err("short");
+        assert_eq!(
+            e.to_string(),
+            "r.log:1: ROBOTLASER1 field `range[2]`: missing (line too short)"
+        );
     }
 
     #[test]
@@ -331,21 +556,43 @@ mod tests {
             .expect_err("bad range");
         assert_eq!(
             e.to_string(),
-            "x.log:2: FLASER field `range[1]`: \"abc\" is not a finite number"
+            "x.log:2: FLASER field `range[1]`: \"abc\" is not a number"
         );
         let e = parse_log("FLASER 2 1.0 1.0 0 0 0 0 0\n", Path::new("x.log")).expect_err("short");
         assert!(e.to_string().contains("field `odom_theta`"), "{e}");
         let e = parse_log("FLASER -1\n", Path::new("x.log")).expect_err("count");
         assert!(e.to_string().contains("field `num_readings`"), "{e}");
+        let e = parse_log("ODOM nan 0 0 0 0 0 1 h 1\n", Path::new("x.log")).expect_err("nan");
+        assert!(e.to_string().contains("x.log:1: ODOM field `x`"), "{e}");
     }
 
     #[test]
-    fn odometry_deltas_skip_jumps_across_scans() {
-        let text = "ODOM 0 0 0 0 0 0 0 h 0\nFLASER 0 0 0 0 0 0 0 0 h 0\n\
+    fn nan_and_negative_ranges_are_invalid_readings_counted() {
+        let text = "FLASER 4 1.0 nan -2.0 inf 0 0 0 0 0 0 1 h 1\nFOO bar\nFOO\n";
+        let log = parse_log(text, Path::new("x.log")).expect("log");
+        assert_eq!(log.invalid_ranges, 3);
+        assert_eq!(log.skipped.get("FOO"), Some(&2));
+        let s = log.scans().next().expect("scan");
+        assert_eq!(s.ranges[0], 1.0);
+        assert!(s.ranges[1..].iter().all(|r| r.is_nan()));
+        assert_eq!(s.laser.points(&s.ranges).len(), 1);
+    }
+
+    #[test]
+    fn odometry_deltas_skip_reanchoring_jumps_only() {
+        // Corrected log: the ODOM after the scan equals the scan's pose (5 5 0).
+        let text = "ODOM 0 0 0 0 0 0 0 h 0\nFLASER 0 5 5 0 0 0 0 0 h 0\n\
                     ODOM 5 5 0 0 0 0 1 h 1\nODOM 6 5 0 0 0 0 2 h 2\nFLASER 0 0 0 0 0 0 0 0 h 0\n";
         let log = parse_log(text, Path::new("x.log")).expect("log");
         let d = log.odometry_deltas();
         assert_eq!(d.len(), 2);
+        assert!((d[1].translation.vector - Vector2::new(1.0, 0.0)).norm() < 1e-12);
+        // Raw log: no re-anchoring, the increment across the scan is kept.
+        let text = "ODOM 0 0 0 0 0 0 0 h 0\nFLASER 0 9 9 0 0 0 0 0 h 0\n\
+                    ODOM 0.5 0 0 0 0 0 1 h 1\nODOM 1 0 0 0 0 0 2 h 2\nFLASER 0 0 0 0 0 0 0 0 h 0\n";
+        let d = parse_log(text, Path::new("x.log"))
+            .expect("log")
+            .odometry_deltas();
         assert!((d[1].translation.vector - Vector2::new(1.0, 0.0)).norm() < 1e-12);
     }
 }

@@ -1,12 +1,15 @@
-//! Evaluation of the front end on a CARMEN log against its corrected poses.
+//! Evaluation of SLAM on a CARMEN log against its corrected poses: relative
+//! (per-scan) error, absolute trajectory error after alignment, each beside
+//! the same figure for odometry alone, and speed.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use nalgebra::Isometry2;
+use nalgebra::{Isometry2, Vector2};
 
-use super::carmen::{CarmenError, pose_from, read_log};
-use super::frontend::{EstimateSource, SlamConfig, SlamFrontEnd};
+use super::backend::{BackendConfig, Slam};
+use super::carmen::{CarmenError, LogOptions, pose_from, read_log_with};
+use super::frontend::{EstimateSource, SlamConfig};
 use super::mapping::{MapWriteError, write_pgm_yaml};
 
 /// Why [`eval_slam`] failed.
@@ -19,20 +22,69 @@ pub enum SlamEvalError {
     #[error(transparent)]
     Map(#[from] MapWriteError),
     /// The log has fewer than two scans.
-    #[error("{}: {scans} laser scans, need at least 2", path.display())]
+    #[error("{}: {scans} laser scans (FLASER or ROBOTLASER1 lines), need at least 2", path.display())]
     TooFewScans {
         /// Log file.
         path: PathBuf,
         /// Scans found.
         scans: usize,
     },
+    /// A folder could not be listed.
+    #[error("{}: cannot list: {source}", path.display())]
+    Dir {
+        /// Folder.
+        path: PathBuf,
+        /// Cause.
+        source: std::io::Error,
+    },
+    /// A folder holds no `.log` or `.clf` files.
+    #[error("{}: no .log or .clf files", path.display())]
+    EmptyDir {
+        /// Folder.
+        path: PathBuf,
+    },
 }
 
-/// Relative-motion errors of the front end against the log's corrected poses.
+/// How to evaluate.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EvalOptions {
+    /// Reading the log (field of view of `FLASER` scans).
+    pub log: LogOptions,
+    /// Front end.
+    pub slam: SlamConfig,
+    /// Back end (loop closure on by default, optimised inline).
+    pub backend: BackendConfig,
+    /// Also run the front end alone, for its absolute trajectory error. Default true.
+    pub compare_front_end: bool,
+    /// Write the map as `<base>.pgm` + `<base>.yaml`.
+    pub map_out: Option<PathBuf>,
+}
+
+impl Default for EvalOptions {
+    fn default() -> Self {
+        Self {
+            log: LogOptions::default(),
+            slam: SlamConfig::default(),
+            backend: BackendConfig::default(),
+            compare_front_end: true,
+            map_out: None,
+        }
+    }
+}
+
+/// The figures of one log.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SlamEval {
+    /// The log.
+    pub log: PathBuf,
     /// Scans processed.
     pub scans: usize,
+    /// Beams of the first scan.
+    pub beams: usize,
+    /// Lines skipped (unknown or unused message types, comments).
+    pub skipped_lines: usize,
+    /// NaN, infinite or negative readings (treated as no reading).
+    pub invalid_ranges: usize,
     /// Mean translation error of the motion between consecutive scans (m).
     pub trans_err_mean_m: f64,
     /// 95th percentile of the translation error (m).
@@ -45,16 +97,45 @@ pub struct SlamEval {
     pub trans_err_max_m: f64,
     /// Largest rotation error (deg).
     pub rot_err_max_deg: f64,
-    /// The same errors for the odometry prior alone: mean translation (m).
+    /// The same errors for the odometry alone: mean translation (m).
     pub odom_trans_err_mean_m: f64,
-    /// Odometry prior alone: mean rotation error (deg).
+    /// Odometry alone: mean rotation error (deg).
     pub odom_rot_err_mean_deg: f64,
+    /// Absolute trajectory error (RMSE of positions after the best rigid
+    /// alignment) of the full pipeline (m).
+    pub ate_rmse_m: f64,
+    /// Absolute trajectory error of the front end alone, no loop closure (m);
+    /// NaN if not run.
+    pub ate_front_end_rmse_m: f64,
+    /// Absolute trajectory error of the odometry alone (m).
+    pub odom_ate_rmse_m: f64,
     /// Scans where the match was rejected and odometry kept.
     pub fallbacks: usize,
     /// Mean quality Q over matched scans.
     pub mean_quality: f64,
-    /// Mean wall time per scan (matching + mapping), microseconds.
-    pub mean_us_per_scan: f64,
+    /// Pose-graph nodes.
+    pub nodes: usize,
+    /// Loop closures accepted.
+    pub loop_closures: usize,
+    /// Loop-closure matches tried.
+    pub loop_closures_tried: usize,
+    /// Scans per second of the full pipeline (front end, back end, final map).
+    pub scans_per_s: f64,
+    /// Scans per second of the front end alone (NaN if not run).
+    pub front_end_scans_per_s: f64,
+    /// Duration of the log by its scan timestamps (s; 0 if it has none).
+    pub log_duration_s: f64,
+}
+
+impl SlamEval {
+    /// How many times faster than real time the full pipeline ran (NaN without timestamps).
+    pub fn realtime_factor(&self) -> f64 {
+        if self.log_duration_s > 0.0 && self.scans > 0 {
+            self.log_duration_s * self.scans_per_s / self.scans as f64
+        } else {
+            f64::NAN
+        }
+    }
 }
 
 /// Translation (m) and rotation (rad) of `a⁻¹·b`.
@@ -82,25 +163,53 @@ fn p95(v: &[f64]) -> f64 {
     s[k]
 }
 
-/// Runs [`SlamFrontEnd`] with default parameters over a CARMEN log.
-///
-/// The prior is the log's raw odometry ([`super::CarmenLog::odometry_deltas`]),
-/// never the corrected poses; the front end starts at the first corrected
-/// pose only to put the map in the same frame. For each pair of consecutive
-/// scans `k−1, k`, the estimated relative motion is compared with the relative
-/// motion of the corrected laser poses. Optionally writes the map as
-/// `<out_map>.pgm` + `<out_map>.yaml`.
-pub fn eval_slam(log_path: &Path, out_map: Option<&Path>) -> Result<SlamEval, SlamEvalError> {
-    eval_slam_with(log_path, out_map, SlamConfig::default())
+/// Absolute trajectory error: RMSE of the positions of `est` against `truth`
+/// after the rigid transform (rotation and translation, no scale) that best
+/// aligns them in the least-squares sense (Umeyama 1991 in 2D).
+pub fn ate_rmse(est: &[Isometry2<f64>], truth: &[Isometry2<f64>]) -> f64 {
+    let n = est.len().min(truth.len());
+    if n == 0 {
+        return 0.0;
+    }
+    let e: Vec<Vector2<f64>> = est[..n].iter().map(|p| p.translation.vector).collect();
+    let t: Vec<Vector2<f64>> = truth[..n].iter().map(|p| p.translation.vector).collect();
+    let ce = e.iter().sum::<Vector2<f64>>() / n as f64;
+    let ct = t.iter().sum::<Vector2<f64>>() / n as f64;
+    let (mut sxx, mut sxy) = (0.0, 0.0);
+    for (a, b) in e.iter().zip(&t) {
+        let (a, b) = (a - ce, b - ct);
+        sxx += a.x * b.x + a.y * b.y;
+        sxy += a.x * b.y - a.y * b.x;
+    }
+    let rot = nalgebra::Rotation2::new(sxy.atan2(sxx));
+    let s: f64 = e
+        .iter()
+        .zip(&t)
+        .map(|(a, b)| (rot * (a - ce) + ct - b).norm_squared())
+        .sum();
+    (s / n as f64).sqrt()
 }
 
-/// [`eval_slam`] with explicit parameters.
-pub fn eval_slam_with(
-    log_path: &Path,
-    out_map: Option<&Path>,
-    cfg: SlamConfig,
-) -> Result<SlamEval, SlamEvalError> {
-    let log = read_log(log_path)?;
+/// [`eval_slam_with`] with default options and an optional map output.
+pub fn eval_slam(log_path: &Path, out_map: Option<&Path>) -> Result<SlamEval, SlamEvalError> {
+    eval_slam_with(
+        log_path,
+        &EvalOptions {
+            map_out: out_map.map(Path::to_path_buf),
+            ..EvalOptions::default()
+        },
+    )
+}
+
+/// Runs SLAM over a CARMEN log and compares it with the log's corrected poses.
+///
+/// The prior is the log's raw odometry ([`super::CarmenLog::odometry_deltas`]),
+/// never the corrected poses; SLAM starts at the first corrected pose only to
+/// put the map in the same frame. Relative error: for each pair of
+/// consecutive scans, the estimated motion against the corrected one.
+/// Absolute error: [`ate_rmse`] of the final (optimised) trajectory.
+pub fn eval_slam_with(log_path: &Path, opts: &EvalOptions) -> Result<SlamEval, SlamEvalError> {
+    let log = read_log_with(log_path, &opts.log)?;
     let scans: Vec<_> = log.scans().collect();
     if scans.len() < 2 {
         return Err(SlamEvalError::TooFewScans {
@@ -110,21 +219,40 @@ pub fn eval_slam_with(
     }
     let deltas = log.odometry_deltas();
     let truth: Vec<Isometry2<f64>> = scans.iter().map(|s| pose_from(s.laser_pose)).collect();
-    let mut fe = SlamFrontEnd::new(cfg, truth[0]);
-    let mut est = Vec::with_capacity(scans.len());
-    let mut fallbacks = 0;
-    let mut q = Vec::new();
-    let t0 = Instant::now();
-    for (s, d) in scans.iter().zip(&deltas) {
-        let e = fe.process(d, &s.ranges);
-        match e.source {
-            EstimateSource::Matched => q.push(e.quality),
-            EstimateSource::OdometryFallback => fallbacks += 1,
-            EstimateSource::Prior => {}
+    let run = |backend: BackendConfig| {
+        let mut slam = Slam::new(opts.slam, backend, truth[0]);
+        let (mut fallbacks, mut q) = (0, Vec::new());
+        let t0 = Instant::now();
+        for (s, d) in scans.iter().zip(&deltas) {
+            let e = slam.process(d, &s.laser, &s.ranges);
+            match e.source {
+                EstimateSource::Matched => q.push(e.quality),
+                EstimateSource::OdometryFallback => fallbacks += 1,
+                EstimateSource::Prior => {}
+            }
         }
-        est.push(e.pose);
+        slam.finish();
+        let rate = scans.len() as f64 / t0.elapsed().as_secs_f64().max(1e-9);
+        (slam, fallbacks, q, rate)
+    };
+    let (slam, fallbacks, q, scans_per_s) = run(opts.backend);
+    let est = slam.trajectory();
+    let (fe_ate, fe_rate) = if opts.compare_front_end && opts.backend.loop_closure {
+        let (fe, _, _, rate) = run(BackendConfig {
+            loop_closure: false,
+            ..opts.backend
+        });
+        (ate_rmse(&fe.trajectory(), &truth), rate)
+    } else if !opts.backend.loop_closure {
+        (ate_rmse(&est, &truth), scans_per_s)
+    } else {
+        (f64::NAN, f64::NAN)
+    };
+    let mut odom = vec![truth[0]];
+    for d in &deltas[1..] {
+        let last = odom[odom.len() - 1];
+        odom.push(last * d);
     }
-    let mean_us_per_scan = t0.elapsed().as_secs_f64() * 1e6 / scans.len() as f64;
     let (mut te, mut re, mut ote, mut ore) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     for k in 1..scans.len() {
         let gt = truth[k - 1].inverse() * truth[k];
@@ -135,11 +263,19 @@ pub fn eval_slam_with(
         ote.push(t);
         ore.push(r.to_degrees());
     }
-    if let (Some(base), Some(grid)) = (out_map, fe.map().to_occupancy_grid()) {
+    if let (Some(base), Some(grid)) = (&opts.map_out, slam.map().to_occupancy_grid()) {
         write_pgm_yaml(&grid, base)?;
     }
+    let stats = slam.stats();
+    let ts: Vec<f64> = scans.iter().map(|s| s.timestamp).collect();
+    let duration = ts.iter().copied().fold(f64::NEG_INFINITY, f64::max)
+        - ts.iter().copied().fold(f64::INFINITY, f64::min);
     Ok(SlamEval {
+        log: log_path.to_path_buf(),
         scans: scans.len(),
+        beams: scans[0].ranges.len(),
+        skipped_lines: log.skipped_lines(),
+        invalid_ranges: log.invalid_ranges,
         trans_err_mean_m: mean(&te),
         trans_err_p95_m: p95(&te),
         rot_err_mean_deg: mean(&re),
@@ -148,8 +284,64 @@ pub fn eval_slam_with(
         rot_err_max_deg: re.iter().copied().fold(0.0, f64::max),
         odom_trans_err_mean_m: mean(&ote),
         odom_rot_err_mean_deg: mean(&ore),
+        ate_rmse_m: ate_rmse(&est, &truth),
+        ate_front_end_rmse_m: fe_ate,
+        odom_ate_rmse_m: ate_rmse(&odom, &truth),
         fallbacks,
         mean_quality: mean(&q),
-        mean_us_per_scan,
+        nodes: stats.nodes,
+        loop_closures: stats.closures,
+        loop_closures_tried: stats.closures_tried,
+        scans_per_s,
+        front_end_scans_per_s: fe_rate,
+        log_duration_s: if duration.is_finite() && duration > 0.0 {
+            duration
+        } else {
+            0.0
+        },
     })
+}
+
+/// The `.log` and `.clf` files of a folder, sorted by name.
+pub fn logs_in(dir: &Path) -> Result<Vec<PathBuf>, SlamEvalError> {
+    let rd = std::fs::read_dir(dir).map_err(|source| SlamEvalError::Dir {
+        path: dir.to_path_buf(),
+        source,
+    })?;
+    let mut out: Vec<PathBuf> = rd
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| {
+            p.is_file()
+                && p.extension()
+                    .is_some_and(|x| x.eq_ignore_ascii_case("log") || x.eq_ignore_ascii_case("clf"))
+        })
+        .collect();
+    out.sort();
+    if out.is_empty() {
+        return Err(SlamEvalError::EmptyDir {
+            path: dir.to_path_buf(),
+        });
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ate_is_invariant_to_a_rigid_motion() {
+        let truth: Vec<Isometry2<f64>> = (0..20)
+            .map(|k| Isometry2::new(Vector2::new(k as f64 * 0.3, (k as f64 * 0.4).sin()), 0.0))
+            .collect();
+        let moved: Vec<_> = truth
+            .iter()
+            .map(|p| Isometry2::new(Vector2::new(3.0, -1.0), 0.7) * p)
+            .collect();
+        assert!(ate_rmse(&moved, &truth) < 1e-9);
+        let mut bent = moved.clone();
+        bent[10].translation.vector.x += 1.0;
+        let a = ate_rmse(&bent, &truth);
+        assert!(a > 0.1 && a < 1.0 / (20f64).sqrt() + 1e-9, "{a}");
+    }
 }

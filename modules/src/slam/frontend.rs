@@ -7,7 +7,7 @@ use nalgebra::{Isometry2, Matrix3, Point2, Vector2};
 
 use super::carmen::LaserConfig;
 use super::mapping::{LogOddsMap, MapperConfig};
-use super::matcher::{MatcherConfig, ReferenceMap, match_scan, scan_normals};
+use super::matcher::{MatchResult, MatcherConfig, ReferenceMap, match_scan, scan_normals};
 
 /// A local-map point in the map frame with its normal, if any.
 type MapPoint = (Vector2<f64>, Option<Vector2<f64>>);
@@ -33,6 +33,135 @@ pub struct SlamConfig {
     pub odom_trans_noise: f64,
     /// Odometry noise: rotational std per radian turned. Default 0.1.
     pub odom_rot_noise: f64,
+    /// Below this match score the wide search ([`SlamConfig::wide`]) is run
+    /// as well and the better of the two matches kept. Default 0.5.
+    pub wide_below_score: f64,
+    /// The wide search for large steps or a useless odometry prior.
+    pub wide: WideSearch,
+    /// Fuse the match with the odometry prior by their information, so that
+    /// directions the scan does not constrain (a corridor's axis) follow the
+    /// odometry. Default false: on the five shipped logs it made the per-scan
+    /// error worse at every scale tried (the odometry is the weaker of the two
+    /// even along corridors).
+    pub fuse_odometry: bool,
+    /// The scan's information is multiplied by this before fusing: the ICP
+    /// Hessian counts every point as independent, which neighbouring beams on
+    /// one wall are not. Default 0.01.
+    pub match_information_scale: f64,
+}
+
+/// The information-weighted mean of a match (information `h`, from the scan
+/// alone) and the odometry prior (covariance `prior_cov`), linearised at the
+/// match: `x = x_m + (H + Ω)⁻¹·Ω·(x_p − x_m)`.
+pub fn fuse(
+    matched: &Isometry2<f64>,
+    h: &Matrix3<f64>,
+    prior: &Isometry2<f64>,
+    prior_cov: &Matrix3<f64>,
+) -> Isometry2<f64> {
+    let Some(omega) = prior_cov.try_inverse() else {
+        return *matched;
+    };
+    let d = nalgebra::Vector3::new(
+        prior.translation.x - matched.translation.x,
+        prior.translation.y - matched.translation.y,
+        (prior.rotation * matched.rotation.inverse()).angle(),
+    );
+    let Some(inv) = (h + omega).try_inverse() else {
+        return *matched;
+    };
+    let step = inv * (omega * d);
+    if !step.iter().all(|v| v.is_finite()) {
+        return *matched;
+    }
+    Isometry2::new(
+        matched.translation.vector + step.xy(),
+        matched.rotation.angle() + step.z,
+    )
+}
+
+/// A wide correlative search for steps the odometry does not explain: a
+/// branch-and-bound search on a coarse likelihood field over a large window
+/// around the prior, then the normal (fine) matcher from its optimum.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WideSearch {
+    /// Half-width of the translational window (m). Default 3.5.
+    pub linear_window: f64,
+    /// Half-width of the rotational window (rad). Default 90°.
+    pub angular_window: f64,
+    /// Coarse field cell size and Gaussian width (m). Default 0.1.
+    pub resolution: f64,
+    /// Branch-and-bound levels on the coarse field. Default 5.
+    pub depth: usize,
+    /// Penalty weights on the distance from the prior (1/m², 1/rad²). Default 0.02.
+    pub weight: f64,
+}
+
+impl Default for WideSearch {
+    fn default() -> Self {
+        Self {
+            linear_window: 3.5,
+            angular_window: 90f64.to_radians(),
+            resolution: 0.1,
+            depth: 5,
+            weight: 0.02,
+        }
+    }
+}
+
+impl WideSearch {
+    /// The coarse matcher's parameters.
+    pub fn matcher(&self) -> MatcherConfig {
+        MatcherConfig {
+            resolution: self.resolution,
+            sigma: self.resolution,
+            linear_window: self.linear_window,
+            angular_window: self.angular_window,
+            depth: self.depth,
+            translation_weight: self.weight,
+            rotation_weight: self.weight,
+            refine_iterations: 0,
+            ..MatcherConfig::default()
+        }
+    }
+}
+
+/// Matches `pts` against `(points, normals)` around `prior`: the fine search
+/// first; if its score is below `wide_below`, also the wide search (coarse
+/// field over a large window, then the fine search from its optimum), keeping
+/// the match with the higher fine score. `None` if there is nothing to match.
+pub fn match_robust(
+    points: Vec<Vector2<f64>>,
+    normals: Vec<Option<Vector2<f64>>>,
+    pts: &[Vector2<f64>],
+    prior: &Isometry2<f64>,
+    fine: &MatcherConfig,
+    wide: &WideSearch,
+    wide_below: f64,
+) -> Option<MatchResult> {
+    let coarse_pts = (wide_below > 0.0).then(|| points.clone());
+    let reference = ReferenceMap::build(points, normals, fine)?;
+    let first = match_scan(&reference, pts, prior, fine)?;
+    if first.score >= wide_below {
+        return Some(first);
+    }
+    let coarse_pts = coarse_pts?;
+    let wcfg = wide.matcher();
+    let coarse_normals = vec![None; coarse_pts.len()];
+    let coarse = ReferenceMap::build(coarse_pts, coarse_normals, &wcfg)
+        .and_then(|c| match_scan(&c, pts, prior, &wcfg));
+    let second = coarse.and_then(|c| {
+        let local = MatcherConfig {
+            linear_window: 2.0 * wide.resolution,
+            angular_window: 2f64.to_radians().max(fine.angular_window / 4.0),
+            ..*fine
+        };
+        match_scan(&reference, pts, &c.pose, &local)
+    });
+    match second {
+        Some(s) if s.score > first.score => Some(s),
+        _ => Some(first),
+    }
 }
 
 impl Default for SlamConfig {
@@ -47,6 +176,10 @@ impl Default for SlamConfig {
             min_score: 0.15,
             odom_trans_noise: 0.1,
             odom_rot_noise: 0.1,
+            wide_below_score: 0.5,
+            wide: WideSearch::default(),
+            fuse_odometry: false,
+            match_information_scale: 0.01,
         }
     }
 }
@@ -127,11 +260,50 @@ impl SlamFrontEnd {
         Matrix3::from_diagonal(&nalgebra::Vector3::new(st * st, st * st, sr * sr))
     }
 
-    /// Processes one scan: `odom_delta` is the odometry motion since the
-    /// previous scan (sensor frame), `ranges` the readings.
+    /// Processes one scan with the configured beam geometry: `odom_delta` is
+    /// the odometry motion since the previous scan (sensor frame), `ranges`
+    /// the readings.
     pub fn process(&mut self, odom_delta: &Isometry2<f64>, ranges: &[f32]) -> PoseEstimate {
-        let prior = self.pose * odom_delta;
         let all = self.cfg.laser.points(ranges);
+        self.process_points(odom_delta, &all)
+    }
+
+    /// Processes one scan with its own beam geometry.
+    pub fn process_scan(
+        &mut self,
+        odom_delta: &Isometry2<f64>,
+        laser: &LaserConfig,
+        ranges: &[f32],
+    ) -> PoseEstimate {
+        let all = laser.points(ranges);
+        self.process_points(odom_delta, &all)
+    }
+
+    /// Moves the pose and the local map by `correction` (map frame), after
+    /// the back end has corrected the trajectory.
+    pub fn apply_correction(&mut self, correction: &Isometry2<f64>) {
+        self.pose = correction * self.pose;
+        let rot = correction.rotation;
+        for scan in &mut self.local {
+            for (p, n) in scan.iter_mut() {
+                *p = (correction * Point2::from(*p)).coords;
+                *n = n.map(|n| rot * n);
+            }
+        }
+    }
+
+    /// Replaces the global map (after the back end re-rendered it).
+    pub fn set_map(&mut self, map: LogOddsMap) {
+        self.map = map;
+    }
+
+    /// Processes one scan given as end points in the sensor frame.
+    pub fn process_points(
+        &mut self,
+        odom_delta: &Isometry2<f64>,
+        all: &[Vector2<f64>],
+    ) -> PoseEstimate {
+        let prior = self.pose * odom_delta;
         let pts: Vec<Vector2<f64>> = all
             .iter()
             .filter(|p| p.norm() <= self.cfg.match_max_range)
@@ -146,9 +318,23 @@ impl SlamFrontEnd {
             .filter(|(p, _)| (p - center).norm_squared() <= r2)
             .copied()
             .unzip();
-        let m = &self.cfg.matcher;
-        let matched = ReferenceMap::build(local_pts, local_normals, m)
-            .and_then(|reference| match_scan(&reference, &pts, &prior, m));
+        // Odometry reporting no motion at all is no evidence that the robot stood
+        // still (a log without odometry, a stalled encoder): verify with the wide search.
+        let still = *odom_delta == Isometry2::identity();
+        let wide_below = if still && self.scans > 0 {
+            f64::INFINITY
+        } else {
+            self.cfg.wide_below_score
+        };
+        let matched = match_robust(
+            local_pts,
+            local_normals,
+            &pts,
+            &prior,
+            &self.cfg.matcher,
+            &self.cfg.wide,
+            wide_below,
+        );
         let est = match matched {
             None => PoseEstimate {
                 pose: prior,
@@ -158,7 +344,16 @@ impl SlamFrontEnd {
                 source: EstimateSource::Prior,
             },
             Some(r) if r.score >= self.cfg.min_score => PoseEstimate {
-                pose: r.pose,
+                pose: if still || !self.cfg.fuse_odometry {
+                    r.pose
+                } else {
+                    fuse(
+                        &r.pose,
+                        &(r.information * self.cfg.match_information_scale),
+                        &prior,
+                        &self.odom_covariance(odom_delta),
+                    )
+                },
                 covariance: r.covariance,
                 quality: (2.0 * r.score - 1.0).clamp(-1.0, 1.0),
                 score: r.score,
@@ -183,7 +378,7 @@ impl SlamFrontEnd {
         while self.local.len() > self.cfg.local_map_scans.max(1) {
             self.local.pop_front();
         }
-        self.map.integrate(&est.pose, &all);
+        self.map.integrate(&est.pose, all);
         self.scans += 1;
         est
     }

@@ -221,6 +221,10 @@ pub struct MatchResult {
     /// Covariance of (x, y, θ) from the ICP Hessian scaled by the residual
     /// variance (a Laplace approximation, see [`refine`]).
     pub covariance: Matrix3<f64>,
+    /// Information of `(x, y, θ)` from the scan alone (the ICP Hessian scaled by
+    /// the residual variance, without the grid prior): near zero along a
+    /// direction the scene does not constrain, such as a corridor's axis.
+    pub information: Matrix3<f64>,
     /// Branch-and-bound nodes scored.
     pub nodes: usize,
 }
@@ -377,13 +381,15 @@ pub fn match_scan(
         t0 + Vector2::new(best.dx as f64, best.dy as f64) * res,
         theta0 + angles[best.angle],
     );
-    let (pose, covariance) = refine(map, points, &csm_pose, cfg.refine_iterations);
+    let (pose, covariance, information) =
+        refine_with_information(map, points, &csm_pose, cfg.refine_iterations);
     let score = field.score(points, &pose);
     Some(MatchResult {
         pose,
         score,
         csm_score: best.score,
         covariance,
+        information,
         nodes,
     })
 }
@@ -458,6 +464,18 @@ pub fn refine(
     start: &Isometry2<f64>,
     iterations: usize,
 ) -> (Isometry2<f64>, Matrix3<f64>) {
+    let (pose, cov, _) = refine_with_information(map, points, start, iterations);
+    (pose, cov)
+}
+
+/// [`refine`], also returning the scan's own information (the ICP Hessian
+/// over the residual variance, without the grid prior).
+pub fn refine_with_information(
+    map: &ReferenceMap,
+    points: &[Vector2<f64>],
+    start: &Isometry2<f64>,
+    iterations: usize,
+) -> (Isometry2<f64>, Matrix3<f64>, Matrix3<f64>) {
     const HUBER: f64 = 0.02;
     const MAX_RESIDUAL: f64 = 0.1;
     let res = map.field.resolution;
@@ -534,7 +552,7 @@ pub fn refine(
     let covariance = hp
         .try_inverse()
         .unwrap_or_else(|| Matrix3::from_diagonal_element(f64::INFINITY));
-    (Isometry2::new(xi.xy(), xi.z), covariance)
+    (Isometry2::new(xi.xy(), xi.z), covariance, h_icp)
 }
 
 #[cfg(test)]

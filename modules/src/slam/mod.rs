@@ -1,5 +1,16 @@
-//! SLAM: CARMEN log input, scan matching, occupancy-grid mapping and a
-//! front end producing a pose with covariance and a quality Q in [−1, 1].
+//! SLAM: CARMEN log input (geometry from the data, `carmen.rs`), scan
+//! matching, occupancy-grid mapping, a front end producing a pose with
+//! covariance and a quality Q in [−1, 1], and a pose-graph back end with
+//! submaps and loop closures ([`Slam`]; see `backend.rs`). Figures per log and
+//! the design in docs/modules.md (SLAM).
+//!
+//! # Large steps: the wide search
+//!
+//! If the fine match (below) scores under [`SlamConfig::wide_below_score`],
+//! or the odometry reports no motion at all (a log without odometry), a
+//! second branch-and-bound search runs on a 10 cm field over ±3.5 m and ±90°
+//! around the prior ([`WideSearch`]), refined by the fine matcher; the better
+//! of the two matches is kept ([`match_robust`]).
 //!
 //! # Scan matcher: correlative search + Gauss-Newton refinement
 //!
@@ -39,8 +50,10 @@
 //! Matching against a sliding window of recent scans rather than the global
 //! map keeps the reference consistent: without loop closure the global map
 //! accumulates drift, and snapping to old, drifted structure would corrupt
-//! the local motion estimate. The global [`LogOddsMap`] is built alongside
-//! for export and planning.
+//! the local motion estimate. The drift is the back end's job: loop closures
+//! against old submaps, a pose-graph optimisation, and the map re-rendered
+//! from the optimised poses ([`Slam`]). The front end's [`LogOddsMap`] is
+//! built alongside and replaced by the re-rendered one.
 //!
 //! # Quality
 //!
@@ -49,18 +62,25 @@
 //! new, cluttered or the match poor; it is 0 when there is nothing to match
 //! against yet, as the HNG paper asks for a module that cannot evaluate itself.
 
+mod backend;
 mod carmen;
 mod eval;
 mod frontend;
 mod mapping;
 mod matcher;
+mod posegraph;
 
+pub use backend::{BackendConfig, BackendStats, LoopClosure, Slam};
 pub use carmen::{
-    CarmenError, CarmenLog, LaserConfig, LaserRecord, OdomRecord, Record, parse_log, pose_from,
-    pose_to, read_log,
+    CarmenError, CarmenLog, LaserConfig, LaserRecord, LogOptions, OdomRecord, Record, parse_log,
+    parse_log_with, pose_from, pose_to, read_log, read_log_with,
 };
-pub use eval::{SlamEval, SlamEvalError, eval_slam, eval_slam_with};
-pub use frontend::{EstimateSource, PoseEstimate, SlamConfig, SlamFrontEnd};
+pub use eval::{
+    EvalOptions, SlamEval, SlamEvalError, ate_rmse, eval_slam, eval_slam_with, logs_in,
+};
+pub use frontend::{
+    EstimateSource, PoseEstimate, SlamConfig, SlamFrontEnd, WideSearch, match_robust,
+};
 pub use mapping::{
     LogOddsMap, MapWriteError, MapperConfig, PGM_FREE_THRESHOLD, PGM_OCCUPIED_THRESHOLD,
     write_pgm_yaml,
@@ -68,3 +88,4 @@ pub use mapping::{
 pub use matcher::{
     LikelihoodField, MatchResult, MatcherConfig, ReferenceMap, match_scan, refine, scan_normals,
 };
+pub use posegraph::{Edge, Optimised, PoseGraphError, optimise};

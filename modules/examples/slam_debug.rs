@@ -1,0 +1,93 @@
+//! Per-scan diagnostics of the front end on a CARMEN log: prints the scans whose relative
+//! error exceeds a threshold, with the match score and source.
+//!
+//! `cargo run --release -p hng-modules --example slam_debug -- <log> [wide_below] [thresh_m]`
+//!
+//! Front end alone (no loop closure). Parameters to try, from the environment: `WIDE_WEIGHT`,
+//! `MATCH_RANGE`, `FUSE` (1: fuse with odometry), `FUSE_SCALE`, `ODOM_NOISE`, `LOCAL`
+//! (local-map scans), `SIGMA` (field width), `TW` (prior penalty weights). Ends with the mean
+//! per-scan error.
+
+use std::path::PathBuf;
+
+use hng_modules::slam::{BackendConfig, Slam, SlamConfig, pose_from, read_log};
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let mut args = std::env::args().skip(1);
+    let log = PathBuf::from(
+        args.next()
+            .ok_or("usage: slam_debug <log> [wide_below] [thresh_m]")?,
+    );
+    let mut cfg = SlamConfig::default();
+    if let Some(w) = args.next() {
+        cfg.wide_below_score = w.parse()?;
+    }
+    if let Ok(v) = std::env::var("WIDE_WEIGHT") {
+        cfg.wide.weight = v.parse()?;
+    }
+    if let Ok(v) = std::env::var("MATCH_RANGE") {
+        cfg.match_max_range = v.parse()?;
+    }
+    if let Ok(v) = std::env::var("FUSE") {
+        cfg.fuse_odometry = v == "1";
+    }
+    if let Ok(v) = std::env::var("ODOM_NOISE") {
+        cfg.odom_trans_noise = v.parse()?;
+    }
+    if let Ok(v) = std::env::var("FUSE_SCALE") {
+        cfg.match_information_scale = v.parse()?;
+    }
+    if let Ok(v) = std::env::var("LOCAL") {
+        cfg.local_map_scans = v.parse()?;
+    }
+    if let Ok(v) = std::env::var("SIGMA") {
+        cfg.matcher.sigma = v.parse()?;
+    }
+    if let Ok(v) = std::env::var("TW") {
+        cfg.matcher.translation_weight = v.parse()?;
+        cfg.matcher.rotation_weight = v.parse()?;
+    }
+    let thresh: f64 = args.next().map(|s| s.parse()).transpose()?.unwrap_or(0.1);
+    let log = read_log(&log)?;
+    let scans: Vec<_> = log.scans().collect();
+    let deltas = log.odometry_deltas();
+    let truth: Vec<_> = scans.iter().map(|s| pose_from(s.laser_pose)).collect();
+    let mut slam = Slam::new(
+        cfg,
+        BackendConfig {
+            loop_closure: false,
+            ..BackendConfig::default()
+        },
+        truth[0],
+    );
+    let mut prev = truth[0];
+    let (mut sum_t, mut sum_r) = (0.0, 0.0);
+    for (k, (s, d)) in scans.iter().zip(&deltas).enumerate() {
+        let e = slam.process(d, &s.laser, &s.ranges);
+        if k > 0 {
+            let gt = truth[k - 1].inverse() * truth[k];
+            let est = prev.inverse() * e.pose;
+            let err = gt.inverse() * est;
+            sum_t += err.translation.vector.norm();
+            sum_r += err.rotation.angle().abs().to_degrees();
+            if err.translation.vector.norm() > thresh {
+                println!(
+                    "scan {k} line {}: err {:.3} m ({:.3},{:.3}) {:.2} deg, score {:.3} {:?}, gt step {:.2} m {:.1} deg",
+                    s.line,
+                    err.translation.vector.norm(),
+                    err.translation.x,
+                    err.translation.y,
+                    err.rotation.angle().to_degrees(),
+                    e.score,
+                    e.source,
+                    gt.translation.vector.norm(),
+                    gt.rotation.angle().to_degrees()
+                );
+            }
+        }
+        prev = e.pose;
+    }
+    let n = (scans.len() - 1) as f64;
+    println!("mean {:.4} m {:.3} deg", sum_t / n, sum_r / n);
+    Ok(())
+}
