@@ -1,21 +1,8 @@
-//! `hng eval planner|slam`: the real binary on the shared MovingAI data (skipped with a message
-//! when `../shared/data` is absent) and on the CARMEN logs in `tests/data/carmen/` (always
-//! present), and its error messages on bad input.
+//! `hng eval planner|slam`: the real binary on the MovingAI data and the CARMEN logs kept in
+//! `tests/data/` (always present), and its error messages on bad input.
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
-
-fn data(rel: &str) -> Option<PathBuf> {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../shared/data")
-        .join(rel);
-    if p.exists() {
-        Some(p)
-    } else {
-        eprintln!("skipped: {} is missing", p.display());
-        None
-    }
-}
 
 /// Test data kept in the repository (`tests/data`): never skipped.
 fn repo_data(rel: &str) -> PathBuf {

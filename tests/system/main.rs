@@ -18,6 +18,7 @@ mod rm;
 mod sdk;
 mod signals;
 mod sim;
+mod slam_loop;
 mod teleop;
 mod topic;
 mod vision;
