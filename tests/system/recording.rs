@@ -112,7 +112,7 @@ fn a_recorded_mission_holds_every_channel_with_foxglove_schemas_and_its_drops() 
         ("slam/pose", "foxglove.PoseInFrame"),
         ("robot/odom", "foxglove.FrameTransforms"),
         ("slam/map", "foxglove.Grid"),
-        ("hng/clock", "hng/Clock/v1"),
+        ("hng/clock", "hng/Clock/v2"),
         ("hng/report", "hng/ModuleReport/v1"),
     ] {
         let c = channel(info, name);
