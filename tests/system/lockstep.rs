@@ -3,77 +3,16 @@
 //! a corrupted simulator checkpoint, and goals added outside the map.
 
 use std::io::Read as _;
-use std::path::PathBuf;
-use std::process::{Child, Command, Output, Stdio};
+use std::process::{Child, Output, Stdio};
 use std::time::{Duration, Instant};
 
 use hng_runtime::clock::CLOCK_CHANNEL;
 use hng_runtime::msg;
-use hng_runtime::shm;
 use hng_runtime::wait::{WaitMode, Waiter};
 use hng_runtime::{Node, NodeOptions};
 use hng_simulator::module::SimStatus;
 
-fn hng() -> Command {
-    let mut c = Command::new(env!("CARGO_BIN_EXE_hng"));
-    c.env("HNG_LOG", "warn").stdin(Stdio::null());
-    c
-}
-
-/// A mission under its own prefix and run directory; removes both on drop.
-struct Run {
-    prefix: String,
-    dir: PathBuf,
-}
-
-impl Run {
-    fn new(tag: &str) -> Run {
-        let prefix = shm::unique_prefix(tag);
-        let dir = std::env::temp_dir().join(format!("hng-test-{}", prefix.trim_end_matches('_')));
-        std::fs::create_dir_all(&dir).expect("test dir");
-        Run { prefix, dir }
-    }
-
-    fn summary_path(&self) -> PathBuf {
-        self.dir.join("summary.json")
-    }
-
-    fn command(&self, args: &[&str]) -> Command {
-        let mut c = hng();
-        c.arg("--prefix")
-            .arg(&self.prefix)
-            .arg("run")
-            .arg("--run-dir")
-            .arg(self.dir.join("run"))
-            .arg("--summary")
-            .arg(self.summary_path())
-            .args(args);
-        c
-    }
-
-    fn summary(&self, out: &str) -> serde_json::Value {
-        let text = std::fs::read_to_string(self.summary_path())
-            .unwrap_or_else(|e| panic!("no summary ({e}); output:\n{out}"));
-        serde_json::from_str(&text).expect("summary JSON")
-    }
-
-    fn run(&self, args: &[&str]) -> (Output, serde_json::Value) {
-        let out = self.command(args).output().expect("hng run");
-        let s = self.summary(&format!(
-            "{}\n{}",
-            String::from_utf8_lossy(&out.stdout),
-            String::from_utf8_lossy(&out.stderr)
-        ));
-        (out, s)
-    }
-}
-
-impl Drop for Run {
-    fn drop(&mut self) {
-        shm::remove_prefix_files(&self.prefix);
-        let _ = std::fs::remove_dir_all(&self.dir);
-    }
-}
+use crate::mission::{MissionRun as Run, hng};
 
 /// Kills `hng run` (its modules follow by their parent-death signal) if the test ends early.
 struct KillOnDrop(Child);

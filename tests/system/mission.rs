@@ -16,20 +16,20 @@ use hng_simulator::module::SimStatus;
 /// keeps up on two loaded cores.
 const SPEED: &str = "10";
 
-fn hng() -> Command {
+pub(crate) fn hng() -> Command {
     let mut c = Command::new(env!("CARGO_BIN_EXE_hng"));
     c.env("HNG_LOG", "warn").stdin(Stdio::null());
     c
 }
 
 /// A mission run under its own prefix and run directory; removes both on drop.
-struct MissionRun {
-    prefix: String,
-    dir: PathBuf,
+pub(crate) struct MissionRun {
+    pub(crate) prefix: String,
+    pub(crate) dir: PathBuf,
 }
 
 impl MissionRun {
-    fn new(tag: &str) -> MissionRun {
+    pub(crate) fn new(tag: &str) -> MissionRun {
         let prefix = shm::unique_prefix(tag);
         let dir = std::env::temp_dir().join(format!("hng-test-{}", prefix.trim_end_matches('_')));
         std::fs::create_dir_all(&dir).expect("test dir");
@@ -40,7 +40,8 @@ impl MissionRun {
         self.dir.join("summary.json")
     }
 
-    fn command(&self, args: &[&str]) -> Command {
+    /// `hng run` for this prefix and run directory, writing its summary; `args` follow.
+    pub(crate) fn command(&self, args: &[&str]) -> Command {
         let mut c = hng();
         c.arg("--prefix")
             .arg(&self.prefix)
@@ -53,17 +54,23 @@ impl MissionRun {
         c
     }
 
-    fn run(&self, args: &[&str]) -> (Output, serde_json::Value) {
+    /// The summary JSON the run wrote; `output` (the run's output) goes into the panic
+    /// message when there is none.
+    pub(crate) fn summary(&self, output: &str) -> serde_json::Value {
+        let text = std::fs::read_to_string(self.summary_path())
+            .unwrap_or_else(|e| panic!("no summary ({e}); output:\n{output}"));
+        serde_json::from_str(&text).expect("summary JSON")
+    }
+
+    /// Runs `hng run` to its end: its output and summary.
+    pub(crate) fn run(&self, args: &[&str]) -> (Output, serde_json::Value) {
         let out = self.command(args).output().expect("hng run");
-        let summary = std::fs::read_to_string(self.summary_path()).unwrap_or_else(|e| {
-            panic!(
-                "no summary ({e}); stdout:\n{}\nstderr:\n{}",
-                String::from_utf8_lossy(&out.stdout),
-                String::from_utf8_lossy(&out.stderr)
-            )
-        });
-        let json: serde_json::Value = serde_json::from_str(&summary).expect("summary JSON");
-        (out, json)
+        let s = self.summary(&format!(
+            "stdout:\n{}\nstderr:\n{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        ));
+        (out, s)
     }
 }
 
