@@ -103,14 +103,22 @@ fn mission_under_sigkills() -> (bool, serde_json::Value) {
         .iter()
         .position(|l| l.contains("op=Shutdown") || l.contains("stopping the system"))
         .unwrap_or(lines.len());
+    // A kill in the last seconds before the mission's end may have no restart: the orderly
+    // stop came first (the restart waits for its backoff). Anything earlier must restart.
+    let end_time = lines.get(end).and_then(|l| log_seconds(l));
     for (i, l) in lines[..end].iter().enumerate() {
         if let Some(k) = l.find(": pid ")
             && l.contains("killed by SIGKILL")
         {
             let module = l[..k].rsplit(' ').next().unwrap_or("");
             let again = format!("{module}: started, pid ");
+            let restarted = lines[i..].iter().any(|m| m.contains(&again));
+            let just_before_end = match (log_seconds(l), end_time) {
+                (Some(t), Some(e)) => e - t < RESTART_GRACE_S,
+                _ => false,
+            };
             assert!(
-                lines[i..].iter().any(|m| m.contains(&again)),
+                restarted || just_before_end,
                 "{module} was killed and never started again: {l}"
             );
         }
@@ -123,6 +131,20 @@ fn mission_under_sigkills() -> (bool, serde_json::Value) {
         );
     }
     (status.success() && s["success"] == true, s)
+}
+
+/// Seconds (wall) within which a module killed before the mission's end need not have been
+/// restarted: the supervisor's restart backoff plus the module's start.
+const RESTART_GRACE_S: f64 = 5.0;
+
+/// Seconds since midnight of a supervisor log line (`2026-11-25T11:38:22.717253Z ...`).
+fn log_seconds(line: &str) -> Option<f64> {
+    let time = line.split('T').nth(1)?.split('Z').next()?;
+    let mut parts = time.split(':');
+    let h: f64 = parts.next()?.parse().ok()?;
+    let m: f64 = parts.next()?.parse().ok()?;
+    let s: f64 = parts.next()?.parse().ok()?;
+    Some(h * 3600.0 + m * 60.0 + s)
 }
 
 /// Safety and clean-up under faults: no collision, every killed module restarted, no process
@@ -140,7 +162,7 @@ fn under_a_sigkill_every_1_5_s_the_mission_has_no_collision_and_leaves_nothing()
 /// 3 goals reached (the same mission without kills succeeds: 85.5 s simulated). Lockstep
 /// simulation (issue 16, another part) is what lets simulated time wait for a restart.
 #[test]
-#[ignore = "fails on a loaded 2-core machine until lockstep simulation lands (docs/fault-matrix.md)"]
+#[ignore = "with lockstep: 7 of 7 successes on an idle machine (3-5 SIGKILLs each); before lockstep 1 of 10 at load 10-13; to be un-ignored once measured under CI load (docs/fault-matrix.md)"]
 fn the_mission_succeeds_under_a_sigkill_of_a_random_module_every_1_5_s() {
     let (success, s) = mission_under_sigkills();
     assert!(success, "the mission failed under faults: {s}");
