@@ -207,25 +207,13 @@ impl Renderer {
                 (235.0 + 15.0 * t) * light,
             ]
         };
+        let mut depths = Vec::with_capacity(w);
         for (u, &(cu, su, cos_a)) in self.columns.iter().enumerate() {
             // Ray direction in the world.
             let dir = [ct * cu - st * su, st * cu + ct * su];
-            let mut best = f64::INFINITY;
-            let mut hit: Option<(usize, f64)> = None;
-            for (i, e) in self.edges.iter().enumerate() {
-                let den = dir[0] * e.d[1] - dir[1] * e.d[0];
-                if den.abs() < 1e-12 {
-                    continue;
-                }
-                let (px, py) = (e.a[0] - pose.x, e.a[1] - pose.y);
-                let t = (px * e.d[1] - py * e.d[0]) / den;
-                let s = (px * dir[1] - py * dir[0]) / den;
-                if t > 1e-6 && t < best && (0.0..=1.0).contains(&s) {
-                    best = t;
-                    hit = Some((i, s));
-                }
-            }
+            let (best, hit) = self.cast(pose, dir);
             let depth = best * cos_a;
+            depths.push(depth);
             let (top, bottom) = if depth.is_finite() {
                 (
                     cy - f * (p.wall_height - p.camera_height) / depth,
@@ -265,7 +253,7 @@ impl Renderer {
                 put(out, (v * w + u) * 3, rgb);
             }
         }
-        self.draw_beacons(pose, light, out);
+        self.draw_beacons(pose, light, &depths, out);
         if let Some(rng) = rng
             && p.noise_sigma > 0.0
             && let Ok(n) = Normal::new(0.0, p.noise_sigma)
@@ -322,9 +310,15 @@ impl Renderer {
             return f64::INFINITY;
         };
         let (st, ct) = pose.theta.sin_cos();
-        let dir = [ct * cu - st * su, st * cu + ct * su];
+        self.cast(pose, [ct * cu - st * su, st * cu + ct * su]).0 * cos_a
+    }
+
+    /// The nearest edge hit by the ray from `pose` along the unit vector `dir`: its distance
+    /// (infinite when none), and the edge's index with the hit's position along it (0..1).
+    fn cast(&self, pose: Pose2D, dir: [f64; 2]) -> (f64, Option<(usize, f64)>) {
         let mut best = f64::INFINITY;
-        for e in &self.edges {
+        let mut hit = None;
+        for (i, e) in self.edges.iter().enumerate() {
             let den = dir[0] * e.d[1] - dir[1] * e.d[0];
             if den.abs() < 1e-12 {
                 continue;
@@ -334,12 +328,14 @@ impl Renderer {
             let s = (px * dir[1] - py * dir[0]) / den;
             if t > 1e-6 && t < best && (0.0..=1.0).contains(&s) {
                 best = t;
+                hit = Some((i, s));
             }
         }
-        best * cos_a
+        (best, hit)
     }
 
-    fn draw_beacons(&self, pose: Pose2D, light: f64, out: &mut [u8]) {
+    /// Draws the beacons over the image; `depths` is each column's wall depth.
+    fn draw_beacons(&self, pose: Pose2D, light: f64, depths: &[f64], out: &mut [u8]) {
         let w = self.params.width as usize;
         // Far beacons first, so near ones cover them.
         let mut order: Vec<_> = self
@@ -353,7 +349,7 @@ impl Renderer {
             let mid = (v0 + v1) / 2;
             let fade = light / (1.0 + 0.06 * z);
             for u in u0..u1 {
-                if self.column_depth(pose, u) <= z {
+                if depths.get(u).copied().unwrap_or(f64::INFINITY) <= z {
                     continue;
                 }
                 for v in v0..v1 {
