@@ -16,6 +16,9 @@ use serde::{Deserialize, Serialize};
 
 use crate::qos::ChannelKind;
 
+mod operator;
+pub use operator::*;
+
 /// Length of a frame id, in bytes (NUL-padded UTF-8).
 pub const FRAME_ID_LEN: usize = 20;
 /// Largest number of beams a [`LaserScan`] carries (a 270 degree scanner at 0.25 degree).
