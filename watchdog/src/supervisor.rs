@@ -41,6 +41,7 @@ use nix::sys::signal::Signal;
 use serde::Serialize;
 
 use crate::launch::{ModuleSpec, RestartPolicy};
+use crate::logs::LogOptions;
 use crate::sys::{self, Epoll, EventFd, PidFd};
 
 const WAKE_TOKEN: u64 = u64::MAX;
@@ -440,6 +441,9 @@ pub struct SupervisorOptions {
     /// if the thread that spawned them dies, so a crashed supervisor leaves
     /// no orphans. Drive the supervisor from a thread that lives as long as it.
     pub kill_on_supervisor_exit: bool,
+    /// Where modules' stdout and stderr go: per-module, size-bounded files
+    /// ([`crate::logs`]); `None` (the default): inherited from the supervisor.
+    pub logs: Option<LogOptions>,
 }
 
 impl Default for SupervisorOptions {
@@ -448,6 +452,7 @@ impl Default for SupervisorOptions {
             env: BTreeMap::new(),
             process_group: true,
             kill_on_supervisor_exit: true,
+            logs: None,
         }
     }
 }
@@ -665,6 +670,15 @@ impl<H: SupervisorHooks> Supervisor<H> {
         }
         if self.opts.process_group {
             cmd.process_group(0);
+        }
+        if let Some(logs) = &self.opts.logs
+            && let Err(e) = logs.capture(&spec.name, &mut cmd)
+        {
+            tracing::warn!(
+                module = %spec.name,
+                file = %logs.path(&spec.name).display(),
+                "cannot write the module's log file ({e}); its output goes to the supervisor's stderr"
+            );
         }
         let kill_on_exit = self.opts.kill_on_supervisor_exit;
         let parent = sys::getpid();
