@@ -923,10 +923,44 @@ mod tests {
         let now = Instant::now();
         rm.on_supervisor_status(b"not json", now);
         rm.on_supervisor_status(b"{\"modules\": 3}", now);
+        // A document of another shape is ignored whole (the schema is the runtime's typed
+        // StatusDoc), then a real one is learned.
         rm.on_supervisor_status(
             br#"{"modules":[{"name":"a","pid":-5,"caps":{"cpu_quota":0.2,"memory_max":1000}},{"nope":1}]}"#,
             now,
         );
+        assert!(rm.supervisor_limits.is_empty());
+        let doc = hng_runtime::system::status::StatusDoc {
+            system: "s".into(),
+            prefix: "p_".into(),
+            supervisor_pid: 1,
+            uptime_ms: 0.0,
+            shutting_down: false,
+            commands: 0,
+            last_command: None,
+            modules: vec![hng_runtime::system::status::ModuleRow {
+                name: "a".into(),
+                state: "running".into(),
+                pid: None,
+                uptime_ms: None,
+                restarts: 2,
+                last_exit: None,
+                last_exit_text: None,
+                heartbeat_age_ms: None,
+                restart_in_ms: None,
+                manager: false,
+                report: None,
+                caps: Some(hng_runtime::system::status::CapsRow {
+                    cpu_quota: Some(0.2),
+                    memory_max: Some(1000),
+                    ..Default::default()
+                }),
+            }],
+        };
+        rm.on_supervisor_status(&serde_json::to_vec(&doc).expect("json"), now);
+        let a = rm.supervisor_limits.get("a").expect("caps learned");
+        assert_eq!(a.memory_bytes, Some(1000));
+        assert!(a.cpu_percent.is_some_and(|c| (c - 20.0).abs() < 1e-9));
         let mut t = table("a", &[(ContractRole::Provider, "b", &[1])]);
         t.entries[0].priority[0] = 0; // invalid: components start at 1
         rm.on_contract_table(&t, now);

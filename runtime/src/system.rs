@@ -21,6 +21,8 @@ use serde::Serialize;
 use crate::msg::{Header, MODULE_NAME_LEN, get_str, put_str};
 use crate::qos::ChannelKind;
 
+pub mod status;
+
 /// Commands to the supervisor.
 pub const SUPERVISOR_COMMAND: &str = "hng/supervisor/command";
 /// Module life-cycle events from the supervisor.

@@ -53,7 +53,7 @@ impl RunHooks {
                 Some(cg) if limits != ResourceLimits::default() => cg.apply_limits(&limits),
                 _ => AppliedLimits::all_software(&limits, "no cgroup for the module"),
             };
-            let row = super::status::CapsRow::new(r, &applied, self.software_enforcer);
+            let row = super::status::caps_row(r, &applied, self.software_enforcer);
             if let Some(row) = &row {
                 for f in &row.fallback {
                     if self.software_enforcer {

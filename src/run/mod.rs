@@ -56,7 +56,7 @@ use self::lock::SystemLock;
 use self::mission::{Mission, MissionOptions};
 use self::monitor::{Monitor, MonitorOptions, Outcome};
 use self::receiver::{Inbox, Receiver};
-use self::status::{CommandResult, ModuleRow, ReportFigures, StatusDoc};
+use self::status::{CommandResult, ReportFigures, StatusDoc};
 
 /// Options of `hng run`.
 #[derive(Debug, Args)]
@@ -739,7 +739,7 @@ impl Runner {
                     .get(&s.name)
                     .map(|(r, at)| ReportFigures::new(r, *at, now));
                 let caps = self.sup.hooks().caps.get(&s.name).cloned().flatten();
-                ModuleRow::new(s, report).with_caps(caps)
+                status::module_row(s, report).with_caps(caps)
             })
             .collect();
         StatusDoc {

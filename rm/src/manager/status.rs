@@ -1,56 +1,37 @@
 //! Status documents: the supervisor's, read (which modules run, their pids and states), and
 //! the resource manager's own, written (JSON, `hng top`).
 
+use hng_runtime::system::status::StatusDoc;
+
 use super::*;
 
 impl ResourceManager {
-    /// The supervisor's status document (SUPERVISOR_STATUS): learns module names, pids,
-    /// restarts and caps. Unknown shapes are ignored (one warning).
+    /// The supervisor's status document (SUPERVISOR_STATUS, the runtime's typed
+    /// [`StatusDoc`]): learns module names, pids, restarts and caps. A document that does not
+    /// parse is ignored (one warning).
     pub fn on_supervisor_status(&mut self, doc: &[u8], now: Instant) {
-        let v: Value = match serde_json::from_slice(doc) {
-            Ok(v) => v,
+        let doc: StatusDoc = match serde_json::from_slice(doc) {
+            Ok(d) => d,
             Err(e) => {
                 self.warn_once("bad-sup-status".into(), || {
-                    format!("ignoring a supervisor status that is not JSON: {e}")
+                    format!("ignoring a supervisor status that does not parse: {e}")
                 });
                 return;
             }
         };
-        let list = v
-            .get("modules")
-            .and_then(Value::as_array)
-            .or_else(|| v.as_array());
-        let Some(list) = list else {
-            return;
-        };
         let mut changed = Vec::new();
-        for m in list {
-            let Some(name) = m.get("name").and_then(Value::as_str) else {
-                continue;
-            };
+        for m in &doc.modules {
+            let name = m.name.as_str();
             if name.is_empty() || name.len() > 200 {
                 continue;
             }
-            let caps = ["caps", "resources", "limits"]
-                .iter()
-                .find_map(|k| m.get(*k))
-                .unwrap_or(&Value::Null);
-            let cpu = caps
-                .get("cpu_percent")
-                .and_then(Value::as_f64)
-                .or_else(|| {
-                    caps.get("cpu_quota")
-                        .and_then(Value::as_f64)
-                        .map(|q| q * 100.0)
-                })
-                .filter(|c| c.is_finite() && *c > 0.0);
-            let mem = caps
-                .get("memory_max")
-                .or_else(|| caps.get("memory_bytes"))
-                .and_then(Value::as_u64);
+            let caps = m.caps.as_ref();
             let limits = ResourceLimits {
-                cpu_percent: cpu,
-                memory_bytes: mem,
+                cpu_percent: caps
+                    .and_then(|c| c.cpu_quota)
+                    .map(|q| q * 100.0)
+                    .filter(|c| c.is_finite() && *c > 0.0),
+                memory_bytes: caps.and_then(|c| c.memory_max),
                 ..Default::default()
             };
             if self.supervisor_limits.get(name) != Some(&limits) {
@@ -61,13 +42,9 @@ impl ResourceManager {
                 .modules
                 .entry(name.to_owned())
                 .or_insert_with(|| Tracked::new(name));
-            t.restarts = m.get("restarts").and_then(Value::as_u64);
-            t.supervisor_state = m.get("state").and_then(Value::as_str).map(str::to_owned);
-            let pid = m
-                .get("pid")
-                .and_then(Value::as_i64)
-                .and_then(|p| i32::try_from(p).ok());
-            if let Some(pid) = pid
+            t.restarts = Some(u64::from(m.restarts));
+            t.supervisor_state = Some(m.state.clone());
+            if let Some(pid) = m.pid.and_then(|p| i32::try_from(p).ok())
                 && t.pid.is_none()
                 && t.refused_pid != u32::try_from(pid).ok()
             {
