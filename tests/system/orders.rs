@@ -313,18 +313,29 @@ impl Watch {
             .expect("answer")
     }
 
-    /// Waits until the robot's true pose has moved less than 2 mm for `still_s` simulated s.
-    pub(crate) fn until_still(&mut self, what: &str, still_s: f64) {
-        let mut last = self.xy();
-        let mut since = self.sim_s();
+    /// Waits until the robot's true pose has moved less than 1 mm per sample for `still_s`
+    /// simulated seconds (by the poses' own time stamps); returns the time it last moved.
+    pub(crate) fn until_still(&mut self, what: &str, still_s: f64) -> f64 {
+        let (p0, t0) = self.pose.expect("pose");
+        let mut last = (p0.x, p0.y);
+        let mut since = t0;
+        let mut seen = self.track.len();
         self.until(what, |w| {
-            let p = w.xy();
-            if dist(p, last) > 0.002 {
-                last = p;
-                since = w.sim_s();
+            for &(t, x, y) in &w.track[seen.min(w.track.len())..] {
+                if dist((x, y), last) > 0.001 {
+                    since = t;
+                }
+                last = (x, y);
             }
-            w.sim_s() - since > still_s
+            seen = w.track.len();
+            w.pose.is_some_and(|(_, t)| t - since > still_s)
         });
+        since
+    }
+
+    /// The time stamp of the latest true pose, s.
+    pub(crate) fn pose_t(&self) -> f64 {
+        self.pose.map_or(0.0, |(_, t)| t)
     }
 
     /// The provider module's name of `need` of module `client` in the contract tables.
@@ -479,11 +490,12 @@ fn orders_of_every_level_do_what_they_say_and_bad_ones_move_nothing() {
         dist(w.xy(), start) > 0.3
     });
     watch.drive = None;
-    let released = watch.sim_s();
-    watch.until_still("the deadman stopping the robot", 0.3);
-    let stopped_after = watch.sim_s() - 0.3 - released;
+    let released = watch.pose_t();
+    let moved_until = watch.until_still("the deadman stopping the robot", 0.5);
+    let stopped_after = moved_until - released;
     eprintln!("teleop deadman: at rest {stopped_after:.2} s after the last command");
-    assert!(stopped_after < 1.2, "deadman took {stopped_after:.2} s");
+    // Deadman 0.5 s + braking from 0.25 m/s at 2 m/s^2 (0.13 s) + a scan period.
+    assert!(stopped_after < 0.9, "deadman took {stopped_after:.2} s");
 
     // Emergency stop while moving: the robot stops within 0.3 s (+ one scan period of
     // Security's relay) and teleop commands then move nothing.
@@ -493,20 +505,10 @@ fn orders_of_every_level_do_what_they_say_and_bad_ones_move_nothing() {
     let s = watch.order(Order::new(OrderKind::Stop));
     assert_eq!((s.accepted, s.in_force), (1, OrderKind::Stop as u32));
     let t_stop = s.header.stamp_ns as f64 * 1e-9;
-    watch.track.clear();
-    watch.until_still("the robot stopped", 0.5);
-    let moving_until = watch
-        .track
-        .windows(2)
-        .filter(|w| dist((w[0].1, w[0].2), (w[1].1, w[1].2)) > 1e-4)
-        .map(|w| w[1].0)
-        .fold(t_stop, f64::max);
+    let moving_until = watch.until_still("the robot stopped", 0.5);
     let stop_time = moving_until - t_stop;
     eprintln!("stop order: robot at rest {stop_time:.3} s (simulated) after the order");
-    assert!(
-        stop_time <= 0.35,
-        "stopped {stop_time:.3} s after the order"
-    );
+    assert!(stop_time <= 0.35, "stopped {stop_time:.3} s after the order");
     let held = watch.xy();
     let t0 = watch.sim_s();
     watch.until("1 s of teleop under stop", |w| w.sim_s() > t0 + 1.0);
