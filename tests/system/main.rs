@@ -23,3 +23,4 @@ mod slam_loop;
 mod teleop;
 mod topic;
 mod vision;
+mod walls;

@@ -169,7 +169,7 @@ pub(crate) struct Watch {
     pub interface_dropped: u64,
     /// Latest contract table per module name.
     pub contracts: std::collections::BTreeMap<String, ContractTable>,
-    /// Publish this teleop command every 50 ms of simulated time.
+    /// Publish this teleop command every 50 ms of simulated time (by the poses' stamps).
     pub drive: Option<Twist>,
     last_drive: f64,
     /// Teleop commands published so far.
@@ -228,7 +228,6 @@ impl Watch {
         while let Some(s) = self.status.receive().expect("status") {
             self.sim = Some(*s);
         }
-        let now = self.sim_s();
         while let Some(p) = self.truth.receive().expect("truth") {
             let t = p.header.stamp_ns as f64 * 1e-9;
             self.pose = Some((p.pose, t));
@@ -249,8 +248,11 @@ impl Watch {
         while let Some(t) = self.tables.receive().expect("tables") {
             self.contracts.insert(t.module().to_string(), *t);
         }
+        // Paced by the true poses' stamps (the simulator's status comes every 100 ms of wall
+        // time only).
+        let now = self.pose_t();
         if let Some(cmd) = self.drive
-            && now - self.last_drive >= 0.05
+            && (now - self.last_drive >= 0.05 || now < self.last_drive)
         {
             self.teleop.update_connections();
             self.teleop.publish(cmd).expect("teleop");
@@ -508,7 +510,10 @@ fn orders_of_every_level_do_what_they_say_and_bad_ones_move_nothing() {
     let moving_until = watch.until_still("the robot stopped", 0.5);
     let stop_time = moving_until - t_stop;
     eprintln!("stop order: robot at rest {stop_time:.3} s (simulated) after the order");
-    assert!(stop_time <= 0.35, "stopped {stop_time:.3} s after the order");
+    assert!(
+        stop_time <= 0.35,
+        "stopped {stop_time:.3} s after the order"
+    );
     let held = watch.xy();
     let t0 = watch.sim_s();
     watch.until("1 s of teleop under stop", |w| w.sim_s() > t0 + 1.0);
