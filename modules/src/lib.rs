@@ -12,6 +12,7 @@
 pub mod attention;
 pub mod camera;
 pub mod common;
+pub mod feedback;
 pub mod gps;
 pub mod heartbeat;
 pub mod interface;

@@ -1,5 +1,6 @@
 //! hng's integration tests: real processes, each test under its own shared-memory prefix.
 
+mod attention;
 mod chaos;
 mod cli;
 mod common;
