@@ -14,6 +14,7 @@ pub mod record;
 pub mod recovery;
 pub mod rm;
 pub mod sim;
+pub mod walls;
 
 #[derive(Debug, Subcommand)]
 pub enum BenchCommand {
@@ -31,6 +32,8 @@ pub enum BenchCommand {
     Loop(loop_::LoopArgs),
     /// Flight recorder: 64 B and 1 MiB messages to an MCAP file, MB/s and drops.
     Record(record::BenchRecordArgs),
+    /// Wall detection per 360-beam scan (split-and-merge).
+    Walls(walls::WallsArgs),
 }
 
 /// Prints rows as JSON lines or as a table.
@@ -53,5 +56,6 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
         BenchCommand::Recovery(args) => recovery::run(&args),
         BenchCommand::Loop(args) => loop_::run(&args),
         BenchCommand::Record(args) => record::run(&args),
+        BenchCommand::Walls(args) => walls::run(&args),
     }
 }
