@@ -298,7 +298,13 @@ mod tests {
             "{:?}",
             msg.walls()
         );
-        assert!((msg.front - 2.0).abs() < 0.05, "front {}", msg.front);
+        // The side walls enter the +-25 degree sector at 0.6 / sin 25 deg, before the end wall.
+        let want = (0.6 / FRONT_HALF_ANGLE.sin()).min(2.0);
+        assert!(
+            (msg.front - want).abs() < 0.05,
+            "front {} want {want}",
+            msg.front
+        );
         for w in msg.walls() {
             let back = wall_of_segment(w).expect("side");
             assert_eq!(side_number(back.side), w.side);
