@@ -168,6 +168,9 @@ pub struct ServoModuleConfig {
     pub pose_timeout_s: f64,
     /// Controller parameters.
     pub params: ServoParams,
+    /// Odometry, to rate the "Localization" provider (client feedback, `crate::feedback`;
+    /// default `robot/odom`, empty: no rating).
+    pub odom: String,
 }
 
 impl Default for ServoModuleConfig {
@@ -179,6 +182,7 @@ impl Default for ServoModuleConfig {
             waypoint_timeout_s: 1.0,
             pose_timeout_s: 0.5,
             params: ServoParams::default(),
+            odom: "robot/odom".into(),
         }
     }
 }
@@ -211,6 +215,9 @@ pub struct ServoModule {
     wp_timeout: Duration,
     pose_timeout: Duration,
     state: ServoState,
+    /// Odometry and the rating of the Localization provider by it (client feedback).
+    odom: Option<Subscriber<hng_runtime::msg::Odometry>>,
+    rater: crate::feedback::OdometryConsistency,
 }
 
 impl ServoModule {
@@ -292,6 +299,12 @@ impl Module for ServoModule {
             wp_timeout,
             pose_timeout,
             state: ServoState::default(),
+            odom: if cfg.odom.is_empty() {
+                None
+            } else {
+                Some(ctx.subscribe(&cfg.odom, None)?)
+            },
+            rater: crate::feedback::OdometryConsistency::default(),
         })
     }
 
@@ -305,6 +318,10 @@ impl Module for ServoModule {
         } else if self.localization.is(input) {
             while let Some(p) = self.localization.receive()? {
                 self.last_pose = Some((p.pose, now));
+                let sigma = crate::feedback::position_sigma(&p.covariance);
+                if let Some(e) = self.rater.on_pose(p.pose, sigma, now.as_secs_f64()) {
+                    ctx.evaluate_provider(LOCALIZATION_NEED, e);
+                }
             }
             self.act(ctx)
         } else if input == self.pose.id() {
@@ -315,6 +332,11 @@ impl Module for ServoModule {
                 }
             }
             if fallback { self.act(ctx) } else { Ok(()) }
+        } else if let Some(odom) = self.odom.as_ref().filter(|o| o.id() == input) {
+            while let Some(o) = odom.receive()? {
+                self.rater.on_odom(o.pose);
+            }
+            Ok(())
         } else {
             Ok(())
         }
@@ -340,6 +362,7 @@ impl Module for ServoModule {
     ) -> ModuleResult {
         if need == LOCALIZATION_NEED {
             self.localization.follow(ctx, provider)?;
+            self.rater.reset();
         } else if need == ROBOT_CONTROL_NEED {
             follow_output(ctx, &mut self.cmd_out, provider)?;
         }

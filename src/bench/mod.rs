@@ -15,6 +15,7 @@ pub mod record;
 pub mod recovery;
 pub mod rm;
 pub mod sim;
+pub mod walls;
 
 #[derive(Debug, Subcommand)]
 pub enum BenchCommand {
@@ -34,6 +35,8 @@ pub enum BenchCommand {
     Record(record::BenchRecordArgs),
     /// Idle cost: wake-ups and CPU of a module with no input, and of the default system at 1x.
     Idle(idle::IdleArgs),
+    /// Wall detection per 360-beam scan (split-and-merge).
+    Walls(walls::WallsArgs),
 }
 
 /// Prints rows as JSON lines or as a table.
@@ -57,5 +60,6 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
         BenchCommand::Loop(args) => loop_::run(&args),
         BenchCommand::Record(args) => record::run(&args),
         BenchCommand::Idle(args) => idle::run(&args),
+        BenchCommand::Walls(args) => walls::run(&args),
     }
 }

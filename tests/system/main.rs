@@ -1,5 +1,6 @@
 //! hng's integration tests: real processes, each test under its own shared-memory prefix.
 
+mod attention;
 mod chaos;
 mod cli;
 mod common;
@@ -14,6 +15,7 @@ mod long_compute;
 mod mission;
 mod mission_cmd;
 mod modules;
+mod orders;
 mod recording;
 mod rm;
 mod sdk;
@@ -23,3 +25,4 @@ mod slam_loop;
 mod teleop;
 mod topic;
 mod vision;
+mod walls;

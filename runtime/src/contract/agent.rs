@@ -278,6 +278,9 @@ struct NeedSlot {
     last_provider: Option<ModuleId>,
     /// The provider this need last switched away from, and when.
     left: Option<(ModuleId, Duration)>,
+    /// False while the module code switched this optional need off
+    /// ([`ContractAgent::set_need_enabled`]): no call, no contract, no penalty.
+    enabled: bool,
 }
 
 #[derive(Debug, Clone)]
@@ -358,6 +361,7 @@ impl ContractAgent {
                 optional_unmet: false,
                 last_provider: None,
                 left: None,
+                enabled: true,
             })
             .collect();
         let (priority, lineage) = if cfg.manager {
@@ -422,6 +426,13 @@ impl ContractAgent {
         }
     }
 
+    /// How many providers of `service` the transport said listen now
+    /// ([`Self::set_provider_count`]; `None`: never said). Attention uses it to offer only
+    /// the behaviours some module could provide.
+    pub fn provider_count(&self, service: &str) -> Option<usize> {
+        self.expected.get(service).copied()
+    }
+
     fn all_replied(&self, i: usize, replied: usize) -> bool {
         self.expected
             .get(&self.needs[i].spec.service)
@@ -447,6 +458,35 @@ impl ContractAgent {
     }
 
     // ----- inputs from the module code, the RM and the watchdog -----
+
+    /// Switches an optional need on or off while the module runs (adjustable autonomy: the
+    /// Interface asks for "Follow wall" only while that order is in force). Off: a contract
+    /// for it is cancelled ([`Reason::NotNeeded`]) and a call in progress dropped at the next
+    /// tick, and the need is neither called nor counted unmet; on: it is called at the next
+    /// tick like any idle need. Returns false (and changes nothing) for an unknown rank or a
+    /// required need (a required need defines whether the module can work at all).
+    pub fn set_need_enabled(&mut self, need: u16, enabled: bool) -> bool {
+        let Some(i) = self.slot_index(need) else {
+            return false;
+        };
+        let slot = &mut self.needs[i];
+        if slot.spec.is_required() {
+            return false;
+        }
+        if slot.enabled != enabled {
+            slot.enabled = enabled;
+            slot.optional_unmet = false;
+            if enabled && matches!(slot.state, NeedState::Waiting { .. }) {
+                slot.state = NeedState::Idle;
+            }
+        }
+        true
+    }
+
+    /// False while optional need `need` is switched off ([`Self::set_need_enabled`]).
+    pub fn need_enabled(&self, need: u16) -> bool {
+        self.slot_index(need).is_none_or(|i| self.needs[i].enabled)
+    }
 
     /// Sets the self-evaluated quality `Q` (clamped to `[-1, 1]`; NaN makes
     /// the module unable, as `f = 0`). Takes effect at the next tick.
@@ -566,7 +606,7 @@ impl ContractAgent {
         let penalty: f64 = self
             .needs
             .iter()
-            .filter(|s| s.optional_unmet)
+            .filter(|s| s.optional_unmet && s.enabled)
             .map(|s| match s.spec.requirement {
                 super::service::Requirement::Optional { penalty } => penalty.clamp(0.0, 2.0),
                 super::service::Requirement::Required => 0.0,

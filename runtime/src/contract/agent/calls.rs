@@ -81,6 +81,28 @@ impl ContractAgent {
         }
     }
 
+    /// Need `i` is switched off: end its contract or call.
+    pub(super) fn switch_off(&mut self, i: usize, out: &mut Vec<Outgoing>) {
+        let slot = &mut self.needs[i];
+        match std::mem::replace(&mut slot.state, NeedState::Idle) {
+            NeedState::Contracted { provider, .. } => {
+                let body = Message::Cancel(Cancel {
+                    need: slot.spec.rank,
+                    reason: Reason::NotNeeded,
+                    sender: Role::Client,
+                });
+                self.events.push(AgentEvent::ProviderLost {
+                    need: slot.spec.rank,
+                    provider,
+                });
+                send(out, self.cfg.id, Destination::Module(provider), body);
+            }
+            NeedState::Calling { .. } | NeedState::Waiting { .. } | NeedState::Idle => {}
+        }
+        self.needs[i].candidates.clear();
+        self.needs[i].optional_unmet = false;
+    }
+
     /// Need `i` lost its provider (dead, cancelled, silent): next best at once.
     pub(super) fn lose_provider(&mut self, i: usize, now: Duration, out: &mut Vec<Outgoing>) {
         if let NeedState::Contracted { provider, .. } = self.needs[i].state {
@@ -91,7 +113,7 @@ impl ContractAgent {
             });
         }
         self.needs[i].state = NeedState::Idle;
-        if self.priority.is_none() {
+        if self.priority.is_none() || !self.needs[i].enabled {
             return;
         }
         match self.needs[i].candidates.first().cloned() {
@@ -108,9 +130,12 @@ impl ContractAgent {
         out: &mut Vec<Outgoing>,
     ) {
         let rank = self.needs[i].spec.rank;
-        let Some(priority) = self.need_priority(rank) else {
-            self.needs[i].state = NeedState::Idle;
-            return;
+        let priority = match self.need_priority(rank) {
+            Some(p) if self.needs[i].enabled => p,
+            _ => {
+                self.needs[i].state = NeedState::Idle;
+                return;
+            }
         };
         let id = self.cfg.id;
         let body = Message::Accept(Accept {
@@ -295,6 +320,10 @@ impl ContractAgent {
         // Client side.
         if self.priority.is_some() {
             for i in 0..self.needs.len() {
+                if !self.needs[i].enabled {
+                    self.switch_off(i, out);
+                    continue;
+                }
                 match &self.needs[i].state {
                     NeedState::Idle => self.start_call(i, now, out),
                     NeedState::Calling {

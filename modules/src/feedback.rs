@@ -1,0 +1,139 @@
+//! Client feedback (the E term of eq. 3, paper 4.2): a client rates the provider it uses by
+//! what it can check itself.
+//!
+//! [`OdometryConsistency`]: the Servo-controller rates its "Localization" provider. Over each
+//! window of `window_s`, the motion the provider's poses show is compared with the motion the
+//! odometry measured (both as increments in their own frames, so a drift-free offset between
+//! the two frames does not matter). An error within the provider's own claimed uncertainty
+//! (3 σ of its covariance, plus an odometry allowance of `odom_rel` of the distance moved and
+//! `floor_m`) is consistent; beyond it, the evaluation falls linearly to −1 at twice the
+//! allowance. Only inconsistency is reported (E ≤ 0): eq. 3 adds every refresh's E with a
+//! decay τ, so a positive E sent at every refresh would pile up and entrench whichever provider
+//! is in use, whatever the others offer.
+
+use hng_runtime::msg::Pose2D;
+
+use crate::common::{relative, wrap_angle};
+
+/// Consistency of a pose source with odometry.
+#[derive(Debug, Clone)]
+pub struct OdometryConsistency {
+    /// Length of one comparison, s.
+    pub window_s: f64,
+    /// Odometry allowance per metre moved.
+    pub odom_rel: f64,
+    /// Smallest allowance, m.
+    pub floor_m: f64,
+    base: Option<(Pose2D, Pose2D, f64)>,
+    odom: Option<Pose2D>,
+    /// The last evaluation and the error behind it, m.
+    pub last: Option<(f64, f64)>,
+}
+
+impl Default for OdometryConsistency {
+    fn default() -> Self {
+        OdometryConsistency {
+            window_s: 1.0,
+            odom_rel: 0.1,
+            floor_m: 0.05,
+            base: None,
+            odom: None,
+            last: None,
+        }
+    }
+}
+
+impl OdometryConsistency {
+    /// Forgets the comparison in progress (a new provider).
+    pub fn reset(&mut self) {
+        self.base = None;
+        self.last = None;
+    }
+
+    /// The latest odometry pose.
+    pub fn on_odom(&mut self, odom: Pose2D) {
+        self.odom = Some(odom);
+    }
+
+    /// A pose of the provider at `t` s with its position standard deviation `sigma_m` (from
+    /// its covariance); returns an evaluation in [-1, 0] when a window closes.
+    pub fn on_pose(&mut self, pose: Pose2D, sigma_m: f64, t: f64) -> Option<f64> {
+        let odom = self.odom?;
+        let Some((p0, o0, t0)) = self.base else {
+            self.base = Some((pose, odom, t));
+            return None;
+        };
+        if t < t0 {
+            self.base = Some((pose, odom, t));
+            return None;
+        }
+        if t - t0 < self.window_s {
+            return None;
+        }
+        self.base = Some((pose, odom, t));
+        let dp = relative(&p0, &pose);
+        let dq = relative(&o0, &odom);
+        let moved = dq.x.hypot(dq.y);
+        let err = (dp.x - dq.x).hypot(dp.y - dq.y) + 0.5 * wrap_angle(dp.theta - dq.theta).abs();
+        let sigma = if sigma_m.is_finite() {
+            sigma_m.max(0.0)
+        } else {
+            0.0
+        };
+        let allowance = 3.0 * sigma + self.floor_m + self.odom_rel * moved;
+        let e = if err.is_finite() {
+            (1.0 - err / allowance).clamp(-1.0, 0.0)
+        } else {
+            -1.0
+        };
+        self.last = Some((e, err));
+        Some(e)
+    }
+}
+
+/// The position standard deviation of a row-major 3x3 (x, y, θ) covariance, m.
+pub fn position_sigma(cov: &[f64; 9]) -> f64 {
+    (0.5 * (cov[0] + cov[4])).max(0.0).sqrt()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn run(scale: f64, sigma: f64) -> Vec<f64> {
+        let mut c = OdometryConsistency::default();
+        let mut out = Vec::new();
+        for k in 0..50 {
+            let t = k as f64 * 0.1;
+            // Odometry: straight at 0.4 m/s in a frame rotated and shifted from the map.
+            let d = 0.4 * t;
+            c.on_odom(Pose2D::new(10.0 - d, 5.0, std::f64::consts::PI));
+            let pose = Pose2D::new(1.0 + scale * d, 2.0, 0.0);
+            if let Some(e) = c.on_pose(pose, sigma, t) {
+                out.push(e);
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn a_consistent_source_is_not_blamed_and_a_lying_one_is() {
+        let good = run(1.0, 0.02);
+        assert!(
+            !good.is_empty() && good.iter().all(|&e| e == 0.0),
+            "{good:?}"
+        );
+        // Reports 30 % of the motion while claiming 2 cm: -1.
+        let liar = run(0.3, 0.02);
+        assert!(
+            !liar.is_empty() && liar.iter().all(|&e| e < -0.5),
+            "{liar:?}"
+        );
+        // The same error within a claimed 0.3 m: consistent.
+        let honest_noisy = run(0.3, 0.3);
+        assert!(honest_noisy.iter().all(|&e| e == 0.0), "{honest_noisy:?}");
+        assert!(
+            (position_sigma(&[0.09, 0.0, 0.0, 0.0, 0.09, 0.0, 0.0, 0.0, 0.0]) - 0.3).abs() < 1e-12
+        );
+    }
+}
