@@ -11,6 +11,7 @@
 
 pub mod camera;
 pub mod common;
+pub mod footprint;
 pub mod gps;
 pub mod heartbeat;
 pub mod interface;

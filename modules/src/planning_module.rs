@@ -32,17 +32,25 @@ use crate::heartbeat::BusyHeartbeat;
 use crate::maps::grid_from_msg;
 use crate::msgs::{GoalState, GoalStatus, RefusalReason};
 use crate::planning::{
-    GridPlanner, InflationConfig, OccupancyGrid, PlannerConfig, inflate, simplify,
+    Costmap, CostmapConfig, GridPlanner, OccupancyGrid, PlannerConfig, simplify_with_cost,
 };
 
 /// Parameters of the planner.
 #[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct PlanningParams {
-    /// Robot radius, m (default 0.2).
+    /// Robot radius, m (default [`crate::footprint::ROBOT_RADIUS_M`], 0.2).
     pub robot_radius: f64,
-    /// Clearance kept to obstacles on top of the radius, m (default 0.1).
+    /// Margin on top of the radius: cells closer than `robot_radius + clearance` to an
+    /// obstacle are lethal, m (default [`crate::footprint::FOOTPRINT_MARGIN_M`], 0.05, the
+    /// margin of Security's swept disc).
     pub clearance: f64,
+    /// Distance from obstacles at which the inflation cost has fallen to 0, m (default 1.0):
+    /// paths keep this far from walls where there is room.
+    pub inflation_m: f64,
+    /// Inflation cost at the lethal band: a step there costs `1 + cost_weight` times its
+    /// length (default 3; 0 plans the plain shortest path).
+    pub cost_weight: f64,
     /// Distance of the carrot ahead of the robot on the path, m (default 0.6).
     pub lookahead_m: f64,
     /// Replan when the robot is farther than this from the path, m (default 0.5).
@@ -60,8 +68,10 @@ pub struct PlanningParams {
 impl Default for PlanningParams {
     fn default() -> Self {
         PlanningParams {
-            robot_radius: 0.2,
-            clearance: 0.1,
+            robot_radius: crate::footprint::ROBOT_RADIUS_M,
+            clearance: crate::footprint::FOOTPRINT_MARGIN_M,
+            inflation_m: 1.0,
+            cost_weight: 3.0,
             lookahead_m: 0.6,
             deviation_m: 0.5,
             speed: 0.5,
@@ -166,7 +176,10 @@ impl PathState {
 pub struct PlanningCore {
     params: PlanningParams,
     planner: GridPlanner,
+    /// The costmap's grid (lethal cells occupied).
     grid: Option<OccupancyGrid>,
+    /// Its inflation cost per cell.
+    costs: Vec<f32>,
     goal: Option<Goal>,
     refused: Option<u32>,
     /// The refusal of `refused` is provisional: the map may still grow.
@@ -212,6 +225,7 @@ impl PlanningCore {
                 unknown_is_free: params.unknown_is_free,
             }),
             grid: None,
+            costs: Vec::new(),
             goal: None,
             refused: None,
             provisional: false,
@@ -256,16 +270,19 @@ impl PlanningCore {
 
     /// A new map: it is inflated, and the path replanned at the next pose.
     pub fn set_map(&mut self, grid: &OccupancyGrid) {
-        let inflated = inflate(
+        let p = &self.params;
+        let costmap = Costmap::build(
             grid,
-            &InflationConfig {
-                radius_m: self.params.robot_radius + self.params.clearance,
-                occupied_threshold: 50,
-                inflate_unknown: false,
+            &CostmapConfig {
+                lethal_m: p.robot_radius + p.clearance,
+                inflation_m: p.inflation_m,
+                weight: p.cost_weight,
+                ..CostmapConfig::default()
             },
         );
         self.map_may_grow = grid.data().contains(&crate::planning::UNKNOWN);
-        self.grid = Some(inflated);
+        self.grid = Some(costmap.grid().clone());
+        self.costs = costmap.costs().to_vec();
         self.replan = true;
         if self.goal.is_some() {
             self.refused = None; // the new map may make it reachable
@@ -374,14 +391,14 @@ impl PlanningCore {
         })?;
         let gp = self
             .planner
-            .plan_cells(grid, start_cell, goal_cell)
+            .plan_cells_weighted(grid, &self.costs, start_cell, goal_cell)
             .map_err(|e| {
                 (
                     RefusalReason::Unreachable,
                     format!("goal {} at ({gx:.2}, {gy:.2}) is unreachable: {e}", goal.id),
                 )
             })?;
-        let mut points = simplify(grid, &cfg, &gp);
+        let mut points = simplify_with_cost(grid, &cfg, &self.costs, &gp);
         if let Some(first) = points.first_mut() {
             *first = [pose.x, pose.y];
         }
@@ -644,6 +661,14 @@ impl Module for PlanningModule {
         positive("params.lookahead_m", p.lookahead_m)?;
         positive("params.deviation_m", p.deviation_m)?;
         positive("params.speed", p.speed)?;
+        for (field, v) in [
+            ("params.inflation_m", p.inflation_m),
+            ("params.cost_weight", p.cost_weight),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(crate::common::field_error(field, "must be >= 0").into());
+            }
+        }
         if !(p.clearance.is_finite() && p.clearance >= 0.0) {
             return Err(crate::common::field_error("params.clearance", "must be >= 0").into());
         }
