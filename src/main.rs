@@ -24,6 +24,7 @@ use hng::bench;
 mod contracts;
 mod doc;
 mod eval;
+mod eval_nav;
 mod mission;
 mod modules;
 mod recording;

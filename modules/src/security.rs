@@ -69,8 +69,8 @@ pub struct SafetyConfig {
 impl Default for SafetyConfig {
     fn default() -> Self {
         SafetyConfig {
-            robot_radius: 0.2,
-            side_margin: 0.05,
+            robot_radius: crate::footprint::ROBOT_RADIUS_M,
+            side_margin: crate::footprint::FOOTPRINT_MARGIN_M,
             safety_distance: 0.10,
             max_decel: 1.5,
             reaction_time_s: 0.15,
