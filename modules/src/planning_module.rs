@@ -31,6 +31,10 @@ use crate::common::{decode_state, encode_state, positive};
 use crate::heartbeat::BusyHeartbeat;
 use crate::maps::grid_from_msg;
 use crate::msgs::{GoalState, GoalStatus, RefusalReason};
+use crate::planning::progress::{
+    Action, Event, NavProgress, ProgressMonitor, ProgressParams, progress_message,
+    recovery_waypoint,
+};
 use crate::planning::{
     Costmap, CostmapConfig, GridPlanner, OccupancyGrid, PlannerConfig, simplify_with_cost,
 };
@@ -63,6 +67,8 @@ pub struct PlanningParams {
     /// robot explores, Security keeps it off what the lidar sees, and every new map replans.
     /// A surveyed map (Maps) has no unknown cells inside the area it covers.
     pub unknown_is_free: bool,
+    /// Progress checker and recovery behaviours ([`crate::planning::progress`]).
+    pub progress: ProgressParams,
 }
 
 impl Default for PlanningParams {
@@ -76,6 +82,7 @@ impl Default for PlanningParams {
             deviation_m: 0.5,
             speed: 0.5,
             unknown_is_free: true,
+            progress: ProgressParams::default(),
         }
     }
 }
@@ -95,6 +102,8 @@ pub struct PlanStep {
     pub pending: Option<String>,
     /// True if a new path was computed.
     pub replanned: bool,
+    /// Stalls and recoveries to report.
+    pub progress: Vec<NavProgress>,
 }
 
 #[derive(Debug, Clone)]
@@ -180,6 +189,14 @@ pub struct PlanningCore {
     grid: Option<OccupancyGrid>,
     /// Its inflation cost per cell.
     costs: Vec<f32>,
+    /// The map it was built from (rebuilt by the "clear" recovery).
+    raw: Option<OccupancyGrid>,
+    /// Progress of the current goal (from its first update), its stalls and recoveries, and
+    /// whether the distance left must be measured afresh (a new map).
+    monitor: Option<ProgressMonitor>,
+    stalls: u32,
+    recoveries: u32,
+    rebase: bool,
     goal: Option<Goal>,
     refused: Option<u32>,
     /// The refusal of `refused` is provisional: the map may still grow.
@@ -226,6 +243,11 @@ impl PlanningCore {
             }),
             grid: None,
             costs: Vec::new(),
+            raw: None,
+            monitor: None,
+            stalls: 0,
+            recoveries: 0,
+            rebase: false,
             goal: None,
             refused: None,
             provisional: false,
@@ -283,6 +305,8 @@ impl PlanningCore {
         self.map_may_grow = grid.data().contains(&crate::planning::UNKNOWN);
         self.grid = Some(costmap.grid().clone());
         self.costs = costmap.costs().to_vec();
+        self.raw = Some(grid.clone());
+        self.rebase = true;
         self.replan = true;
         if self.goal.is_some() {
             self.refused = None; // the new map may make it reachable
@@ -305,6 +329,8 @@ impl PlanningCore {
         }
         self.goal = Some(goal);
         self.path = None;
+        self.monitor = None;
+        (self.stalls, self.recoveries) = (0, 0);
         self.refused = None;
         self.provisional = false;
         self.replan = true;
@@ -413,8 +439,15 @@ impl PlanningCore {
         Ok(PathState::new(points))
     }
 
-    /// The robot is at `pose`: (re)plan if needed and give the waypoint to follow.
+    /// The robot is at `pose`: (re)plan if needed and give the waypoint to follow (no
+    /// progress checking: see [`Self::update_at`]).
     pub fn update(&mut self, pose: &Pose2D) -> PlanStep {
+        self.update_at(None, pose)
+    }
+
+    /// [`Self::update`] at time `now` (s): with a time, progress toward the goal is checked
+    /// and the recovery behaviours run ([`crate::planning::progress`]).
+    pub fn update_at(&mut self, now: Option<f64>, pose: &Pose2D) -> PlanStep {
         let mut out = PlanStep::default();
         let Some(goal) = self.goal else {
             return out;
@@ -492,7 +525,53 @@ impl PlanningCore {
             is_final: u8::from(is_final),
         });
         out.status = Some(self.status(goal.id, GoalState::Active, (total - s).max(0.0)));
+        if let Some(now) = now {
+            self.check_progress(now, pose, goal.id, (total - s).max(0.0), &mut out);
+        }
         out
+    }
+
+    /// Progress checking and recovery: may replace the waypoint or refuse the goal.
+    fn check_progress(&mut self, now: f64, pose: &Pose2D, id: u32, left: f64, out: &mut PlanStep) {
+        let params = self.params.progress;
+        let m = self
+            .monitor
+            .get_or_insert_with(|| ProgressMonitor::new(params, now));
+        if std::mem::take(&mut self.rebase) {
+            m.rebase(left);
+        }
+        let (action, events) = m.update(now, (pose.x, pose.y, pose.theta), left);
+        for e in &events {
+            match e {
+                Event::Stalled(_) => self.stalls += 1,
+                Event::Started(..) => self.recoveries += 1,
+                _ => {}
+            }
+            let msg = progress_message(e, id, left, self.stalls, self.recoveries);
+            out.progress.push(msg);
+        }
+        match action {
+            Action::Follow => {}
+            Action::Clear => {
+                if let Some(raw) = self.raw.take() {
+                    self.set_map(&raw);
+                }
+                self.replan = true;
+            }
+            Action::Replan => self.replan = true,
+            Action::Rotate | Action::BackUp(_) => {
+                out.waypoint = recovery_waypoint(action, pose, id);
+            }
+            Action::Fail => {
+                self.path = None;
+                self.refused = Some(id);
+                let mut status = self.status(id, GoalState::Refused, left);
+                status.reason = RefusalReason::Stuck as u8;
+                out.status = Some(status);
+                out.waypoint = None;
+                out.refused = out.progress.last().map(NavProgress::describe);
+            }
+        }
     }
 }
 
@@ -510,6 +589,8 @@ pub struct PlanningModuleConfig {
     pub waypoint_out: String,
     /// Goal status out (default `planning/status`).
     pub status_out: String,
+    /// Stalls and recoveries out (default `planning/progress`).
+    pub progress_out: String,
     /// Planner parameters.
     pub params: PlanningParams,
     /// Longest computation (map inflation, a search) during which heartbeats go on, s
@@ -525,6 +606,7 @@ impl Default for PlanningModuleConfig {
             goal: "manager/goal".into(),
             waypoint_out: "planning/waypoint".into(),
             status_out: "planning/status".into(),
+            progress_out: crate::planning::progress::PROGRESS_CHANNEL.into(),
             params: PlanningParams::default(),
             max_compute_s: 120.0,
         }
@@ -572,6 +654,7 @@ pub struct PlanningModule {
     goal: Subscriber<Goal>,
     waypoint_out: Publisher<Waypoint>,
     status_out: Publisher<GoalStatus>,
+    progress_out: Publisher<NavProgress>,
     last_pose: Option<Pose2D>,
     state: PlanningState,
 }
@@ -619,7 +702,17 @@ impl PlanningModule {
         let Some(pose) = self.last_pose else {
             return Ok(());
         };
-        let out = self.core.update(&pose);
+        let now = ctx.now().as_secs_f64();
+        let out = self.core.update_at(Some(now), &pose);
+        for mut p in out.progress.iter().copied() {
+            p.header.stamp_ns = u64::try_from(ctx.now().as_nanos()).unwrap_or(u64::MAX);
+            if matches!(p.event, 1 | 4) {
+                tracing::warn!(module = ctx.name(), "{}", p.describe());
+            } else {
+                tracing::info!(module = ctx.name(), "{}", p.describe());
+            }
+            self.progress_out.publish(p)?;
+        }
         if out.replanned {
             self.state.plans += 1;
         }
@@ -705,6 +798,7 @@ impl Module for PlanningModule {
             goal: ctx.subscribe(&cfg.goal, None)?,
             waypoint_out: ctx.publisher(&cfg.waypoint_out)?,
             status_out: ctx.publisher(&cfg.status_out)?,
+            progress_out: ctx.publisher(&cfg.progress_out)?,
             last_pose: None,
             state: PlanningState::default(),
         })
@@ -967,5 +1061,64 @@ pub(crate) mod tests {
         p.set_goal(goal(1, 3.0, 3.0));
         let s = p.update(&at(0.25, 0.25)); // 0.15 m from both walls
         assert!(s.refused.is_none() && s.waypoint.is_some(), "{s:?}");
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod progress_tests {
+    use super::tests::room;
+    use super::*;
+
+    #[test]
+    fn a_robot_that_never_gets_closer_is_reported_stalled_recovers_and_then_fails() {
+        let mut p = PlanningCore::new(PlanningParams::default());
+        p.set_map(&room());
+        p.set_goal(Goal {
+            id: 7,
+            pose: Pose2D {
+                x: 8.0,
+                y: 1.0,
+                theta: 0.0,
+            },
+            tolerance_m: 0.2,
+            ..Default::default()
+        });
+        let mut events = Vec::new();
+        let mut saw_rotate = false;
+        let mut saw_backup = false;
+        let mut refused = None;
+        let mut status = None;
+        for i in 0..2000 {
+            let t = f64::from(i) * 0.05;
+            // The robot stays put but turns (as the servo would while rotating).
+            let pose = Pose2D {
+                x: 2.0,
+                y: 1.0,
+                theta: (t * 1.5).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI,
+            };
+            let s = p.update_at(Some(t), &pose);
+            events.extend(s.progress.iter().map(|m| m.event));
+            if let Some(w) = s.waypoint {
+                saw_backup |= w.speed < 0.0;
+                let rel = crate::common::relative(&pose, &w.pose);
+                saw_rotate |= w.speed > 0.0 && rel.y.atan2(rel.x) > 1.5;
+            }
+            if s.refused.is_some() {
+                refused = s.refused;
+                status = s.status;
+                break;
+            }
+        }
+        assert_eq!(events.first(), Some(&1), "stalled first: {events:?}");
+        assert_eq!(events.iter().filter(|&&e| e == 2).count(), 4, "{events:?}");
+        assert_eq!(events.last(), Some(&4), "{events:?}");
+        assert!(saw_rotate && saw_backup);
+        let why = refused.unwrap();
+        assert!(why.contains("FAILED") && why.contains("recovery"), "{why}");
+        let st = status.unwrap();
+        assert_eq!(st.goal_state(), GoalState::Refused);
+        assert_eq!(st.refusal_reason(), Some(RefusalReason::Stuck));
+        assert!(p.is_refused());
     }
 }

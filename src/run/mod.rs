@@ -22,6 +22,7 @@ mod hooks;
 pub mod lock;
 pub mod mission;
 pub mod monitor;
+mod nav_watch;
 pub mod probe;
 mod receiver;
 pub mod status;
