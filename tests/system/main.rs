@@ -13,6 +13,7 @@ mod long_compute;
 mod mission;
 mod mission_cmd;
 mod modules;
+mod nav;
 mod recording;
 mod rm;
 mod sdk;
