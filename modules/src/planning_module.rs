@@ -556,6 +556,8 @@ impl PlanningCore {
                 if let Some(raw) = self.raw.take() {
                     self.set_map(&raw);
                 }
+                // The same map: its path is no detour to re-base progress on.
+                self.rebase = false;
                 self.replan = true;
             }
             Action::Replan => self.replan = true,

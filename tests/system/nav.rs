@@ -96,9 +96,10 @@ add_box = { name = "closed", center = [3.5, 1.0], size = [0.3, 2.1] }
 fn a_robot_starting_inside_the_margin_of_a_wall_facing_it_first_moves_away() {
     let _heavy = crate::common::heavy();
     let r = Run::new("nav_wall_start");
-    // 0.23 m from the west wall's centre line (0.025 m thick half): a gap of about 5 mm,
-    // facing the wall; Security's 0.25 m disc already touches it.
-    let world = corridor(&r.dir, (0.23, 1.0, std::f64::consts::PI), "");
+    // 0.25 m from the west wall's centre line (its surface at 0.025 m): a gap of 25 mm
+    // (above the simulator's 5 mm contact margin), facing the wall; Security's 0.25 m disc
+    // already overlaps it.
+    let world = corridor(&r.dir, (0.25, 1.0, std::f64::consts::PI), "");
     let w = world.to_string_lossy();
     let (out, s) = r.run(&[
         "--world", &w, "--goal", "6,1", "--speed", "max", "--duration", "90",

@@ -83,8 +83,11 @@ pub struct ProgressParams {
     /// No progress for this long is a stall, s (simulated; default 10; 0 disables the
     /// checker).
     pub stall_s: f64,
-    /// Progress: the distance left shrinks by this much, m (default 0.3).
+    /// Progress: the distance left shrinks by this much, m (default 0.5).
     pub progress_m: f64,
+    /// Time constant of the low-pass filter on the distance left, s (default 2): a noisy
+    /// position (GPS, σ 0.3 m) must not look like progress.
+    pub filter_s: f64,
     /// Time given to each behaviour's effect before the next one, s (default 6).
     pub recovery_wait_s: f64,
     /// Distance to back up, m (default 0.3).
@@ -99,7 +102,8 @@ impl Default for ProgressParams {
     fn default() -> Self {
         ProgressParams {
             stall_s: 10.0,
-            progress_m: 0.3,
+            progress_m: 0.5,
+            filter_s: 2.0,
             recovery_wait_s: 6.0,
             backup_m: 0.3,
             backup_speed: 0.15,
@@ -205,6 +209,8 @@ pub struct ProgressMonitor {
     mark: f64,
     last_progress_s: f64,
     stalled_since: f64,
+    /// The filtered distance left and the time of its last update.
+    filtered: Option<(f64, f64)>,
 }
 
 fn wrap(a: f64) -> f64 {
@@ -221,6 +227,7 @@ impl ProgressMonitor {
             mark: f64::INFINITY,
             last_progress_s: now,
             stalled_since: now,
+            filtered: None,
         }
     }
 
@@ -229,11 +236,15 @@ impl ProgressMonitor {
         !matches!(self.phase, Phase::Following)
     }
 
-    /// The path changed for a reason other than recovery (a new map): the distance left is
-    /// measured afresh, without counting it as progress.
+    /// The path changed for a reason other than recovery (a new map): a longer path (a
+    /// detour) raises the distance from which progress is counted; a shorter one is not
+    /// progress by itself and changes nothing.
     pub fn rebase(&mut self, distance_left: f64) {
-        self.best = distance_left;
-        self.mark = distance_left;
+        if distance_left.is_finite() && distance_left > self.mark {
+            self.best = distance_left;
+            self.mark = distance_left;
+            self.filtered = None;
+        }
     }
 
     /// The robot at `(x, y, theta)` at time `now` with `distance_left` along its path: the
@@ -249,6 +260,15 @@ impl ProgressMonitor {
             return (Action::Follow, Vec::new());
         }
         if distance_left.is_finite() {
+            let d = match self.filtered {
+                Some((f, t)) if p.filter_s > 0.0 => {
+                    let a = 1.0 - (-(now - t).max(0.0) / p.filter_s).exp();
+                    f + a * (distance_left - f)
+                }
+                _ => distance_left,
+            };
+            self.filtered = Some((d, now));
+            let distance_left = d;
             self.best = self.best.min(distance_left);
             if !self.mark.is_finite() || self.best <= self.mark - p.progress_m {
                 self.mark = self.best;
@@ -426,6 +446,23 @@ mod tests {
     }
 
     #[test]
+    fn position_noise_is_not_progress() {
+        let mut m = ProgressMonitor::new(ProgressParams::default(), 0.0);
+        let mut events = Vec::new();
+        // A robot standing still with a GPS of σ 0.3 m: the distance left jumps about.
+        let mut x: u64 = 12345;
+        for i in 0..1200 {
+            x = x.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            let u = (x >> 11) as f64 / (1u64 << 53) as f64;
+            let noise = (u - 0.5) * 2.0 * 0.5;
+            let (_, e) = m.update(f64::from(i) * 0.2, (0.0, 0.0, 0.0), 10.0 + noise);
+            events.extend(e);
+        }
+        assert!(!events.contains(&Event::Recovered), "{events:?}");
+        assert!(matches!(events.last(), Some(Event::Failed(_))), "{events:?}");
+    }
+
+    #[test]
     fn a_stall_runs_the_sequence_and_fails_with_every_behaviour_tried() {
         let mut m = ProgressMonitor::new(ProgressParams::default(), 0.0);
         let mut events = Vec::new();
@@ -472,8 +509,13 @@ mod tests {
             m.update(t, (0.0, 0.0, 0.0), 10.0);
             t += 0.1;
         }
-        let (a, e) = m.update(t, (0.0, 0.0, 0.0), 9.5);
-        assert_eq!((a, e), (Action::Follow, vec![Event::Recovered]));
+        // Real progress: the filtered distance follows within a few time constants.
+        let mut got = Vec::new();
+        for i in 0..50 {
+            let (_, e) = m.update(t + f64::from(i) * 0.1, (0.0, 0.0, 0.0), 8.0);
+            got.extend(e);
+        }
+        assert_eq!(got.first(), Some(&Event::Recovered), "{got:?}");
         assert!(!m.recovering());
     }
 }
