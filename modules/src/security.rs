@@ -611,9 +611,21 @@ mod tests {
         // The wall 0.22 m ahead: inside the 0.25 m disc of robot radius and side margin.
         let r = wall_scan(0.22);
         assert_eq!(free_distance(&view(&r), 0.5, 0.0, &cfg), 0.0, "towards it");
-        assert_eq!(free_distance(&view(&r), 0.3, 0.6, &cfg), 0.0, "arc towards it");
-        assert_eq!(free_distance(&view(&r), -0.3, 0.0, &cfg), f64::INFINITY, "away");
-        assert_eq!(free_distance(&view(&r), -0.3, 0.5, &cfg), f64::INFINITY, "arc away");
+        assert_eq!(
+            free_distance(&view(&r), 0.3, 0.6, &cfg),
+            0.0,
+            "arc towards it"
+        );
+        assert_eq!(
+            free_distance(&view(&r), -0.3, 0.0, &cfg),
+            f64::INFINITY,
+            "away"
+        );
+        assert_eq!(
+            free_distance(&view(&r), -0.3, 0.5, &cfg),
+            f64::INFINITY,
+            "arc away"
+        );
         let d = decide(&fwd(-0.3, 0.0), &view(&r), &cfg);
         assert!(!d.limited && d.cmd.linear_x == -0.3, "{d:?}");
     }

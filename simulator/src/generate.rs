@@ -67,7 +67,8 @@ pub struct GeneratedWorld {
 
 /// The seed of world `index` of a run seeded `seed`.
 pub fn world_seed(seed: u64, index: u64) -> u64 {
-    seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ index.wrapping_add(1).wrapping_mul(0xD1B5_4A32_D192_ED03)
+    seed.wrapping_mul(0x9E37_79B9_7F4A_7C15)
+        ^ index.wrapping_add(1).wrapping_mul(0xD1B5_4A32_D192_ED03)
 }
 
 struct Painter {
@@ -82,7 +83,12 @@ impl Painter {
 
     /// Fills `[x0, x1) x [y0, y1)` (m) with `v`.
     fn fill(&mut self, x0: f64, y0: f64, x1: f64, y1: f64, v: i8) {
-        let (cx0, cy0, cx1, cy1) = (self.cells(x0), self.cells(y0), self.cells(x1), self.cells(y1));
+        let (cx0, cy0, cx1, cy1) = (
+            self.cells(x0),
+            self.cells(y0),
+            self.cells(x1),
+            self.cells(y1),
+        );
         for y in cy0.max(0)..cy1 {
             for x in cx0.max(0)..cx1 {
                 self.grid.set(x, y, v);
@@ -91,7 +97,12 @@ impl Painter {
     }
 
     fn free_rect(&self, x0: f64, y0: f64, x1: f64, y1: f64) -> bool {
-        let (cx0, cy0, cx1, cy1) = (self.cells(x0), self.cells(y0), self.cells(x1), self.cells(y1));
+        let (cx0, cy0, cx1, cy1) = (
+            self.cells(x0),
+            self.cells(y0),
+            self.cells(x1),
+            self.cells(y1),
+        );
         (cy0..cy1).all(|y| (cx0..cx1).all(|x| self.grid.get(x, y) == Some(FREE)))
     }
 }
@@ -115,7 +126,9 @@ pub fn generate(cfg: &GenConfig, seed: u64) -> GeneratedWorld {
     let grid = match OccupancyGrid::new(gw, gh, res, [0.0, 0.0], FREE) {
         Ok(g) => g,
         // Dimensions are bounded above, so this cannot fail; an empty 1x1 world if it did.
-        Err(_) => OccupancyGrid::new(1, 1, res, [0.0, 0.0], FREE).unwrap_or_else(|_| unreachable!()),
+        Err(_) => {
+            OccupancyGrid::new(1, 1, res, [0.0, 0.0], FREE).unwrap_or_else(|_| unreachable!())
+        }
     };
     let mut p = Painter { grid, res };
     // Outer walls.
@@ -139,7 +152,9 @@ pub fn generate(cfg: &GenConfig, seed: u64) -> GeneratedWorld {
         let mut xs = vec![t];
         let inner = w - 2.0 * t;
         let mut cuts: Vec<f64> = (1..n)
-            .map(|i| t + inner * i as f64 / n as f64 + rng.random_range(-0.15..0.15) * inner / n as f64)
+            .map(|i| {
+                t + inner * i as f64 / n as f64 + rng.random_range(-0.15..0.15) * inner / n as f64
+            })
             .collect();
         cuts.sort_by(f64::total_cmp);
         xs.extend(cuts);
@@ -223,7 +238,11 @@ mod tests {
             assert_eq!(g.get(x, 0), Some(OCCUPIED));
             assert_eq!(g.get(x, h - 1), Some(OCCUPIED));
         }
-        assert!(a.rooms.len() >= 5 && a.doors >= 4, "{} rooms", a.rooms.len());
+        assert!(
+            a.rooms.len() >= 5 && a.doors >= 4,
+            "{} rooms",
+            a.rooms.len()
+        );
         // Clutter covers about what was asked of the rooms.
         let occupied = g.data().iter().filter(|&&v| v == OCCUPIED).count();
         assert!(occupied < g.data().len() / 3);

@@ -209,7 +209,10 @@ fn print_table(results: &[ProblemResult], s: &serde_json::Value) {
 pub fn run(a: &EvalNavArgs) -> Result<()> {
     crate::run::mission::parse_speed(&a.speed).map_err(anyhow::Error::msg)?;
     if !(a.tolerance.is_finite() && a.tolerance > 0.0) {
-        bail!("--tolerance must be a positive distance, got {}", a.tolerance);
+        bail!(
+            "--tolerance must be a positive distance, got {}",
+            a.tolerance
+        );
     }
     let temp = a.dir.is_none();
     let dir = match &a.dir {

@@ -67,7 +67,16 @@ pub fn available_clearance(c: &Costmap, s: (i64, i64), g: (i64, i64)) -> Option<
             return (v > 0.0).then_some(v - ROBOT_RADIUS_M);
         }
         let (x, y) = (i as i64 % w, i as i64 / w);
-        for (dx, dy) in [(1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (1, -1), (-1, 1), (-1, -1)] {
+        for (dx, dy) in [
+            (1, 0),
+            (-1, 0),
+            (0, 1),
+            (0, -1),
+            (1, 1),
+            (1, -1),
+            (-1, 1),
+            (-1, -1),
+        ] {
             let Some(j) = grid.index(x + dx, y + dy) else {
                 continue;
             };
@@ -176,14 +185,18 @@ pub fn listed(world: &Path, list: &Path) -> Result<Vec<Problem>> {
         let names = ["start_x", "start_y", "goal_x", "goal_y", "start_theta"];
         let mut v = [0.0; 5];
         for (i, f) in fields.iter().enumerate() {
-            v[i] = f.parse::<f64>().ok().filter(|x| x.is_finite()).with_context(|| {
-                format!(
-                    "{}:{}: field `{}`: {f:?} is not a finite number",
-                    list.display(),
-                    n + 1,
-                    names[i]
-                )
-            })?;
+            v[i] = f
+                .parse::<f64>()
+                .ok()
+                .filter(|x| x.is_finite())
+                .with_context(|| {
+                    format!(
+                        "{}:{}: field `{}`: {f:?} is not a finite number",
+                        list.display(),
+                        n + 1,
+                        names[i]
+                    )
+                })?;
         }
         let (opt, avail) = judge(&c, [v[0], v[1]], [v[2], v[3]]);
         out.push(Problem {

@@ -76,7 +76,11 @@ mod tests {
             let x = 0.3 * t.min(5.0);
             w.on_truth(t, x, 0.0, true);
         }
-        assert!((w.stuck_time_s() - 5.0).abs() < 1.01, "{}", w.stuck_time_s());
+        assert!(
+            (w.stuck_time_s() - 5.0).abs() < 1.01,
+            "{}",
+            w.stuck_time_s()
+        );
         let mut idle = NavWatch::default();
         for i in 0..=100 {
             idle.on_truth(f64::from(i) * 0.1, 0.0, 0.0, false);

@@ -58,10 +58,20 @@ add_box = { name = "closed", center = [3.5, 1.0], size = [0.3, 2.1] }
     );
     let w = world.to_string_lossy();
     let (out, s) = r.run(&[
-        "--world", &w, "--goal", "10,1", "--speed", "max", "--duration", "150",
+        "--world",
+        &w,
+        "--goal",
+        "10,1",
+        "--speed",
+        "max",
+        "--duration",
+        "150",
     ]);
     let text = String::from_utf8_lossy(&out.stdout);
-    assert!(!out.status.success(), "boxed in, yet succeeded: {s}\n{text}");
+    assert!(
+        !out.status.success(),
+        "boxed in, yet succeeded: {s}\n{text}"
+    );
     assert_eq!(s["success"], false, "{s}");
     assert_eq!(s["collisions"], 0, "{s}\n{text}");
     assert!(s["stalls"].as_u64().expect("stalls") >= 1, "{s}\n{text}");
@@ -89,7 +99,10 @@ add_box = { name = "closed", center = [3.5, 1.0], size = [0.3, 2.1] }
         at += i + line.len();
     }
     // The robot stood still most of the time after the box appeared.
-    assert!(s["stuck_time_s"].as_f64().expect("stuck time") > 10.0, "{s}");
+    assert!(
+        s["stuck_time_s"].as_f64().expect("stuck time") > 10.0,
+        "{s}"
+    );
 }
 
 #[test]
@@ -102,7 +115,14 @@ fn a_robot_starting_inside_the_margin_of_a_wall_facing_it_first_moves_away() {
     let world = corridor(&r.dir, (0.25, 1.0, std::f64::consts::PI), "");
     let w = world.to_string_lossy();
     let (out, s) = r.run(&[
-        "--world", &w, "--goal", "6,1", "--speed", "max", "--duration", "90",
+        "--world",
+        &w,
+        "--goal",
+        "6,1",
+        "--speed",
+        "max",
+        "--duration",
+        "90",
     ]);
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(out.status.success(), "{s}\n{text}");

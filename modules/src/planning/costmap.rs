@@ -120,9 +120,7 @@ impl Costmap {
     /// Distance from the centre of cell `(x, y)` to the nearest obstacle, m (0 in an
     /// obstacle, infinite with none in the map, `None` outside the map).
     pub fn clearance(&self, x: i64, y: i64) -> Option<f64> {
-        self.grid
-            .index(x, y)
-            .map(|i| f64::from(self.clearance[i]))
+        self.grid.index(x, y).map(|i| f64::from(self.clearance[i]))
     }
 
     /// Whether the map had no unknown cell.
@@ -141,13 +139,9 @@ pub fn resample(grid: &OccupancyGrid, max_cell_m: f64) -> OccupancyGrid {
     let k = (res / max_cell_m - 1e-9).ceil().max(1.0) as usize;
     let (w, h) = (grid.width() as usize, grid.height() as usize);
     let (fw, fh) = (w * k, h * k);
-    let Ok(mut fine) = OccupancyGrid::new(
-        fw as u32,
-        fh as u32,
-        res / k as f64,
-        grid.origin(),
-        FREE,
-    ) else {
+    let Ok(mut fine) =
+        OccupancyGrid::new(fw as u32, fh as u32, res / k as f64, grid.origin(), FREE)
+    else {
         return grid.clone(); // too large: plan on the coarse grid
     };
     let data = grid.data();
@@ -205,7 +199,10 @@ mod tests {
         // Both ends 0.4 m from the lower wall, 5 m apart.
         let (s, e) = ((5, 5), (55, 5));
         let plain = p.plan_cells(c.grid(), s, e).unwrap();
-        assert!((plain.length_cells - 50.0).abs() < 1e-9, "straight along the wall");
+        assert!(
+            (plain.length_cells - 50.0).abs() < 1e-9,
+            "straight along the wall"
+        );
         let costed = p.plan_cells_weighted(c.grid(), c.costs(), s, e).unwrap();
         let widest = costed
             .cells
@@ -235,6 +232,10 @@ mod tests {
         // The same world point in the same kind of cell.
         let (x, y) = f.world_to_cell(2.5, 3.5);
         assert_eq!(f.get(x, y), Some(OCCUPIED));
-        assert_eq!(resample(&corridor(), 0.1).width(), 60, "fine grids untouched");
+        assert_eq!(
+            resample(&corridor(), 0.1).width(),
+            60,
+            "fine grids untouched"
+        );
     }
 }

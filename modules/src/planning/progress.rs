@@ -71,7 +71,10 @@ impl NavProgress {
                 "goal {} FAILED: no progress for {:.1} s after {} recovery behaviours (clear the costmap, rotate, back up, re-plan)",
                 self.goal_id, self.seconds, self.recoveries
             ),
-            _ => format!("goal {}: unknown progress event {}", self.goal_id, self.event),
+            _ => format!(
+                "goal {}: unknown progress event {}",
+                self.goal_id, self.event
+            ),
         }
     }
 }
@@ -195,7 +198,10 @@ enum Phase {
         last_theta: f64,
     },
     /// Waiting for behaviour `step` to have its effect, since `since`.
-    Watching { step: usize, since: f64 },
+    Watching {
+        step: usize,
+        since: f64,
+    },
     Failed,
 }
 
@@ -452,14 +458,19 @@ mod tests {
         // A robot standing still with a GPS of σ 0.3 m: the distance left jumps about.
         let mut x: u64 = 12345;
         for i in 0..1200 {
-            x = x.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            x = x
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             let u = (x >> 11) as f64 / (1u64 << 53) as f64;
             let noise = (u - 0.5) * 2.0 * 0.5;
             let (_, e) = m.update(f64::from(i) * 0.2, (0.0, 0.0, 0.0), 10.0 + noise);
             events.extend(e);
         }
         assert!(!events.contains(&Event::Recovered), "{events:?}");
-        assert!(matches!(events.last(), Some(Event::Failed(_))), "{events:?}");
+        assert!(
+            matches!(events.last(), Some(Event::Failed(_))),
+            "{events:?}"
+        );
     }
 
     #[test]
@@ -486,7 +497,10 @@ mod tests {
             }
         }
         let kinds = events;
-        assert!(matches!(kinds[0], Event::Stalled(s) if (s - 10.0).abs() < 0.15), "{kinds:?}");
+        assert!(
+            matches!(kinds[0], Event::Stalled(s) if (s - 10.0).abs() < 0.15),
+            "{kinds:?}"
+        );
         let started: Vec<Recovery> = kinds
             .iter()
             .filter_map(|e| match e {

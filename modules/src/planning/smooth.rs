@@ -14,9 +14,7 @@ pub fn line_of_sight(
     a: (i64, i64),
     b: (i64, i64),
 ) -> bool {
-    line_of_sight_by(a, b, |x, y| {
-        grid.get(x, y).is_some_and(|v| cfg.passable(v))
-    })
+    line_of_sight_by(a, b, |x, y| grid.get(x, y).is_some_and(|v| cfg.passable(v)))
 }
 
 /// [`line_of_sight`] with any passability test `pass(x, y)`.
@@ -115,7 +113,11 @@ pub fn simplify_with_cost(
     let mut prefix = vec![0.0f64; cells.len()];
     for i in 1..cells.len() {
         let (a, b) = (c(cells[i - 1]), c(cells[i]));
-        let step = if a.0 != b.0 && a.1 != b.1 { SQRT_2 } else { 1.0 };
+        let step = if a.0 != b.0 && a.1 != b.1 {
+            SQRT_2
+        } else {
+            1.0
+        };
         prefix[i] = prefix[i - 1] + step * (1.0 + cost_at(b.0, b.1));
     }
     out.push(grid.cell_to_world(first.0 as i64, first.1 as i64));
