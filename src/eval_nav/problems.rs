@@ -54,7 +54,7 @@ pub fn available_clearance(c: &Costmap, s: (i64, i64), g: (i64, i64)) -> Option<
     let clear = |i: usize| c.clearance(i as i64 % w, i as i64 / w).unwrap_or(0.0);
     // (bottleneck so far, cell), widest first. Clearances are finite or +inf; keep order by
     // the bits of non-negative floats.
-    let key = |v: f64| v.max(0.0).min(1e9).to_bits();
+    let key = |v: f64| v.clamp(0.0, 1e9).to_bits();
     let mut heap = BinaryHeap::new();
     best[si] = clear(si);
     heap.push((key(best[si]), si));

@@ -133,7 +133,7 @@ impl Costmap {
 /// its value); the grid itself when it is fine enough.
 pub fn resample(grid: &OccupancyGrid, max_cell_m: f64) -> OccupancyGrid {
     let res = grid.resolution();
-    if !(max_cell_m > 0.0) || res <= max_cell_m * 1.0001 {
+    if max_cell_m.is_nan() || max_cell_m <= 0.0 || res <= max_cell_m * 1.0001 {
         return grid.clone();
     }
     let k = (res / max_cell_m - 1e-9).ceil().max(1.0) as usize;

@@ -18,6 +18,7 @@ mod astar;
 pub mod costmap;
 mod inflate;
 pub mod movingai;
+pub(crate) mod path;
 pub mod progress;
 mod smooth;
 

@@ -262,7 +262,7 @@ impl ProgressMonitor {
         distance_left: f64,
     ) -> (Action, Vec<Event>) {
         let p = self.params;
-        if !(p.stall_s > 0.0) {
+        if p.stall_s.is_nan() || p.stall_s <= 0.0 {
             return (Action::Follow, Vec::new());
         }
         if distance_left.is_finite() {
