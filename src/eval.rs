@@ -58,6 +58,9 @@ pub enum EvalCommand {
         #[arg(long)]
         no_loop_closure: bool,
     },
+    /// The closed loop on many start/goal problems (MovingAI, a world and a problem list, or
+    /// generated worlds): success, path, clearance, recoveries (docs/navigation.md).
+    Nav(crate::eval_nav::EvalNavArgs),
     /// Compare the poses of two recordings (a run and a module replayed alone against it).
     Replay(crate::recording::EvalReplayArgs),
 }
@@ -91,6 +94,7 @@ fn object(v: Value) -> Map<String, Value> {
 pub fn run(cmd: EvalCommand) -> Result<()> {
     match cmd {
         EvalCommand::Replay(args) => crate::recording::eval_replay(&args),
+        EvalCommand::Nav(args) => crate::eval_nav::run(&args),
         EvalCommand::Planner { map, scen, json } => {
             let e = eval_movingai(&map, &scen).context("planner evaluation failed")?;
             print(

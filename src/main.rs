@@ -25,6 +25,7 @@ mod behaviours;
 mod contracts;
 mod doc;
 mod eval;
+mod eval_nav;
 mod mission;
 mod modules;
 mod order;

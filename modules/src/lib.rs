@@ -13,6 +13,7 @@ pub mod attention;
 pub mod camera;
 pub mod common;
 pub mod feedback;
+pub mod footprint;
 pub mod gps;
 pub mod heartbeat;
 pub mod interface;

@@ -83,6 +83,9 @@ pub enum RefusalReason {
     Unreachable = 3,
     /// A non-finite position.
     Invalid = 4,
+    /// No progress toward it, and the recovery behaviours did not help (Planning's progress
+    /// checker; the reason in words is on `planning/progress` and in its log).
+    Stuck = 5,
 }
 
 impl RefusalReason {
@@ -93,6 +96,7 @@ impl RefusalReason {
             2 => RefusalReason::InObstacle,
             3 => RefusalReason::Unreachable,
             4 => RefusalReason::Invalid,
+            5 => RefusalReason::Stuck,
             _ => return None,
         })
     }
@@ -104,6 +108,7 @@ impl RefusalReason {
             RefusalReason::InObstacle => "inside an obstacle",
             RefusalReason::Unreachable => "unreachable",
             RefusalReason::Invalid => "not a finite position",
+            RefusalReason::Stuck => "no progress: stuck after every recovery behaviour",
         }
     }
 }

@@ -31,18 +31,31 @@ use crate::common::{decode_state, encode_state, positive};
 use crate::heartbeat::BusyHeartbeat;
 use crate::maps::grid_from_msg;
 use crate::msgs::{GoalState, GoalStatus, RefusalReason};
+use crate::planning::path::{PathState, nearest_cell};
+use crate::planning::progress::{
+    Action, Event, NavProgress, ProgressMonitor, ProgressParams, progress_message,
+    recovery_waypoint,
+};
 use crate::planning::{
-    GridPlanner, InflationConfig, OccupancyGrid, PlannerConfig, inflate, simplify,
+    Costmap, CostmapConfig, GridPlanner, OccupancyGrid, PlannerConfig, simplify_with_cost,
 };
 
 /// Parameters of the planner.
 #[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct PlanningParams {
-    /// Robot radius, m (default 0.2).
+    /// Robot radius, m (default [`crate::footprint::ROBOT_RADIUS_M`], 0.2).
     pub robot_radius: f64,
-    /// Clearance kept to obstacles on top of the radius, m (default 0.1).
+    /// Margin on top of the radius: cells closer than `robot_radius + clearance` to an
+    /// obstacle are lethal, m (default [`crate::footprint::FOOTPRINT_MARGIN_M`], 0.05, the
+    /// margin of Security's swept disc).
     pub clearance: f64,
+    /// Distance from obstacles at which the inflation cost has fallen to 0, m (default 1.0):
+    /// paths keep this far from walls where there is room.
+    pub inflation_m: f64,
+    /// Inflation cost at the lethal band: a step there costs `1 + cost_weight` times its
+    /// length (default 3; 0 plans the plain shortest path).
+    pub cost_weight: f64,
     /// Distance of the carrot ahead of the robot on the path, m (default 0.6).
     pub lookahead_m: f64,
     /// Replan when the robot is farther than this from the path, m (default 0.5).
@@ -55,17 +68,22 @@ pub struct PlanningParams {
     /// robot explores, Security keeps it off what the lidar sees, and every new map replans.
     /// A surveyed map (Maps) has no unknown cells inside the area it covers.
     pub unknown_is_free: bool,
+    /// Progress checker and recovery behaviours ([`crate::planning::progress`]).
+    pub progress: ProgressParams,
 }
 
 impl Default for PlanningParams {
     fn default() -> Self {
         PlanningParams {
-            robot_radius: 0.2,
-            clearance: 0.1,
+            robot_radius: crate::footprint::ROBOT_RADIUS_M,
+            clearance: crate::footprint::FOOTPRINT_MARGIN_M,
+            inflation_m: 1.0,
+            cost_weight: 3.0,
             lookahead_m: 0.6,
             deviation_m: 0.5,
             speed: 0.5,
             unknown_is_free: true,
+            progress: ProgressParams::default(),
         }
     }
 }
@@ -85,80 +103,8 @@ pub struct PlanStep {
     pub pending: Option<String>,
     /// True if a new path was computed.
     pub replanned: bool,
-}
-
-#[derive(Debug, Clone)]
-struct PathState {
-    points: Vec<[f64; 2]>,
-    cum: Vec<f64>,
-    seg: usize,
-}
-
-impl PathState {
-    fn new(points: Vec<[f64; 2]>) -> PathState {
-        let mut cum = vec![0.0];
-        for w in points.windows(2) {
-            let l = (w[1][0] - w[0][0]).hypot(w[1][1] - w[0][1]);
-            cum.push(cum.last().copied().unwrap_or(0.0) + l);
-        }
-        PathState {
-            points,
-            cum,
-            seg: 0,
-        }
-    }
-
-    fn total(&self) -> f64 {
-        self.cum.last().copied().unwrap_or(0.0)
-    }
-
-    /// Projects `p` on the path from the current segment on; returns (arc length, distance).
-    fn project(&mut self, p: [f64; 2]) -> (f64, f64) {
-        let n = self.points.len();
-        if n < 2 {
-            let q = self.points.first().copied().unwrap_or(p);
-            return (0.0, (q[0] - p[0]).hypot(q[1] - p[1]));
-        }
-        let mut best = (f64::INFINITY, self.seg, 0.0);
-        for i in self.seg..n - 1 {
-            let (a, b) = (self.points[i], self.points[i + 1]);
-            let (dx, dy) = (b[0] - a[0], b[1] - a[1]);
-            let l2 = dx * dx + dy * dy;
-            let t = if l2 > 0.0 {
-                (((p[0] - a[0]) * dx + (p[1] - a[1]) * dy) / l2).clamp(0.0, 1.0)
-            } else {
-                0.0
-            };
-            let d = (a[0] + t * dx - p[0]).hypot(a[1] + t * dy - p[1]);
-            if d < best.0 {
-                best = (d, i, t);
-            }
-        }
-        self.seg = best.1;
-        let seg_len = self.cum[best.1 + 1] - self.cum[best.1];
-        (self.cum[best.1] + best.2 * seg_len, best.0)
-    }
-
-    /// The point at arc length `s` (clamped) and the heading of its segment.
-    fn at(&self, s: f64) -> ([f64; 2], f64) {
-        let n = self.points.len();
-        if n < 2 {
-            return (self.points.first().copied().unwrap_or([0.0, 0.0]), 0.0);
-        }
-        let s = s.clamp(0.0, self.total());
-        let i = match self.cum.iter().position(|&c| c > s) {
-            Some(k) => k.saturating_sub(1).min(n - 2),
-            None => n - 2,
-        };
-        let (a, b) = (self.points[i], self.points[i + 1]);
-        let l = self.cum[i + 1] - self.cum[i];
-        let t = if l > 0.0 { (s - self.cum[i]) / l } else { 1.0 };
-        let heading = (b[1] - a[1]).atan2(b[0] - a[0]);
-        (
-            [a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])],
-            heading,
-        )
-    }
+    /// Stalls and recoveries to report.
+    pub progress: Vec<NavProgress>,
 }
 
 /// The planner's logic, without I/O.
@@ -166,7 +112,18 @@ impl PathState {
 pub struct PlanningCore {
     params: PlanningParams,
     planner: GridPlanner,
+    /// The costmap's grid (lethal cells occupied).
     grid: Option<OccupancyGrid>,
+    /// Its inflation cost per cell.
+    costs: Vec<f32>,
+    /// The map it was built from (rebuilt by the "clear" recovery).
+    raw: Option<OccupancyGrid>,
+    /// Progress of the current goal (from its first update), its stalls and recoveries, and
+    /// whether the distance left must be measured afresh (a new map).
+    monitor: Option<ProgressMonitor>,
+    stalls: u32,
+    recoveries: u32,
+    rebase: bool,
     goal: Option<Goal>,
     refused: Option<u32>,
     /// The refusal of `refused` is provisional: the map may still grow.
@@ -179,29 +136,6 @@ pub struct PlanningCore {
     replan: bool,
 }
 
-/// The cell nearest to `c` (Chebyshev rings up to `max_ring`) that `ok` accepts.
-fn nearest_cell(c: (i64, i64), max_ring: i64, ok: impl Fn(i64, i64) -> bool) -> Option<(i64, i64)> {
-    let mut best: Option<((i64, i64), i64)> = None;
-    for ring in 0..=max_ring {
-        for dx in -ring..=ring {
-            for dy in -ring..=ring {
-                if dx.abs().max(dy.abs()) != ring {
-                    continue;
-                }
-                let (x, y) = (c.0 + dx, c.1 + dy);
-                let d2 = dx * dx + dy * dy;
-                if ok(x, y) && best.is_none_or(|(_, bd)| d2 < bd) {
-                    best = Some(((x, y), d2));
-                }
-            }
-        }
-        if best.is_some() {
-            break;
-        }
-    }
-    best.map(|(c, _)| c)
-}
-
 impl PlanningCore {
     /// A planner with `params`.
     pub fn new(params: PlanningParams) -> PlanningCore {
@@ -212,6 +146,12 @@ impl PlanningCore {
                 unknown_is_free: params.unknown_is_free,
             }),
             grid: None,
+            costs: Vec::new(),
+            raw: None,
+            monitor: None,
+            stalls: 0,
+            recoveries: 0,
+            rebase: false,
             goal: None,
             refused: None,
             provisional: false,
@@ -256,16 +196,21 @@ impl PlanningCore {
 
     /// A new map: it is inflated, and the path replanned at the next pose.
     pub fn set_map(&mut self, grid: &OccupancyGrid) {
-        let inflated = inflate(
+        let p = &self.params;
+        let costmap = Costmap::build(
             grid,
-            &InflationConfig {
-                radius_m: self.params.robot_radius + self.params.clearance,
-                occupied_threshold: 50,
-                inflate_unknown: false,
+            &CostmapConfig {
+                lethal_m: p.robot_radius + p.clearance,
+                inflation_m: p.inflation_m,
+                weight: p.cost_weight,
+                ..CostmapConfig::default()
             },
         );
         self.map_may_grow = grid.data().contains(&crate::planning::UNKNOWN);
-        self.grid = Some(inflated);
+        self.grid = Some(costmap.grid().clone());
+        self.costs = costmap.costs().to_vec();
+        self.raw = Some(grid.clone());
+        self.rebase = true;
         self.replan = true;
         if self.goal.is_some() {
             self.refused = None; // the new map may make it reachable
@@ -288,6 +233,8 @@ impl PlanningCore {
         }
         self.goal = Some(goal);
         self.path = None;
+        self.monitor = None;
+        (self.stalls, self.recoveries) = (0, 0);
         self.refused = None;
         self.provisional = false;
         self.replan = true;
@@ -374,14 +321,14 @@ impl PlanningCore {
         })?;
         let gp = self
             .planner
-            .plan_cells(grid, start_cell, goal_cell)
+            .plan_cells_weighted(grid, &self.costs, start_cell, goal_cell)
             .map_err(|e| {
                 (
                     RefusalReason::Unreachable,
                     format!("goal {} at ({gx:.2}, {gy:.2}) is unreachable: {e}", goal.id),
                 )
             })?;
-        let mut points = simplify(grid, &cfg, &gp);
+        let mut points = simplify_with_cost(grid, &cfg, &self.costs, &gp);
         if let Some(first) = points.first_mut() {
             *first = [pose.x, pose.y];
         }
@@ -396,8 +343,15 @@ impl PlanningCore {
         Ok(PathState::new(points))
     }
 
-    /// The robot is at `pose`: (re)plan if needed and give the waypoint to follow.
+    /// The robot is at `pose`: (re)plan if needed and give the waypoint to follow (no
+    /// progress checking: see [`Self::update_at`]).
     pub fn update(&mut self, pose: &Pose2D) -> PlanStep {
+        self.update_at(None, pose)
+    }
+
+    /// [`Self::update`] at time `now` (s): with a time, progress toward the goal is checked
+    /// and the recovery behaviours run ([`crate::planning::progress`]).
+    pub fn update_at(&mut self, now: Option<f64>, pose: &Pose2D) -> PlanStep {
         let mut out = PlanStep::default();
         let Some(goal) = self.goal else {
             return out;
@@ -475,7 +429,55 @@ impl PlanningCore {
             is_final: u8::from(is_final),
         });
         out.status = Some(self.status(goal.id, GoalState::Active, (total - s).max(0.0)));
+        if let Some(now) = now {
+            self.check_progress(now, pose, goal.id, (total - s).max(0.0), &mut out);
+        }
         out
+    }
+
+    /// Progress checking and recovery: may replace the waypoint or refuse the goal.
+    fn check_progress(&mut self, now: f64, pose: &Pose2D, id: u32, left: f64, out: &mut PlanStep) {
+        let params = self.params.progress;
+        let m = self
+            .monitor
+            .get_or_insert_with(|| ProgressMonitor::new(params, now));
+        if std::mem::take(&mut self.rebase) {
+            m.rebase(left);
+        }
+        let (action, events) = m.update(now, (pose.x, pose.y, pose.theta), left);
+        for e in &events {
+            match e {
+                Event::Stalled(_) => self.stalls += 1,
+                Event::Started(..) => self.recoveries += 1,
+                _ => {}
+            }
+            let msg = progress_message(e, id, left, self.stalls, self.recoveries);
+            out.progress.push(msg);
+        }
+        match action {
+            Action::Follow => {}
+            Action::Clear => {
+                if let Some(raw) = self.raw.take() {
+                    self.set_map(&raw);
+                }
+                // The same map: its path is no detour to re-base progress on.
+                self.rebase = false;
+                self.replan = true;
+            }
+            Action::Replan => self.replan = true,
+            Action::Rotate | Action::BackUp(_) => {
+                out.waypoint = recovery_waypoint(action, pose, id);
+            }
+            Action::Fail => {
+                self.path = None;
+                self.refused = Some(id);
+                let mut status = self.status(id, GoalState::Refused, left);
+                status.reason = RefusalReason::Stuck as u8;
+                out.status = Some(status);
+                out.waypoint = None;
+                out.refused = out.progress.last().map(NavProgress::describe);
+            }
+        }
     }
 }
 
@@ -493,6 +495,8 @@ pub struct PlanningModuleConfig {
     pub waypoint_out: String,
     /// Goal status out (default `planning/status`).
     pub status_out: String,
+    /// Stalls and recoveries out (default `planning/progress`).
+    pub progress_out: String,
     /// Planner parameters.
     pub params: PlanningParams,
     /// Longest computation (map inflation, a search) during which heartbeats go on, s
@@ -508,6 +512,7 @@ impl Default for PlanningModuleConfig {
             goal: "manager/goal".into(),
             waypoint_out: "planning/waypoint".into(),
             status_out: "planning/status".into(),
+            progress_out: crate::planning::progress::PROGRESS_CHANNEL.into(),
             params: PlanningParams::default(),
             max_compute_s: 120.0,
         }
@@ -555,6 +560,7 @@ pub struct PlanningModule {
     goal: Subscriber<Goal>,
     waypoint_out: Publisher<Waypoint>,
     status_out: Publisher<GoalStatus>,
+    progress_out: Publisher<NavProgress>,
     last_pose: Option<Pose2D>,
     state: PlanningState,
 }
@@ -602,7 +608,17 @@ impl PlanningModule {
         let Some(pose) = self.last_pose else {
             return Ok(());
         };
-        let out = self.core.update(&pose);
+        let now = ctx.now().as_secs_f64();
+        let out = self.core.update_at(Some(now), &pose);
+        for mut p in out.progress.iter().copied() {
+            p.header.stamp_ns = u64::try_from(ctx.now().as_nanos()).unwrap_or(u64::MAX);
+            if matches!(p.event, 1 | 4) {
+                tracing::warn!(module = ctx.name(), "{}", p.describe());
+            } else {
+                tracing::info!(module = ctx.name(), "{}", p.describe());
+            }
+            self.progress_out.publish(p)?;
+        }
         if out.replanned {
             self.state.plans += 1;
         }
@@ -644,6 +660,14 @@ impl Module for PlanningModule {
         positive("params.lookahead_m", p.lookahead_m)?;
         positive("params.deviation_m", p.deviation_m)?;
         positive("params.speed", p.speed)?;
+        for (field, v) in [
+            ("params.inflation_m", p.inflation_m),
+            ("params.cost_weight", p.cost_weight),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(crate::common::field_error(field, "must be >= 0").into());
+            }
+        }
         if !(p.clearance.is_finite() && p.clearance >= 0.0) {
             return Err(crate::common::field_error("params.clearance", "must be >= 0").into());
         }
@@ -680,6 +704,7 @@ impl Module for PlanningModule {
             goal: ctx.subscribe(&cfg.goal, None)?,
             waypoint_out: ctx.publisher(&cfg.waypoint_out)?,
             status_out: ctx.publisher(&cfg.status_out)?,
+            progress_out: ctx.publisher(&cfg.progress_out)?,
             last_pose: None,
             state: PlanningState::default(),
         })
@@ -942,5 +967,64 @@ pub(crate) mod tests {
         p.set_goal(goal(1, 3.0, 3.0));
         let s = p.update(&at(0.25, 0.25)); // 0.15 m from both walls
         assert!(s.refused.is_none() && s.waypoint.is_some(), "{s:?}");
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod progress_tests {
+    use super::tests::room;
+    use super::*;
+
+    #[test]
+    fn a_robot_that_never_gets_closer_is_reported_stalled_recovers_and_then_fails() {
+        let mut p = PlanningCore::new(PlanningParams::default());
+        p.set_map(&room());
+        p.set_goal(Goal {
+            id: 7,
+            pose: Pose2D {
+                x: 8.0,
+                y: 1.0,
+                theta: 0.0,
+            },
+            tolerance_m: 0.2,
+            ..Default::default()
+        });
+        let mut events = Vec::new();
+        let mut saw_rotate = false;
+        let mut saw_backup = false;
+        let mut refused = None;
+        let mut status = None;
+        for i in 0..2000 {
+            let t = f64::from(i) * 0.05;
+            // The robot stays put but turns (as the servo would while rotating).
+            let pose = Pose2D {
+                x: 2.0,
+                y: 1.0,
+                theta: (t * 1.5).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI,
+            };
+            let s = p.update_at(Some(t), &pose);
+            events.extend(s.progress.iter().map(|m| m.event));
+            if let Some(w) = s.waypoint {
+                saw_backup |= w.speed < 0.0;
+                let rel = crate::common::relative(&pose, &w.pose);
+                saw_rotate |= w.speed > 0.0 && rel.y.atan2(rel.x) > 1.5;
+            }
+            if s.refused.is_some() {
+                refused = s.refused;
+                status = s.status;
+                break;
+            }
+        }
+        assert_eq!(events.first(), Some(&1), "stalled first: {events:?}");
+        assert_eq!(events.iter().filter(|&&e| e == 2).count(), 4, "{events:?}");
+        assert_eq!(events.last(), Some(&4), "{events:?}");
+        assert!(saw_rotate && saw_backup);
+        let why = refused.unwrap();
+        assert!(why.contains("FAILED") && why.contains("recovery"), "{why}");
+        let st = status.unwrap();
+        assert_eq!(st.goal_state(), GoalState::Refused);
+        assert_eq!(st.refusal_reason(), Some(RefusalReason::Stuck));
+        assert!(p.is_refused());
     }
 }

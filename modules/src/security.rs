@@ -69,8 +69,8 @@ pub struct SafetyConfig {
 impl Default for SafetyConfig {
     fn default() -> Self {
         SafetyConfig {
-            robot_radius: 0.2,
-            side_margin: 0.05,
+            robot_radius: crate::footprint::ROBOT_RADIUS_M,
+            side_margin: crate::footprint::FOOTPRINT_MARGIN_M,
             safety_distance: 0.10,
             max_decel: 1.5,
             reaction_time_s: 0.15,
@@ -143,15 +143,14 @@ pub fn free_distance(scan: &ScanView<'_>, v: f64, w: f64, cfg: &SafetyConfig) ->
         // Mirror so the motion is forward (+x).
         let (x, y) = (x * dir, y);
         let d = if k.abs() < 1e-3 {
-            if y.abs() >= r || x < -r {
+            // A point level with the centre or behind it only gets farther as the robot
+            // moves (even one inside the margin: moving away is never limited, so a robot
+            // that ended up too close to a wall can always leave it).
+            if y.abs() >= r || x <= 0.0 {
                 continue;
             }
             // Distance along x until the disc edge reaches the point.
-            let along = x - (r * r - y * y).sqrt();
-            if x < 0.0 && along < 0.0 && x * x + y * y > r * r {
-                continue; // behind the robot and not touching it
-            }
-            along.max(0.0)
+            (x - (r * r - y * y).sqrt()).max(0.0)
         } else {
             // Forward motion with curvature k (mirrored motion keeps k = w/v: a robot backing
             // up with w > 0 curves the same way in the mirrored frame).
@@ -168,8 +167,8 @@ pub fn free_distance(scan: &ScanView<'_>, v: f64, w: f64, cfg: &SafetyConfig) ->
             let mut da = (ap - a0) * rad.signum();
             da = da.rem_euclid(2.0 * PI);
             if da > PI {
-                // Behind: only counts if it touches the disc now.
-                if x * x + y * y < r * r {
+                // Behind: only counts if it touches the disc now and is ahead of the centre.
+                if x * x + y * y < r * r && x > 0.0 {
                     0.0
                 } else {
                     continue;
@@ -604,6 +603,31 @@ mod tests {
         assert!((d - 1.75).abs() < 0.01, "{d}");
         assert_eq!(free_distance(&view(&r), -0.5, 0.0, &cfg), f64::INFINITY);
         assert_eq!(free_distance(&view(&r), 0.0, 1.0, &cfg), f64::INFINITY);
+    }
+
+    #[test]
+    fn a_robot_inside_the_margin_of_a_wall_may_leave_it_but_not_approach_it() {
+        let cfg = SafetyConfig::default();
+        // The wall 0.22 m ahead: inside the 0.25 m disc of robot radius and side margin.
+        let r = wall_scan(0.22);
+        assert_eq!(free_distance(&view(&r), 0.5, 0.0, &cfg), 0.0, "towards it");
+        assert_eq!(
+            free_distance(&view(&r), 0.3, 0.6, &cfg),
+            0.0,
+            "arc towards it"
+        );
+        assert_eq!(
+            free_distance(&view(&r), -0.3, 0.0, &cfg),
+            f64::INFINITY,
+            "away"
+        );
+        assert_eq!(
+            free_distance(&view(&r), -0.3, 0.5, &cfg),
+            f64::INFINITY,
+            "arc away"
+        );
+        let d = decide(&fwd(-0.3, 0.0), &view(&r), &cfg);
+        assert!(!d.limited && d.cmd.linear_x == -0.3, "{d:?}");
     }
 
     #[test]

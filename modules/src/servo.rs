@@ -125,6 +125,11 @@ impl ServoCore {
             out.reached = true;
             return out;
         }
+        if wp.speed < 0.0 {
+            // Backing up (Planning's recovery, `planning::progress`): straight back.
+            out.cmd = Some(twist(wp.speed.max(-p.max_speed), 0.0));
+            return out;
+        }
         if bearing.abs() > p.rotate_in_place_rad {
             let w = (p.heading_gain * bearing).clamp(-p.max_angular, p.max_angular);
             out.cmd = Some(twist(0.0, w));

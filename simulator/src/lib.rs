@@ -18,6 +18,7 @@
 
 pub mod bench;
 mod error;
+pub mod generate;
 pub mod map;
 pub mod module;
 mod pacing;

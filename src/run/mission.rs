@@ -59,6 +59,8 @@ pub struct MissionOptions {
     pub seed: Option<u64>,
     /// Limit of simulated time, s.
     pub duration_s: f64,
+    /// Position tolerance of every goal, m.
+    pub tolerance_m: f64,
 }
 
 impl Default for MissionOptions {
@@ -70,6 +72,7 @@ impl Default for MissionOptions {
             speed: DEFAULT_SPEED.to_owned(),
             seed: None,
             duration_s: DEFAULT_DURATION_S,
+            tolerance_m: GOAL_TOLERANCE_M,
         }
     }
 }
@@ -181,6 +184,12 @@ impl Mission {
         } else {
             bail!("give the goal with --goal X,Y (the default goals are for the default world)");
         };
+        if !(opts.tolerance_m.is_finite() && opts.tolerance_m > 0.0) {
+            bail!(
+                "--tolerance must be a positive distance in metres, got {}",
+                opts.tolerance_m
+            );
+        }
         if !(opts.duration_s.is_finite() && opts.duration_s > 0.0) {
             bail!(
                 "--duration must be a positive number of seconds, got {}",
@@ -319,7 +328,8 @@ give_up_window = "60s"
     for (x, y) in goals {
         let _ = writeln!(
             s,
-            "  {{ x = {x:?}, y = {y:?}, tolerance = {GOAL_TOLERANCE_M:?} }},"
+            "  {{ x = {x:?}, y = {y:?}, tolerance = {:?} }},",
+            opts.tolerance_m
         );
     }
     let _ = writeln!(s, "]");

@@ -23,6 +23,7 @@ pub mod lock;
 pub mod logs;
 pub mod mission;
 pub mod monitor;
+mod nav_watch;
 pub mod probe;
 mod receiver;
 pub mod status;
@@ -100,6 +101,10 @@ pub struct RunArgs {
     /// Built-in mission: limit of simulated time, s; the mission fails when it is exceeded.
     #[arg(long, conflicts_with = "file", default_value_t = mission::DEFAULT_DURATION_S)]
     pub duration: f64,
+    /// Built-in mission: position tolerance of the goals, m (reached when the true pose is
+    /// within it).
+    #[arg(long, conflicts_with = "file", default_value_t = mission::GOAL_TOLERANCE_M)]
+    pub tolerance: f64,
     /// Built-in mission: also write the summary as JSON to this file.
     #[arg(long, conflicts_with = "file")]
     pub summary: Option<PathBuf>,
@@ -121,6 +126,7 @@ impl RunArgs {
             speed: self.speed.clone(),
             seed: self.seed,
             duration_s: self.duration,
+            tolerance_m: self.tolerance,
         }
     }
 }

@@ -20,6 +20,9 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context as _, Result};
 use hng_modules::manager::{MISSION_PLAN_CHANNEL, MissionPlan};
+use hng_modules::planning::progress::{NavProgress, PROGRESS_CHANNEL};
+
+use super::nav_watch::NavWatch;
 use hng_runtime::msg::PoseWithCovariance;
 use hng_runtime::system::{
     CONTRACTS, CommandOp, ContractRole, ContractTable, EventKind, JsonInfo, ModuleEvent,
@@ -79,6 +82,15 @@ pub struct Summary {
     pub contract_switches: u64,
     /// Module processes that died and were restarted.
     pub restarts: u64,
+    /// Simulated time the true pose moved less than 5 cm in a second while a goal was
+    /// pursued, s.
+    pub stuck_time_s: f64,
+    /// Stalls Planning reported (no progress toward a goal).
+    pub stalls: u64,
+    /// Recovery behaviours Planning started.
+    pub recoveries: u64,
+    /// Why the mission failed (`null` on success).
+    pub failure: Option<String>,
 }
 
 /// How the mission ended, with the summary.
@@ -155,6 +167,8 @@ struct State {
     truth: hng_runtime::Subscriber<PoseWithCovariance>,
     events: hng_runtime::Subscriber<ModuleEvent>,
     tables: hng_runtime::Subscriber<ContractTable>,
+    progress: hng_runtime::Subscriber<NavProgress>,
+    nav: NavWatch,
     command: hng_runtime::Publisher<SupervisorCommand>,
     waiter: Waiter,
     _node: Node,
@@ -194,6 +208,7 @@ impl State {
         let events = node.subscriber::<ModuleEvent>(SUPERVISOR_EVENTS)?;
         let tables = node.subscriber::<ContractTable>(CONTRACTS)?;
         let command = node.publisher::<SupervisorCommand>(SUPERVISOR_COMMAND)?;
+        let progress = node.subscriber::<NavProgress>(PROGRESS_CHANNEL)?;
         let mut waiter = Waiter::new(WaitMode::Blocking {
             max_spin: Duration::ZERO,
         })?;
@@ -204,6 +219,7 @@ impl State {
         waiter.attach(&truth)?;
         waiter.attach(&events)?;
         waiter.attach(&tables)?;
+        waiter.attach(&progress)?;
         let now = Instant::now();
         Ok(State {
             mission,
@@ -211,6 +227,8 @@ impl State {
             truth,
             events,
             tables,
+            progress,
+            nav: NavWatch::default(),
             command,
             waiter,
             _node: node,
@@ -282,6 +300,10 @@ impl State {
             collisions: self.collisions,
             contract_switches: self.switches,
             restarts: self.restarts,
+            stuck_time_s: self.nav.stuck_time_s(),
+            stalls: self.nav.stalls(),
+            recoveries: self.nav.recoveries(),
+            failure: None,
         };
         if ended {
             // Stop the system: the supervisor stops every module in order.
@@ -291,6 +313,8 @@ impl State {
         } else if failure.is_none() {
             failure = Some("the system was stopped before the mission ended".to_owned());
         }
+        let mut summary = summary;
+        summary.failure.clone_from(&failure);
         Ok(Outcome { summary, failure })
     }
 
@@ -376,6 +400,13 @@ impl State {
                 self.truth_log.pop_front();
             }
             self.truth_log.push_back((p.header.stamp_ns, x, y));
+            let active = !self.done && !self.goals.is_empty();
+            self.nav
+                .on_truth(p.header.stamp_ns as f64 * 1e-9, x, y, active);
+        }
+        while let Some(m) = self.progress.receive()? {
+            let line = self.nav.on_progress(&m);
+            self.say(&line);
         }
         let mut plans = Vec::new();
         while let Some(m) = self.mission.receive()? {
@@ -575,6 +606,11 @@ impl std::fmt::Display for Summary {
                 g.id, g.x, g.y, g.state
             )?;
         }
+        writeln!(
+            f,
+            "  stalls            {} ({} recovery behaviours, {:.1} s standing still)",
+            self.stalls, self.recoveries, self.stuck_time_s
+        )?;
         writeln!(f, "  contract switches {}", self.contract_switches)?;
         write!(f, "  restarts          {}", self.restarts)
     }

@@ -16,6 +16,7 @@ mod mission;
 mod mission_cmd;
 mod modules;
 mod orders;
+mod nav;
 mod recording;
 mod rm;
 mod sdk;

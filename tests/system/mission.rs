@@ -109,13 +109,17 @@ fn summary_fields_are_exactly_the_documented_ones(s: &serde_json::Value) {
         [
             "collisions",
             "contract_switches",
+            "failure",
             "goals",
             "goals_reached",
             "goals_total",
             "min_obstacle_distance_m",
             "path_length_m",
+            "recoveries",
             "restarts",
             "sim_time_s",
+            "stalls",
+            "stuck_time_s",
             "success",
             "wall_time_s"
         ]

@@ -220,6 +220,32 @@ impl GridPlanner {
         start: (i64, i64),
         goal: (i64, i64),
     ) -> Result<GridPath, PlanError> {
+        self.search(grid, None, start, goal)
+    }
+
+    /// Like [`Self::plan_cells`], but a move into cell `i` costs its length times
+    /// `1 + extra[i]` (`extra` has one entry per cell, each `>= 0`: a costmap's inflation
+    /// cost). The octile heuristic stays admissible, so the path has the least total cost;
+    /// with every `extra` 0 it is the plain shortest path. `extra` of the wrong length is
+    /// ignored (plain costs).
+    pub fn plan_cells_weighted(
+        &mut self,
+        grid: &OccupancyGrid,
+        extra: &[f32],
+        start: (i64, i64),
+        goal: (i64, i64),
+    ) -> Result<GridPath, PlanError> {
+        let extra = (extra.len() == grid.data().len()).then_some(extra);
+        self.search(grid, extra, start, goal)
+    }
+
+    fn search(
+        &mut self,
+        grid: &OccupancyGrid,
+        extra: Option<&[f32]>,
+        start: (i64, i64),
+        goal: (i64, i64),
+    ) -> Result<GridPath, PlanError> {
         let (w, h) = (grid.width(), grid.height());
         let Some(si) = grid.index(start.0, start.1) else {
             return Err(PlanError::StartOutsideMap {
@@ -294,7 +320,10 @@ impl GridPlanner {
                 if self.closed[ni] == gen_ {
                     continue;
                 }
-                let ng = g + step;
+                let ng = match extra {
+                    None => g + step,
+                    Some(e) => g + step * (1.0 + f64::from(e[ni].max(0.0))),
+                };
                 if self.seen[ni] != gen_ || ng < self.g[ni] {
                     self.seen[ni] = gen_;
                     self.g[ni] = ng;

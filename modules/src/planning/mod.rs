@@ -15,14 +15,18 @@
 //! grid path into waypoints for the controller.
 
 mod astar;
+pub mod costmap;
 mod inflate;
 pub mod movingai;
+pub(crate) mod path;
+pub mod progress;
 mod smooth;
 
 pub use astar::{
     GridPath, GridPlanner, Path, PlanError, PlannerConfig, SQRT_2, octile, path_length_cells,
 };
+pub use costmap::{Costmap, CostmapConfig, inflation_cost, resample};
 pub use hng_runtime::map::{FREE, GridError, OCCUPIED, OccupancyGrid, UNKNOWN};
 pub use inflate::{InflationConfig, inflate, squared_distance_transform};
 pub use movingai::{MovingAiError, PlannerEval, eval_movingai};
-pub use smooth::{line_of_sight, simplify};
+pub use smooth::{line_of_sight, line_of_sight_by, simplify, simplify_with_cost};

@@ -1,6 +1,6 @@
 //! Path simplification: greedy line-of-sight shortcutting of a grid path.
 
-use super::astar::{GridPath, PlannerConfig};
+use super::astar::{GridPath, PlannerConfig, SQRT_2};
 use hng_runtime::map::OccupancyGrid;
 
 /// Whether the straight segment between the centres of cells `a` and `b`
@@ -14,7 +14,11 @@ pub fn line_of_sight(
     a: (i64, i64),
     b: (i64, i64),
 ) -> bool {
-    let pass = |x: i64, y: i64| grid.get(x, y).is_some_and(|v| cfg.passable(v));
+    line_of_sight_by(a, b, |x, y| grid.get(x, y).is_some_and(|v| cfg.passable(v)))
+}
+
+/// [`line_of_sight`] with any passability test `pass(x, y)`.
+pub fn line_of_sight_by(a: (i64, i64), b: (i64, i64), pass: impl Fn(i64, i64) -> bool) -> bool {
     let (mut x, mut y) = a;
     if !pass(x, y) {
         return false;
@@ -74,6 +78,73 @@ pub fn simplify(grid: &OccupancyGrid, cfg: &PlannerConfig, path: &GridPath) -> V
                 break;
             }
             next = j;
+        }
+        let p = cells[next];
+        out.push(grid.cell_to_world(p.0 as i64, p.1 as i64));
+        anchor = next;
+    }
+    out
+}
+
+/// [`simplify`] on a costmap: a shortcut from one kept point to a later path cell is taken
+/// only if it costs no more than the stretch of path it replaces (a segment's cost: its
+/// length times one plus the mean inflation cost `cost` of the cells it crosses; the path's:
+/// each step's length times one plus its cell's cost, as the planner counts it). A shortcut
+/// along a wall is dearer than the planned path through the middle and is not taken, while
+/// any-angle shortcuts through open space are.
+pub fn simplify_with_cost(
+    grid: &OccupancyGrid,
+    cfg: &PlannerConfig,
+    cost: &[f32],
+    path: &GridPath,
+) -> Vec<[f64; 2]> {
+    if cost.len() != grid.data().len() {
+        return simplify(grid, cfg, path);
+    }
+    let cells = &path.cells;
+    let mut out = Vec::new();
+    let Some(&first) = cells.first() else {
+        return out;
+    };
+    let w = grid.width() as i64;
+    let cost_at = |x: i64, y: i64| f64::from(cost[(y * w + x) as usize].max(0.0));
+    let c = |p: (u32, u32)| (p.0 as i64, p.1 as i64);
+    // prefix[i]: the path's cost from its start to cell i.
+    let mut prefix = vec![0.0f64; cells.len()];
+    for i in 1..cells.len() {
+        let (a, b) = (c(cells[i - 1]), c(cells[i]));
+        let step = if a.0 != b.0 && a.1 != b.1 {
+            SQRT_2
+        } else {
+            1.0
+        };
+        prefix[i] = prefix[i - 1] + step * (1.0 + cost_at(b.0, b.1));
+    }
+    out.push(grid.cell_to_world(first.0 as i64, first.1 as i64));
+    let mut anchor = 0usize;
+    while anchor + 1 < cells.len() {
+        let a = c(cells[anchor]);
+        let mut next = anchor + 1;
+        for j in anchor + 2..cells.len() {
+            let b = c(cells[j]);
+            let sum = std::cell::Cell::new(0.0f64);
+            let count = std::cell::Cell::new(0usize);
+            let visible = line_of_sight_by(a, b, |x, y| {
+                let ok = grid.get(x, y).is_some_and(|v| cfg.passable(v));
+                if ok && (x, y) != a {
+                    sum.set(sum.get() + cost_at(x, y));
+                    count.set(count.get() + 1);
+                }
+                ok
+            });
+            if !visible {
+                break;
+            }
+            let len = ((b.0 - a.0) as f64).hypot((b.1 - a.1) as f64);
+            let mean = sum.get() / count.get().max(1) as f64;
+            if len * (1.0 + mean) <= (prefix[j] - prefix[anchor]) * (1.0 + 1e-9) + 1e-9 {
+                next = j;
+            }
         }
         let p = cells[next];
         out.push(grid.cell_to_world(p.0 as i64, p.1 as i64));

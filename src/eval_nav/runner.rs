@@ -1,0 +1,294 @@
+//! One problem of `hng eval nav`: the whole system (`hng run`, every module its own process,
+//! lockstep) started at the problem's start, one goal, its summary read back; the CPU time of
+//! each module process sampled from /proc while it runs.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context as _, Result};
+use serde::Serialize;
+use serde_json::Value;
+
+use super::problems::Problem;
+
+/// How each problem is run.
+#[derive(Debug, Clone)]
+pub struct RunOptions {
+    /// `hng` executable.
+    pub exe: PathBuf,
+    /// `--speed` of `hng run`.
+    pub speed: String,
+    /// Goal tolerance, m.
+    pub tolerance_m: f64,
+    /// Simulated time allowed: `base + per_m × optimum`, s.
+    pub duration_base_s: f64,
+    /// Simulated seconds allowed per metre of the optimum.
+    pub duration_per_m_s: f64,
+    /// Seed of the simulator's noise.
+    pub seed: Option<u64>,
+    /// Folder of the problems' run directories and outputs.
+    pub dir: PathBuf,
+    /// Keep each problem's run directory (outputs, logs).
+    pub keep: bool,
+}
+
+/// What one problem gave.
+#[derive(Debug, Clone, Serialize)]
+pub struct ProblemResult {
+    /// The problem.
+    #[serde(flatten)]
+    pub problem: Problem,
+    /// Goal reached (true pose within tolerance), no collision, in time.
+    pub success: bool,
+    /// Why not (the mission's failure, the goal's reason).
+    pub reason: Option<String>,
+    /// Simulated time to the end, s.
+    pub time_s: f64,
+    /// Wall time of the whole run (start-up and shut-down included), s.
+    pub wall_s: f64,
+    /// Length of the true path, m.
+    pub path_length_m: f64,
+    /// `path_length_m / optimum_m` (successful problems).
+    pub path_ratio: Option<f64>,
+    /// Smallest gap between the robot and an obstacle (world geometry), m.
+    pub min_clearance_m: Option<f64>,
+    /// Contacts with obstacles.
+    pub collisions: u64,
+    /// Simulated time the true pose moved less than 5 cm per second while the goal was
+    /// pending, s.
+    pub stuck_time_s: f64,
+    /// Stalls Planning reported (no progress for its stall time).
+    pub stalls: u64,
+    /// Recovery behaviours Planning started.
+    pub recoveries: u64,
+    /// Distance of the true pose from the goal at the end, m.
+    pub true_error_m: Option<f64>,
+    /// CPU time of each module process (and `run`, the supervisor), s.
+    pub cpu_s: BTreeMap<String, f64>,
+}
+
+/// Clock ticks per second of /proc's CPU times: USER_HZ, 100 on every Linux architecture
+/// this runs on (the kernel's ABI constant, whatever its internal HZ).
+fn ticks_per_s() -> f64 {
+    100.0
+}
+
+/// (ppid, utime + stime in ticks) of a process.
+fn proc_stat(pid: u32) -> Option<(u32, u64)> {
+    let s = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
+    let rest = &s[s.rfind(')')? + 2..];
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    // After the name: state(0) ppid(1) ... utime(11) stime(12).
+    let ppid = f.get(1)?.parse().ok()?;
+    let ut: u64 = f.get(11)?.parse().ok()?;
+    let st: u64 = f.get(12)?.parse().ok()?;
+    Some((ppid, ut + st))
+}
+
+/// The module name of an `hng module NAME` process.
+fn module_name(pid: u32) -> Option<String> {
+    let c = std::fs::read(format!("/proc/{pid}/cmdline")).ok()?;
+    let args: Vec<String> = c
+        .split(|&b| b == 0)
+        .map(|a| String::from_utf8_lossy(a).into_owned())
+        .collect();
+    let i = args.iter().position(|a| a == "module")?;
+    args.get(i + 1).cloned()
+}
+
+/// CPU ticks of the children of `parent`, by pid (the latest reading of each).
+fn sample_children(parent: u32, seen: &mut BTreeMap<u32, (String, u64)>) {
+    let Ok(dir) = std::fs::read_dir("/proc") else {
+        return;
+    };
+    for e in dir.flatten() {
+        let Some(pid) = e.file_name().to_str().and_then(|s| s.parse::<u32>().ok()) else {
+            continue;
+        };
+        let Some((ppid, ticks)) = proc_stat(pid) else {
+            continue;
+        };
+        if ppid != parent {
+            continue;
+        }
+        match seen.get_mut(&pid) {
+            Some(v) => v.1 = v.1.max(ticks),
+            None => {
+                if let Some(name) = module_name(pid) {
+                    seen.insert(pid, (name, ticks));
+                }
+            }
+        }
+    }
+}
+
+fn f64_of(v: &Value, k: &str) -> Option<f64> {
+    v.get(k).and_then(Value::as_f64)
+}
+
+/// Runs one problem.
+pub fn run(p: &Problem, o: &RunOptions) -> Result<ProblemResult> {
+    let prefix = hng_runtime::shm::unique_prefix("evalnav");
+    let dir = o.dir.join(format!("p{:04}", p.id));
+    std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+    let summary_path = dir.join("summary.json");
+    let _ = std::fs::remove_file(&summary_path);
+    let duration = o.duration_base_s + o.duration_per_m_s * p.optimum_m.unwrap_or(30.0);
+    let mut cmd = Command::new(&o.exe);
+    cmd.env("HNG_LOG", "warn")
+        .arg("--prefix")
+        .arg(&prefix)
+        .arg("run")
+        .arg("--run-dir")
+        .arg(dir.join("run"))
+        .arg("--world")
+        .arg(&p.world)
+        .arg("--start")
+        .arg(format!("{},{},{}", p.start[0], p.start[1], p.start[2]))
+        .arg("--goal")
+        .arg(format!("{},{}", p.goal[0], p.goal[1]))
+        .arg("--speed")
+        .arg(&o.speed)
+        .arg("--duration")
+        .arg(format!("{duration}"))
+        .arg("--tolerance")
+        .arg(format!("{}", o.tolerance_m))
+        .arg("--summary")
+        .arg(&summary_path)
+        .stdin(Stdio::null())
+        .stdout(std::fs::File::create(dir.join("stdout.txt"))?)
+        .stderr(std::fs::File::create(dir.join("stderr.txt"))?);
+    if let Some(s) = o.seed {
+        cmd.arg("--seed").arg(s.to_string());
+    }
+    let started = Instant::now();
+    let mut child = cmd
+        .spawn()
+        .with_context(|| format!("starting {}", o.exe.display()))?;
+    let pid = child.id();
+    let mut seen = BTreeMap::new();
+    let mut own_ticks = 0;
+    // Wall limit: the run gives up by itself at its duration; this only guards against a
+    // system that never ends (0.25x real time or slower).
+    let wall_limit = Duration::from_secs_f64(60.0 + 4.0 * duration);
+    let status = loop {
+        if let Some(st) = child.try_wait()? {
+            break Some(st);
+        }
+        sample_children(pid, &mut seen);
+        if let Some((_, t)) = proc_stat(pid) {
+            own_ticks = own_ticks.max(t);
+        }
+        if started.elapsed() > wall_limit {
+            let _ = child.kill();
+            let _ = child.wait();
+            break None;
+        }
+        std::thread::sleep(Duration::from_millis(200));
+    };
+    let wall_s = started.elapsed().as_secs_f64();
+    hng_runtime::shm::remove_prefix_files(&prefix);
+    let tps = ticks_per_s();
+    let mut cpu_s: BTreeMap<String, f64> = BTreeMap::new();
+    for (name, t) in seen.values() {
+        *cpu_s.entry(name.clone()).or_default() += *t as f64 / tps;
+    }
+    cpu_s.insert("run".into(), own_ticks as f64 / tps);
+    let summary: Option<Value> = std::fs::read_to_string(&summary_path)
+        .ok()
+        .and_then(|t| serde_json::from_str(&t).ok());
+    let stdout = std::fs::read_to_string(dir.join("stdout.txt")).unwrap_or_default();
+    let result = match summary {
+        Some(s) => from_summary(p, &s, &stdout, wall_s, cpu_s),
+        None => {
+            let why = match status {
+                None => format!("no end after {:.0} s of wall time: killed", wall_s),
+                Some(st) => format!(
+                    "hng run ended ({st}) without a summary; stderr: {}",
+                    last_lines(&dir.join("stderr.txt"), 3)
+                ),
+            };
+            ProblemResult {
+                problem: p.clone(),
+                success: false,
+                reason: Some(why),
+                time_s: 0.0,
+                wall_s,
+                path_length_m: 0.0,
+                path_ratio: None,
+                min_clearance_m: None,
+                collisions: 0,
+                stuck_time_s: 0.0,
+                stalls: 0,
+                recoveries: 0,
+                true_error_m: None,
+                cpu_s,
+            }
+        }
+    };
+    if !o.keep && result.success {
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+    Ok(result)
+}
+
+fn last_lines(path: &Path, n: usize) -> String {
+    let t = std::fs::read_to_string(path).unwrap_or_default();
+    let lines: Vec<&str> = t.lines().collect();
+    lines[lines.len().saturating_sub(n)..].join(" | ")
+}
+
+fn from_summary(
+    p: &Problem,
+    s: &Value,
+    stdout: &str,
+    wall_s: f64,
+    cpu_s: BTreeMap<String, f64>,
+) -> ProblemResult {
+    let success = s.get("success").and_then(Value::as_bool).unwrap_or(false);
+    let goal = s
+        .get("goals")
+        .and_then(Value::as_array)
+        .and_then(|g| g.first());
+    let failure_line = stdout
+        .lines()
+        .find_map(|l| l.strip_prefix("mission failed: "))
+        .map(str::to_owned);
+    let reason = if success {
+        None
+    } else {
+        s.get("failure")
+            .and_then(Value::as_str)
+            .map(str::to_owned)
+            .or(failure_line)
+            .or_else(|| {
+                goal.and_then(|g| g.get("reason"))
+                    .and_then(Value::as_str)
+                    .map(str::to_owned)
+            })
+            .or_else(|| Some("failed (no reason given)".into()))
+    };
+    let path_length_m = f64_of(s, "path_length_m").unwrap_or(0.0);
+    let count = |k: &str| s.get(k).and_then(Value::as_u64).unwrap_or(0);
+    ProblemResult {
+        problem: p.clone(),
+        success,
+        reason,
+        time_s: f64_of(s, "sim_time_s").unwrap_or(0.0),
+        wall_s,
+        path_length_m,
+        path_ratio: p
+            .optimum_m
+            .filter(|o| *o > 0.0 && success)
+            .map(|o| path_length_m / o),
+        min_clearance_m: f64_of(s, "min_obstacle_distance_m"),
+        collisions: count("collisions"),
+        stuck_time_s: f64_of(s, "stuck_time_s").unwrap_or(0.0),
+        stalls: count("stalls"),
+        recoveries: count("recoveries"),
+        true_error_m: goal.and_then(|g| f64_of(g, "true_error_m")),
+        cpu_s,
+    }
+}

@@ -1,0 +1,181 @@
+//! Navigation end to end (`hng run` and `hng eval nav`, every module its own process, in
+//! lockstep): a robot boxed in by a world script goes through every recovery behaviour and
+//! fails with its reason; a robot starting inside the footprint margin of a wall, facing it,
+//! first leaves it; a small sample of generated worlds is navigated.
+
+use std::path::Path;
+
+use crate::mission::{MissionRun as Run, hng};
+
+/// A corridor 12 m long and 2 m wide (y 0..2) along x, closed at both ends; `extra` is
+/// appended (events, ...). Start at `start`.
+fn corridor(dir: &Path, start: (f64, f64, f64), extra: &str) -> std::path::PathBuf {
+    let world = format!(
+        r#"name = "nav-corridor"
+seed = 5
+
+[robot]
+start = {{ x = {}, y = {}, theta = {} }}
+
+[[walls]]
+from = [0.0, 0.0]
+to = [12.0, 0.0]
+
+[[walls]]
+from = [12.0, 0.0]
+to = [12.0, 2.0]
+
+[[walls]]
+from = [12.0, 2.0]
+to = [0.0, 2.0]
+
+[[walls]]
+from = [0.0, 2.0]
+to = [0.0, 0.0]
+{extra}"#,
+        start.0, start.1, start.2
+    );
+    let path = dir.join("corridor.toml");
+    std::fs::write(&path, world).expect("world file");
+    path
+}
+
+#[test]
+fn a_robot_boxed_in_by_a_world_script_tries_every_recovery_and_fails_with_its_reason() {
+    let _heavy = crate::common::heavy();
+    let r = Run::new("nav_boxed_in");
+    // At 1 s a box closes the corridor 2.5 m ahead of the robot: it is not on the known map
+    // (Maps' grid is the drawn world), so Planning's path runs through it and Security
+    // holds the robot in front of it.
+    let world = corridor(
+        &r.dir,
+        (1.0, 1.0, 0.0),
+        r#"
+[[events]]
+at_s = 1.0
+add_box = { name = "closed", center = [3.5, 1.0], size = [0.3, 2.1] }
+"#,
+    );
+    let w = world.to_string_lossy();
+    let (out, s) = r.run(&[
+        "--world",
+        &w,
+        "--goal",
+        "10,1",
+        "--speed",
+        "max",
+        "--duration",
+        "150",
+    ]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        !out.status.success(),
+        "boxed in, yet succeeded: {s}\n{text}"
+    );
+    assert_eq!(s["success"], false, "{s}");
+    assert_eq!(s["collisions"], 0, "{s}\n{text}");
+    assert!(s["stalls"].as_u64().expect("stalls") >= 1, "{s}\n{text}");
+    assert_eq!(s["recoveries"], 4, "{s}\n{text}");
+    let goal = &s["goals"][0];
+    assert_eq!(goal["state"], "refused", "{s}");
+    let why = goal["reason"].as_str().expect("a reason");
+    assert!(why.contains("stuck"), "{why}");
+    let failure = s["failure"].as_str().expect("a failure");
+    assert!(failure.contains("stuck"), "{failure}");
+    // The progress lines name the stall, each behaviour and the failure, in order.
+    let mut at = 0;
+    for line in [
+        "STALLED",
+        "recovery 1: clear the costmap",
+        "recovery 2: rotate in place",
+        "recovery 3: back up",
+        "recovery 4: re-plan",
+        "FAILED: no progress",
+        "goal REFUSED",
+    ] {
+        let i = text[at..]
+            .find(line)
+            .unwrap_or_else(|| panic!("no {line:?} after byte {at}:\n{text}"));
+        at += i + line.len();
+    }
+    // The robot stood still most of the time after the box appeared.
+    assert!(
+        s["stuck_time_s"].as_f64().expect("stuck time") > 10.0,
+        "{s}"
+    );
+}
+
+#[test]
+fn a_robot_starting_inside_the_margin_of_a_wall_facing_it_first_moves_away() {
+    let _heavy = crate::common::heavy();
+    let r = Run::new("nav_wall_start");
+    // 0.25 m from the west wall's centre line (its surface at 0.025 m): a gap of 25 mm
+    // (above the simulator's 5 mm contact margin), facing the wall; Security's 0.25 m disc
+    // already overlaps it.
+    let world = corridor(&r.dir, (0.25, 1.0, std::f64::consts::PI), "");
+    let w = world.to_string_lossy();
+    let (out, s) = r.run(&[
+        "--world",
+        &w,
+        "--goal",
+        "6,1",
+        "--speed",
+        "max",
+        "--duration",
+        "90",
+    ]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{s}\n{text}");
+    assert_eq!(s["success"], true, "{s}");
+    assert_eq!(s["collisions"], 0, "{s}");
+    assert_eq!(s["goals"][0]["state"], "reached", "{s}");
+}
+
+#[test]
+fn a_sample_of_generated_worlds_is_navigated_and_every_failure_has_a_reason() {
+    let _heavy = crate::common::heavy();
+    let r = Run::new("nav_generated");
+    let out = hng()
+        .args(["eval", "nav", "--generate", "5", "--seed", "3", "--json"])
+        .args(["--tolerance", "1.0", "--dir"])
+        .arg(r.dir.join("eval"))
+        .output()
+        .expect("hng eval nav");
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{text}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let lines: Vec<serde_json::Value> = text
+        .lines()
+        .map(|l| serde_json::from_str(l).expect("a JSON line"))
+        .collect();
+    let (summary, problems) = lines.split_last().expect("lines");
+    assert_eq!(summary["summary"], true, "{summary}");
+    assert_eq!(problems.len(), 5, "{text}");
+    for p in problems {
+        for k in [
+            "success",
+            "time_s",
+            "path_length_m",
+            "optimum_m",
+            "min_clearance_m",
+            "collisions",
+            "stuck_time_s",
+            "recoveries",
+            "reason",
+        ] {
+            assert!(p.get(k).is_some(), "no {k} in {p}");
+        }
+        assert_eq!(p["collisions"], 0, "{p}");
+        if p["success"] == true {
+            let ratio = p["path_ratio"].as_f64().expect("ratio");
+            assert!(ratio > 0.5 && ratio < 2.0, "{p}");
+        } else {
+            assert!(p["reason"].as_str().is_some_and(|r| !r.is_empty()), "{p}");
+        }
+    }
+    let ok = summary["successes"].as_u64().expect("successes");
+    assert!(ok >= 4, "{ok} of 5 generated problems: {text}");
+}
