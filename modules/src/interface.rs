@@ -22,8 +22,8 @@
 
 use hng_runtime::channel::InputId;
 use hng_runtime::contract::{NeedSpec, ServiceOffer};
-use hng_runtime::control::{ProviderInfo, ProviderInput};
-use hng_runtime::msg::{BeaconObservation, Twist};
+use hng_runtime::control::ProviderInfo;
+use hng_runtime::msg::Twist;
 use hng_runtime::{Context, Module, ModuleResult, Publisher, Subscriber};
 use serde::{Deserialize, Serialize};
 
@@ -75,7 +75,7 @@ pub struct InterfaceModule {
     teleop_in: Subscriber<Twist>,
     /// Commands to the contracted Robot's channel.
     cmd_out: Option<Publisher<Twist>>,
-    video: ProviderInput<BeaconObservation>,
+    video: crate::video::VideoInput,
     state: InterfaceState,
     /// The last teleoperation command was not finite (one warning per run of them).
     last_invalid: bool,
@@ -100,7 +100,7 @@ impl Module for InterfaceModule {
         Ok(InterfaceModule {
             teleop_in: ctx.subscribe(&cfg.teleop_in, None)?,
             cmd_out: None,
-            video: ProviderInput::new(),
+            video: crate::video::VideoInput::new(),
             state: InterfaceState::default(),
             last_invalid: false,
         })

@@ -26,6 +26,8 @@ pub mod servo;
 pub mod slam;
 pub mod slam_module;
 pub mod tracker;
+pub mod tracker_hist;
+pub mod video;
 pub mod wall_follow;
 pub mod walls;
 
