@@ -23,6 +23,9 @@ pub const BUILTIN: &[&str] = &[
     "slam",
     "gps",
     "maps",
+    "tracker_colour",
+    "tracker_histogram",
+    "reacher",
 ];
 
 /// Runs built-in module `name` as this process.
@@ -44,6 +47,13 @@ pub fn run(name: &str) -> ExitCode {
         "slam" => hng_runtime::run_module::<hng_modules::slam_module::SlamModule>(),
         "gps" => hng_runtime::run_module::<hng_modules::gps::GpsModule>(),
         "maps" => hng_runtime::run_module::<hng_modules::maps::MapsModule>(),
+        "tracker_colour" => {
+            hng_runtime::run_module::<hng_modules::tracker_module::ColourTrackerModule>()
+        }
+        "tracker_histogram" => {
+            hng_runtime::run_module::<hng_modules::tracker_module::HistogramTrackerModule>()
+        }
+        "reacher" => hng_runtime::run_module::<hng_modules::reacher_module::ReacherModule>(),
         _ => {
             eprintln!(
                 "hng: no built-in module {name:?}; built-in modules: {}",

@@ -46,6 +46,9 @@ fn check_config(name: &str, text: &str) -> Option<Result<(), ModuleProblem>> {
         "slam" => config_of::<m::slam_module::SlamModule>(text),
         "gps" => config_of::<m::gps::GpsModule>(text),
         "maps" => config_of::<m::maps::MapsModule>(text),
+        "tracker_colour" => config_of::<m::tracker_module::ColourTrackerModule>(text),
+        "tracker_histogram" => config_of::<m::tracker_module::HistogramTrackerModule>(text),
+        "reacher" => config_of::<m::reacher_module::ReacherModule>(text),
         _ => return None,
     })
 }
