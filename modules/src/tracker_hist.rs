@@ -14,12 +14,14 @@
 //!    `noise_sigma` divided by brightness: dark pixels have noisy hues), and when it does not
 //!    hold more than `max_bin_share` of the image (a large uniform surface of that hue, sky or
 //!    wall, is not a marker);
-//! 3. a second pass labels every pixel through its bin and counts band pixels per column; the
-//!    marker is then found as by the colour tracker ([`crate::tracker::marker`]).
+//! 3. a second pass labels every pixel through its bin and counts band pixels per column,
+//!    only in vertical runs of at least 3 pixels of one band (the hue of a dark, noisy floor
+//!    strays into a band's tolerance pixel by pixel, not in runs); the marker is then found as
+//!    by the colour tracker ([`crate::tracker::marker`]).
 //!
 //! Its quality: band fill x blob size x a brightness term that reaches 1 at `good_brightness`
 //! (far below the colour tracker's, since the tolerance follows the noise), times
-//! `max_quality` (0.85): the widened tolerance takes in more stray pixels at the blob's edges,
+//! `max_quality` (0.75): the widened tolerance takes in more stray pixels at the blob's edges,
 //! so in good light it rates itself below the colour tracker, which then keeps the contract.
 
 use serde::{Deserialize, Serialize};
@@ -44,7 +46,7 @@ pub struct HistogramTrackerConfig {
     pub max_bin_share: f64,
     /// Fewest band pixels of each band for a detection (default 6).
     pub min_pixels: u32,
-    /// The best quality it claims (default 0.85).
+    /// The best quality it claims (default 0.75).
     pub max_quality: f64,
 }
 
@@ -58,7 +60,7 @@ impl Default for HistogramTrackerConfig {
             noise_sigma: 2.0,
             max_bin_share: 0.25,
             min_pixels: 6,
-            max_quality: 0.85,
+            max_quality: 0.75,
         }
     }
 }
@@ -66,6 +68,8 @@ impl Default for HistogramTrackerConfig {
 const NONE: u8 = 0;
 const TOP: u8 = 1;
 const BOTTOM: u8 = 2;
+/// Shortest vertical run of one band's pixels that counts.
+const MIN_RUN: usize = 3;
 
 /// The histogram tracker: see the module documentation.
 #[derive(Debug, Clone)]
@@ -133,7 +137,7 @@ impl HistogramTracker {
             return None;
         }
         // The image's exposure: the 99th percentile of brightness, which the band pixels of a
-        // near marker reach; the band tolerance widens by the hue noise at that brightness.
+        // near marker reach; the band tolerance widens by the hue noise at that brightness (at most doubled).
         let mut seen = 0u32;
         let p99 = bright
             .iter()
@@ -144,7 +148,8 @@ impl HistogramTracker {
             .unwrap_or(765)
             .max(1) as f64;
         let band_s = (0.5 * p99).max(f64::from(self.cfg.min_brightness));
-        let tol = self.cfg.tolerance + 2.5 * self.cfg.noise_sigma * 2f64.sqrt() / band_s;
+        let tol = (self.cfg.tolerance + 1.5 * self.cfg.noise_sigma * 2f64.sqrt() / band_s)
+            .min(2.0 * self.cfg.tolerance);
         // Back-projection: label the bins.
         let (top_rgb, bottom_rgb) = hng_runtime::msg::beacon_colors(id);
         let chroma = |c: [u8; 3]| {
@@ -170,31 +175,49 @@ impl HistogramTracker {
                 };
             }
         }
-        // Pass 2: band pixels per column.
+        // Pass 2: band pixels per column, counted only in vertical runs of at least
+        // `MIN_RUN` pixels of one band (isolated noisy pixels of a dark floor are not).
         self.columns.clear();
         self.columns.resize(w, (0, 0, u32::MAX, 0));
         self.brightness.clear();
         self.brightness.resize(w, 0);
-        for (i, &b) in self.pixel_bin.iter().enumerate() {
+        let label_of = |b: u16, labels: &[u8]| {
             if b == u16::MAX {
-                continue;
-            }
-            let l = self.label[b as usize];
-            if l == NONE {
-                continue;
-            }
-            let (v, u) = ((i / w) as u32, i % w);
-            let px = &image[i * 3..i * 3 + 3];
-            let s = u64::from(px[0]) + u64::from(px[1]) + u64::from(px[2]);
-            let col = &mut self.columns[u];
-            if l == TOP {
-                col.0 += 1;
-                col.2 = col.2.min(v);
+                NONE
             } else {
-                col.1 += 1;
-                col.3 = col.3.max(v);
+                labels[b as usize]
             }
-            self.brightness[u] += s;
+        };
+        let s_at = |i: usize| {
+            u64::from(image[i * 3]) + u64::from(image[i * 3 + 1]) + u64::from(image[i * 3 + 2])
+        };
+        for u in 0..w {
+            let (mut run_label, mut run_len, mut run_start) = (NONE, 0usize, 0usize);
+            let col = &mut self.columns[u];
+            let bright = &mut self.brightness[u];
+            for v in 0..h {
+                let l = label_of(self.pixel_bin[v * w + u], &self.label);
+                if l == run_label {
+                    run_len += 1;
+                } else {
+                    (run_label, run_len, run_start) = (l, 1, v);
+                }
+                if l == NONE || run_len < MIN_RUN {
+                    continue;
+                }
+                let new_rows = if run_len == MIN_RUN { run_start..v + 1 } else { v..v + 1 };
+                let n = new_rows.len() as u32;
+                for r in new_rows {
+                    *bright += s_at(r * w + u);
+                }
+                if l == TOP {
+                    col.0 += n;
+                    col.2 = col.2.min(run_start as u32);
+                } else {
+                    col.1 += n;
+                    col.3 = col.3.max(v as u32);
+                }
+            }
         }
         let (lo, hi) = (
             f64::from(self.cfg.min_brightness),

@@ -13,7 +13,8 @@
 //! an occlusion the track is predicted for `hold_s` with a quality falling to 0, then lost.
 //!
 //! Quality Q (`ctx.set_quality`): the track's quality (the detector's fill x size x
-//! brightness; the histogram tracker's at most 0.85); 0 when the beacon is lost, not
+//! brightness; the histogram tracker's at most 0.75), half of it, falling to 0 over `hold_s`,
+//! while the beacon is only predicted; 0 when the beacon is lost, not
 //! designated or unknown (an unknown id has no colours in view: lost); aptitude 0 and Q = -1
 //! without images for `frame_timeout_s`. Malformed images (payload not `width * height * 3`
 //! bytes of rgb8) are dropped and counted.
@@ -323,7 +324,9 @@ impl<D: Detector> TrackerModule<D> {
             }
             TrackState::Predicted(d, _) => {
                 (msg.state, msg.bearing, msg.range) = (TRACK_PREDICTED, d.bearing, d.range);
-                d.quality
+                // A prediction is worth at most half a sighting: a tracker that sees the
+                // beacon beats one that only remembers it.
+                0.5 * d.quality
             }
             TrackState::Lost => {
                 msg.state = TRACK_LOST;
