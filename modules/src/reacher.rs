@@ -103,7 +103,7 @@ impl ReachLaw {
 #[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct JudgeParams {
-    /// Judge over at least this long, s (default 0.4).
+    /// Judge over at least this long, s (default 1.0).
     pub window_s: f64,
     /// Bearing tolerance, rad (default 0.15).
     pub bearing_tol_rad: f64,
@@ -114,7 +114,7 @@ pub struct JudgeParams {
 impl Default for JudgeParams {
     fn default() -> Self {
         JudgeParams {
-            window_s: 0.4,
+            window_s: 1.0,
             bearing_tol_rad: 0.15,
             range_tol_frac: 0.15,
         }
@@ -220,7 +220,7 @@ mod tests {
         let first = seen(&pose(0.0, 0.0, 0.0));
         let mut worst_honest: f64 = 0.0;
         let mut worst_frozen: f64 = 0.0;
-        for k in 0..20 {
+        for k in 0..40 {
             let t = f64::from(k) * 0.1;
             let p = pose(0.3 * t, 0.0, 0.2 * t);
             let (b, r) = seen(&p);

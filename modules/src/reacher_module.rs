@@ -121,6 +121,8 @@ pub struct ReacherModule {
     target: Option<u32>,
     active: bool,
     last_seen_s: Option<f64>,
+    /// When the current target was set (or the reacher selected), s.
+    since_s: f64,
     last_track_s: Option<f64>,
     current: ReachStatus,
     state: ReacherState,
@@ -164,6 +166,7 @@ impl Module for ReacherModule {
             target: None,
             active: false,
             last_seen_s: None,
+            since_s: 0.0,
             last_track_s: None,
             current: ReachStatus {
                 range: -1.0,
@@ -261,7 +264,8 @@ impl ReacherModule {
         self.target = target;
         self.judge.reset();
         self.last_seen_s = None;
-        self.last_track_s = Some(ctx.now().as_secs_f64());
+        self.since_s = ctx.now().as_secs_f64();
+        self.last_track_s = Some(self.since_s);
         self.current.beacon_id = target.unwrap_or(0);
         self.current.range = -1.0;
         let state = if self.working() {
@@ -286,7 +290,7 @@ impl ReacherModule {
         if t.state != TRACK_LOST {
             self.current.range = t.range;
         }
-        let unseen = self.last_seen_s.map_or(f64::INFINITY, |s| now - s);
+        let unseen = now - self.last_seen_s.unwrap_or(self.since_s);
         let (bearing, range) = if t.state == TRACK_LOST {
             (f64::NAN, f64::NAN)
         } else {
@@ -296,6 +300,10 @@ impl ReacherModule {
         match self.current.state {
             REACH_LOST | REACH_REACHED => return self.halt(),
             _ => {}
+        }
+        if t.state == TRACK_LOST && unseen <= self.cfg.law.lost_timeout_s {
+            // Not seen yet, or no longer predicted: wait, stopped, until the timeout.
+            return self.halt();
         }
         match self.law.command(bearing, range, seen, unseen) {
             Reach::Drive(v, w) => {

@@ -22,3 +22,4 @@ mod slam_loop;
 mod teleop;
 mod topic;
 mod vision;
+mod vision_e2e;
