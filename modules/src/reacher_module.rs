@@ -318,7 +318,12 @@ impl ReacherModule {
             }
             Reach::Reached => {
                 self.state.reached += 1;
-                tracing::info!(module = ctx.name(), beacon = t.beacon_id, range = t.range, "beacon reached");
+                tracing::info!(
+                    module = ctx.name(),
+                    beacon = t.beacon_id,
+                    range = t.range,
+                    "beacon reached"
+                );
                 self.set_state(ctx, REACH_REACHED)?;
                 self.halt()?;
             }
@@ -343,14 +348,13 @@ impl ReacherModule {
             return;
         }
         let stamp = t.header.stamp_ns;
-        let Some(&(_, pose)) = self
-            .odom_log
-            .iter()
-            .min_by_key(|(s, _)| s.abs_diff(stamp))
-        else {
+        let Some(&(_, pose)) = self.odom_log.iter().min_by_key(|(s, _)| s.abs_diff(stamp)) else {
             return;
         };
-        if let Some(e) = self.judge.judge(stamp as f64 * 1e-9, pose, t.bearing, t.range) {
+        if let Some(e) = self
+            .judge
+            .judge(stamp as f64 * 1e-9, pose, t.bearing, t.range)
+        {
             if e < 0.0 {
                 self.state.penalties += 1;
                 tracing::debug!(module = ctx.name(), e, "tracker penalised");

@@ -205,7 +205,11 @@ impl HistogramTracker {
                 if l == NONE || run_len < MIN_RUN {
                     continue;
                 }
-                let new_rows = if run_len == MIN_RUN { run_start..v + 1 } else { v..v + 1 };
+                let new_rows = if run_len == MIN_RUN {
+                    run_start..v + 1
+                } else {
+                    v..v + 1
+                };
                 let n = new_rows.len() as u32;
                 for r in new_rows {
                     *bright += s_at(r * w + u);

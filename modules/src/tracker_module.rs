@@ -235,7 +235,11 @@ impl<D: Detector> Module for TrackerModule<D> {
                 self.state.dropped += 1;
                 let c = &ctx.node().counters().msgs_dropped;
                 c.set(c.get() + 1);
-                tracing::warn!(module = ctx.name(), dropped = self.state.dropped, "image dropped: {why}");
+                tracing::warn!(
+                    module = ctx.name(),
+                    dropped = self.state.dropped,
+                    "image dropped: {why}"
+                );
                 continue;
             }
             self.state.frames += 1;

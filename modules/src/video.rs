@@ -54,7 +54,11 @@ impl VideoInput {
     ///
     /// # Errors
     /// The channel cannot be opened (e.g. it does not carry images).
-    pub fn follow(&mut self, ctx: &mut Context, provider: Option<&ProviderInfo>) -> Result<(), Error> {
+    pub fn follow(
+        &mut self,
+        ctx: &mut Context,
+        provider: Option<&ProviderInfo>,
+    ) -> Result<(), Error> {
         let same = matches!((&self.sub, provider), (Some((c, _)), Some(p)) if *c == p.channel);
         self.provider = provider.cloned();
         if same {
@@ -79,7 +83,10 @@ impl VideoInput {
             ctx.unsubscribe(old.id())?;
         }
         self.provider = None;
-        self.sub = Some((channel.into(), ctx.subscribe_slice::<ImageInfo>(channel, None)?));
+        self.sub = Some((
+            channel.into(),
+            ctx.subscribe_slice::<ImageInfo>(channel, None)?,
+        ));
         Ok(())
     }
 

@@ -56,10 +56,10 @@ mod config;
 mod lockstep;
 mod messages;
 
-use config::config_error;
-pub use config::{Channels, SensorSwitches, SimModuleConfig};
 use camera::ImageCamera;
 pub use camera::SimLighting;
+use config::config_error;
+pub use config::{Channels, SensorSwitches, SimModuleConfig};
 use lockstep::Lockstep;
 pub use messages::{SimCollision, SimStatus};
 

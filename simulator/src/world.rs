@@ -739,13 +739,24 @@ impl World {
         check_nonneg(c.bearing_sigma, "sensors.camera.bearing_sigma")?;
         check_nonneg(c.range_sigma, "sensors.camera.range_sigma")?;
         check_rate(c.image_rate, "sensors.camera.image_rate")?;
-        for (v, f) in [(c.width, "sensors.camera.width"), (c.height, "sensors.camera.height")] {
-            check((8..=4096).contains(&v), f, &format!("must be in 8..=4096 pixels, got {v}"))?;
+        for (v, f) in [
+            (c.width, "sensors.camera.width"),
+            (c.height, "sensors.camera.height"),
+        ] {
+            check(
+                (8..=4096).contains(&v),
+                f,
+                &format!("must be in 8..=4096 pixels, got {v}"),
+            )?;
         }
         check_nonneg(c.noise_sigma, "sensors.camera.noise_sigma")?;
         check_nonneg(c.lighting, "sensors.camera.lighting")?;
         if c.image {
-            check(c.fov < 3.0, "sensors.camera.fov", "must be below 3.0 rad for images")?;
+            check(
+                c.fov < 3.0,
+                "sensors.camera.fov",
+                "must be below 3.0 rad for images",
+            )?;
         }
         check_rate(s.ground_truth.rate, "sensors.ground_truth.rate")?;
         Ok(())

@@ -14,6 +14,7 @@ pub mod record;
 pub mod recovery;
 pub mod rm;
 pub mod sim;
+pub mod vision;
 
 #[derive(Debug, Subcommand)]
 pub enum BenchCommand {
@@ -31,6 +32,8 @@ pub enum BenchCommand {
     Loop(loop_::LoopArgs),
     /// Flight recorder: 64 B and 1 MiB messages to an MCAP file, MB/s and drops.
     Record(record::BenchRecordArgs),
+    /// Camera images and trackers: render per frame, each tracker per frame, 230 KB image hop.
+    Vision(vision::VisionArgs),
 }
 
 /// Prints rows as JSON lines or as a table.
@@ -53,5 +56,6 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
         BenchCommand::Recovery(args) => recovery::run(&args),
         BenchCommand::Loop(args) => loop_::run(&args),
         BenchCommand::Record(args) => record::run(&args),
+        BenchCommand::Vision(args) => vision::run(&args),
     }
 }

@@ -130,7 +130,11 @@ fn the_histogram_tracker_keeps_the_beacon_in_the_dark_the_colour_tracker_loses()
     let mut table = Vec::new();
     for light in [1.0, 0.6, 0.3, 0.15, 0.1] {
         renderer.render(pose, light, Some(&mut rng), &mut img);
-        for b in world.beacons.iter().filter(|b| renderer.beacon_box(pose, b.id).is_some()) {
+        for b in world
+            .beacons
+            .iter()
+            .filter(|b| renderer.beacon_box(pose, b.id).is_some())
+        {
             let c = colour.detect(&img, b.id);
             let h = hist.detect(&img, b.id);
             let (bearing, range) = truth(b);
@@ -151,19 +155,32 @@ fn the_histogram_tracker_keeps_the_beacon_in_the_dark_the_colour_tracker_loses()
             table.push((light, b.id, q(c), q(h)));
         }
     }
-    assert_eq!(table.len(), 5, "one beacon in view at every light: {table:?}");
+    assert_eq!(
+        table.len(),
+        5,
+        "one beacon in view at every light: {table:?}"
+    );
     for (light, id, c, h) in &table {
         println!("light {light:4}: beacon {id}: colour Q {c:.2}, histogram Q {h:.2}");
     }
     for &(light, _, c, h) in &table {
         if light >= 0.6 {
-            assert!(c > h + 0.1, "good light ({light}): colour {c} must beat histogram {h} by the hysteresis");
+            assert!(
+                c > h + 0.1,
+                "good light ({light}): colour {c} must beat histogram {h} by the hysteresis"
+            );
         }
         if (0.12..=0.2).contains(&light) {
-            assert!(c < 0.05 && h > c + 0.3, "dark ({light}): colour {c}, histogram {h}");
+            assert!(
+                c < 0.05 && h > c + 0.3,
+                "dark ({light}): colour {c}, histogram {h}"
+            );
         }
         if light < 0.12 {
-            assert!(c < 0.05 && h < 0.2, "near black ({light}): both rate themselves low: {c} {h}");
+            assert!(
+                c < 0.05 && h < 0.2,
+                "near black ({light}): both rate themselves low: {c} {h}"
+            );
         }
     }
 }

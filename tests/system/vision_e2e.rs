@@ -14,8 +14,7 @@ use std::time::{Duration, Instant};
 
 use hng_modules::reacher_module::{REACH_LOST, REACH_REACHED, ReachStatus};
 use hng_runtime::msg::{
-    BeaconTrack, DESIGNATION_CHANNEL, Designation, PoseWithCovariance, TRACK_LOST,
-    TRACK_PREDICTED,
+    BeaconTrack, DESIGNATION_CHANNEL, Designation, PoseWithCovariance, TRACK_LOST, TRACK_PREDICTED,
 };
 use hng_runtime::system::{CONTRACTS, ContractRole, ContractTable};
 use hng_runtime::wait::{WaitMode, Waiter};
@@ -377,7 +376,10 @@ fn the_reacher_ignores_an_unknown_beacon_then_reaches_the_designated_one_within_
         r.last_status
     );
     let moved = (r.pose.0 - 1.0).hypot(r.pose.1 - 3.0);
-    assert!(moved < 0.02, "nothing moves for an unknown beacon: {moved} m");
+    assert!(
+        moved < 0.02,
+        "nothing moves for an unknown beacon: {moved} m"
+    );
     assert!(
         r.colour_states.iter().all(|(_, s)| *s == TRACK_LOST),
         "{:?}",
@@ -400,8 +402,16 @@ fn the_reacher_ignores_an_unknown_beacon_then_reaches_the_designated_one_within_
     let t2 = r.now_s();
     r.until(t2 + 1.0, |_| false);
     let d = r.distance_to_beacon();
-    assert!(d <= 0.5 && d > 0.1, "stopped within 0.5 m of the beacon: {d:.3} m");
-    assert_eq!(r.tracker().as_deref(), Some("tracker_colour"), "{:?}", r.log());
+    assert!(
+        d <= 0.5 && d > 0.1,
+        "stopped within 0.5 m of the beacon: {d:.3} m"
+    );
+    assert_eq!(
+        r.tracker().as_deref(),
+        Some("tracker_colour"),
+        "{:?}",
+        r.log()
+    );
     r.finish();
 }
 
@@ -452,13 +462,23 @@ fn the_track_survives_a_one_second_blackout_and_the_reacher_stops_after_a_longer
     });
     let t_lost = r.now_s() - dark2;
     println!("long blackout: reacher reported the beacon lost after {t_lost:.2} s");
-    assert!(stopped, "the reacher reports the beacon lost: {:?}", r.last_status);
-    assert!(t_lost > 1.0 && t_lost < 2.5, "lost after {t_lost} s (timeout 1.5 s)");
+    assert!(
+        stopped,
+        "the reacher reports the beacon lost: {:?}",
+        r.last_status
+    );
+    assert!(
+        t_lost > 1.0 && t_lost < 2.5,
+        "lost after {t_lost} s (timeout 1.5 s)"
+    );
     let at = r.pose;
     let t3 = r.now_s();
     r.until(t3 + 1.0, |_| false);
     let drift = (r.pose.0 - at.0).hypot(r.pose.1 - at.1);
-    assert!(drift < 0.1, "stopped: moved {drift} m after reporting the loss");
+    assert!(
+        drift < 0.1,
+        "stopped: moved {drift} m after reporting the loss"
+    );
     r.finish();
 }
 
@@ -471,16 +491,19 @@ fn track_beacon_moves_to_the_histogram_tracker_in_the_dark_and_back_in_the_light
     r.designate(BEACON_ID);
     let t0 = r.now_s();
     assert!(
-        r.until(t0 + 5.0, |r| r.tracker().as_deref() == Some("tracker_colour")),
+        r.until(t0 + 5.0, |r| r.tracker().as_deref()
+            == Some("tracker_colour")),
         "the colour tracker first: {:?}",
-        r.switches
+        r.log()
     );
     // Settle, then dusk.
     let t1 = r.now_s();
     r.until(t1 + 2.0, |_| false);
     let dark = r.now_s();
     r.light(0.15);
-    let moved = r.until(dark + 5.0, |r| r.tracker().as_deref() == Some("tracker_histogram"));
+    let moved = r.until(dark + 5.0, |r| {
+        r.tracker().as_deref() == Some("tracker_histogram")
+    });
     let t_dark = r.now_s() - dark;
     println!("dark: Track beacon moved to the histogram tracker after {t_dark:.2} s simulated");
     assert!(moved, "{:?}", r.log());
@@ -489,7 +512,9 @@ fn track_beacon_moves_to_the_histogram_tracker_in_the_dark_and_back_in_the_light
     r.until(t2 + 2.0, |_| false);
     let light = r.now_s();
     r.light(1.0);
-    let back = r.until(light + 6.0, |r| r.tracker().as_deref() == Some("tracker_colour"));
+    let back = r.until(light + 6.0, |r| {
+        r.tracker().as_deref() == Some("tracker_colour")
+    });
     let t_back = r.now_s() - light;
     println!("light: Track beacon back to the colour tracker after {t_back:.2} s simulated");
     assert!(back, "{:?}", r.log());
@@ -505,14 +530,20 @@ fn a_lying_tracker_loses_its_contract_through_the_reachers_feedback() {
     r.designate(BEACON_ID);
     let t0 = r.now_s();
     assert!(
-        r.until(t0 + 5.0, |r| r.tracker().as_deref() == Some("tracker_colour")),
+        r.until(t0 + 5.0, |r| r.tracker().as_deref()
+            == Some("tracker_colour")),
         "the liar (Q = 1) wins first: {:?}",
-        r.switches
+        r.log()
     );
     let chosen = r.switches.last().map_or(t0, |s| s.0);
-    let lost = r.until(chosen + 15.0, |r| r.tracker().as_deref() == Some("tracker_histogram"));
+    let lost = r.until(chosen + 15.0, |r| {
+        r.tracker().as_deref() == Some("tracker_histogram")
+    });
     let after = r.now_s() - chosen;
-    println!("the liar lost Track beacon after {after:.2} s simulated; log {:?}", r.log());
+    println!(
+        "the liar lost Track beacon after {after:.2} s simulated; log {:?}",
+        r.log()
+    );
     assert!(lost, "the liar keeps its contract: {:?}", r.log());
     r.finish();
 }
