@@ -108,6 +108,9 @@ enum Command {
     Top(top::TopArgs),
     /// The live contract tree (client, provider, service, priority, V) and data network.
     Contracts(contracts::ContractsArgs),
+    /// A module's log file from the last `hng run` on this prefix (`-f` follows); without a
+    /// module, the list of log files.
+    Logs(run::logs::LogsArgs),
     /// Print the iceoryx2 configuration (TOML) that reaches this prefix's channels, for
     /// iceoryx2's own tools: `hng iox2-config > config/iceoryx2.toml && iox2 service list`.
     #[command(name = "iox2-config")]
@@ -141,7 +144,10 @@ fn main() -> ExitCode {
     if let Err(e) = hng_runtime::fatal::install() {
         eprintln!("hng: warning: fatal-signal handler not installed: {e}");
     }
-    hng_runtime::module::init_tracing();
+    if !matches!(cli.command, Command::Run(_)) {
+        // `hng run` installs its own: quiet terminal, log files (run::logs).
+        hng_runtime::module::init_tracing();
+    }
     let result = match cli.command {
         Command::Module { name } => return modules::run(&name),
         Command::Run(args) => return run::run(&cli.prefix, &args),
@@ -154,6 +160,7 @@ fn main() -> ExitCode {
         Command::Mission { command } => mission::run(&cli.prefix, command),
         Command::Top(args) => top::run(&cli.prefix, &args),
         Command::Contracts(args) => contracts::run(&cli.prefix, &args),
+        Command::Logs(args) => run::logs::show(&cli.prefix, &args),
         Command::Bench { bench } => bench::run(bench),
         Command::Eval { command } => eval::run(command),
         Command::Sim { command } => sim::run(command),

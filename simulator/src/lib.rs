@@ -22,6 +22,7 @@ pub mod map;
 pub mod module;
 mod pacing;
 pub mod render;
+pub mod script;
 mod sensors;
 mod sim;
 mod snapshot;

@@ -589,8 +589,14 @@ impl SimulatorModule {
     /// A camera image, when one is due (seen from the true pose).
     fn publish_image(&mut self) -> ModuleResult {
         let gt = self.sim.ground_truth();
+        let light = self.sim.lighting();
         match &mut self.outputs.image {
-            Some(cam) => cam.step(gt.stamp_ns, crate::Pose2D::new(gt.x, gt.y, gt.theta)),
+            Some(cam) => cam.step(
+                gt.stamp_ns,
+                crate::Pose2D::new(gt.x, gt.y, gt.theta),
+                light,
+                self.sim.script_boxes().map(|(_, b)| b),
+            ),
             None => Ok(()),
         }
     }

@@ -16,7 +16,20 @@ use crate::sensors::{
     Odometry, SensorKind, SensorOutput, SimStats,
 };
 use crate::snapshot::SimSnapshot;
-use crate::world::{GpsZoneKind, Pose2D, World};
+use crate::world::{BoxObstacle, GpsZoneKind, Pose2D, World};
+
+mod events;
+
+/// The fixed collider of a box obstacle.
+fn box_collider(b: &BoxObstacle) -> ColliderBuilder {
+    ColliderBuilder::cuboid((b.size[0] / 2.0) as f32, (b.size[1] / 2.0) as f32)
+        .position(Pose::new(
+            Vector::new(b.center[0] as f32, b.center[1] as f32),
+            b.angle as f32,
+        ))
+        .friction(0.0)
+        .restitution(0.0)
+}
 
 /// A contact begins when the gap between robot and obstacle falls below this, metres (and ends
 /// when it exceeds twice this).
@@ -133,6 +146,11 @@ pub struct Simulator {
     camera_timer: Timer,
     camera_rng: ChaCha8Rng,
     gt_timer: Timer,
+    // World script (crate::script): the next event to apply, the global lighting factor and
+    // the boxes scripts added, by name.
+    next_event: usize,
+    lighting: f64,
+    script_boxes: Vec<(String, ColliderHandle, BoxObstacle)>,
 }
 
 impl std::fmt::Debug for Simulator {
@@ -153,15 +171,7 @@ impl Simulator {
         phys.gravity = Vector::ZERO;
         phys.integration_parameters.dt = world.dt as f32;
         for b in world.obstacle_boxes() {
-            let collider =
-                ColliderBuilder::cuboid((b.size[0] / 2.0) as f32, (b.size[1] / 2.0) as f32)
-                    .position(Pose::new(
-                        Vector::new(b.center[0] as f32, b.center[1] as f32),
-                        b.angle as f32,
-                    ))
-                    .friction(0.0)
-                    .restitution(0.0);
-            phys.insert_collider(collider, None);
+            phys.insert_collider(box_collider(&b), None);
         }
         let r = &world.robot;
         let body = RigidBodyBuilder::dynamic()
@@ -225,10 +235,14 @@ impl Simulator {
             camera_timer: Timer::new(s.camera.enabled, s.camera.rate),
             camera_rng: stream(seed, 4),
             gt_timer: Timer::new(s.ground_truth.enabled, s.ground_truth.rate),
+            next_event: 0,
+            lighting: 1.0,
+            script_boxes: Vec::new(),
             phys,
             robot,
             world,
         };
+        sim.apply_due_events();
         sim.pose = sim.body_pose();
         sim.update_clearance();
         if sim.last_clearance < 0.0 {
@@ -408,9 +422,10 @@ impl Simulator {
                 true,
             );
         }
+        self.now_ns = snap.now_ns;
+        self.replay_events();
         self.pose = self.body_pose();
         self.update_clearance();
-        self.now_ns = snap.now_ns;
         self.odom_pose = TruePose {
             x: snap.odom.x,
             y: snap.odom.y,
@@ -460,6 +475,7 @@ impl Simulator {
         self.phys.step();
         self.now_ns += self.dt_ns;
         self.stats.steps += 1;
+        self.apply_due_events();
 
         let prev = self.pose;
         self.pose = self.body_pose();

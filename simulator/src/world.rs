@@ -13,6 +13,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{Result, SimError, line_col};
 use crate::map::{OccupancyGrid, grid_boxes, grid_from_world};
+use crate::script::{LightingZone, WorldEvent};
 
 pub use hng_runtime::msg::Pose2D;
 
@@ -46,6 +47,12 @@ pub struct World {
     /// Sensor settings.
     #[serde(default)]
     pub sensors: SensorsConfig,
+    /// Timed changes of the world (see [`crate::script`]).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub events: Vec<WorldEvent>,
+    /// Places where the camera sees darker or brighter (see [`crate::script`]).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub lighting_zones: Vec<LightingZone>,
     /// Boxes read from `maps` when the world was loaded (not part of the file format).
     #[serde(skip)]
     pub map_boxes: Vec<BoxObstacle>,
@@ -527,6 +534,8 @@ impl World {
             beacons: Vec::new(),
             maps: Vec::new(),
             sensors: SensorsConfig::default(),
+            events: Vec::new(),
+            lighting_zones: Vec::new(),
             map_boxes: Vec::new(),
         }
     }
@@ -759,7 +768,7 @@ impl World {
             )?;
         }
         check_rate(s.ground_truth.rate, "sensors.ground_truth.rate")?;
-        Ok(())
+        crate::script::validate(&self.events, &self.lighting_zones)
     }
 
     /// The built-in world: a 20 x 15 m area. The western part (x < 8) is an open yard with
@@ -890,28 +899,28 @@ impl World {
     }
 }
 
-fn check(ok: bool, field: &str, message: &str) -> Result<()> {
+pub(crate) fn check(ok: bool, field: &str, message: &str) -> Result<()> {
     if ok {
         Ok(())
     } else {
         Err(SimError::invalid(field, message))
     }
 }
-fn check_pos(v: f64, field: &str) -> Result<()> {
+pub(crate) fn check_pos(v: f64, field: &str) -> Result<()> {
     check(
         v.is_finite() && v > 0.0,
         field,
         &format!("must be finite and > 0, got {v}"),
     )
 }
-fn check_nonneg(v: f64, field: &str) -> Result<()> {
+pub(crate) fn check_nonneg(v: f64, field: &str) -> Result<()> {
     check(
         v.is_finite() && v >= 0.0,
         field,
         &format!("must be finite and >= 0, got {v}"),
     )
 }
-fn check_finite(v: &[f64], field: &str) -> Result<()> {
+pub(crate) fn check_finite(v: &[f64], field: &str) -> Result<()> {
     check(v.iter().all(|x| x.is_finite()), field, "must be finite")
 }
 fn check_rate(v: f64, field: &str) -> Result<()> {

@@ -8,6 +8,7 @@ use clap::Subcommand;
 use hng_runtime::stats::{BenchRow, table};
 
 pub mod contracts;
+pub mod idle;
 pub mod ipc;
 pub mod loop_;
 pub mod record;
@@ -34,6 +35,8 @@ pub enum BenchCommand {
     Record(record::BenchRecordArgs),
     /// Camera images and trackers: render per frame, each tracker per frame, 230 KB image hop.
     Vision(vision::VisionArgs),
+    /// Idle cost: wake-ups and CPU of a module with no input, and of the default system at 1x.
+    Idle(idle::IdleArgs),
 }
 
 /// Prints rows as JSON lines or as a table.
@@ -57,5 +60,6 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
         BenchCommand::Loop(args) => loop_::run(&args),
         BenchCommand::Record(args) => record::run(&args),
         BenchCommand::Vision(args) => vision::run(&args),
+        BenchCommand::Idle(args) => idle::run(&args),
     }
 }

@@ -16,7 +16,6 @@ use hng_modules::tracker_hist::{HistogramTracker, HistogramTrackerConfig};
 use hng_runtime::stats::{BenchRow, Percentiles};
 use hng_simulator::render::{ImageParams, Renderer};
 use hng_simulator::{Pose2D, World};
-use rand::SeedableRng;
 use std::time::{Duration, Instant};
 
 use super::ipc::{Mode, Transport, run_mode};
@@ -83,17 +82,17 @@ pub fn run(a: &VisionArgs) -> Result<()> {
         !views.is_empty(),
         "no beacon in view anywhere in the default world"
     );
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
     let mut img = vec![0u8; params.image_bytes()];
     let n = a.frames.max(1);
     let mut render = time_each(n, |i| {
-        renderer.render(views[i % views.len()].0, 1.0, Some(&mut rng), &mut img);
+        renderer.render_seeded(views[i % views.len()].0, 1.0, i as u64, &mut img);
     });
     let images: Vec<Vec<u8>> = views
         .iter()
-        .map(|(pose, _)| {
+        .enumerate()
+        .map(|(k, (pose, _))| {
             let mut im = vec![0u8; params.image_bytes()];
-            renderer.render(*pose, 1.0, Some(&mut rng), &mut im);
+            renderer.render_seeded(*pose, 1.0, k as u64, &mut im);
             im
         })
         .collect();

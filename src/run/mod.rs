@@ -20,6 +20,7 @@
 pub mod ctl;
 mod hooks;
 pub mod lock;
+pub mod logs;
 pub mod mission;
 pub mod monitor;
 pub mod probe;
@@ -102,6 +103,11 @@ pub struct RunArgs {
     /// Built-in mission: also write the summary as JSON to this file.
     #[arg(long, conflicts_with = "file")]
     pub summary: Option<PathBuf>,
+    /// Louder terminal: `-v` shows `hng run`'s info lines and echoes every module's log
+    /// lines, `-vv` debug (`HNG_LOG`/`RUST_LOG` set the filter and echo too). Module logs are
+    /// always in RUN_DIR/logs (`hng logs`).
+    #[arg(short, long, action = clap::ArgAction::Count)]
+    pub verbose: u8,
     #[command(flatten)]
     pub recording: crate::recording::RunRecordArgs,
 }
@@ -180,6 +186,7 @@ fn lock_prefix(prefix: &str) -> Result<SystemLock> {
 
 /// `hng run`: returns the process's exit code.
 pub fn run(prefix: &str, args: &RunArgs) -> ExitCode {
+    let _ = logs::RUN_LOG.set(logs::RunLog::init(logs::Verbosity::new(args.verbose)));
     if args.file.is_none() {
         return run_mission(prefix, args);
     }
@@ -284,6 +291,10 @@ fn run_mission(prefix: &str, args: &RunArgs) -> ExitCode {
         args.speed,
         mission.duration_s
     );
+    println!(
+        "logs: {} (hng logs MODULE [-f]; -v shows them here)",
+        logs::log_dir(&run_dir).display()
+    );
     let monitor = match Monitor::start(MonitorOptions {
         prefix: prefix.to_owned(),
         goals: mission.goals.clone(),
@@ -379,7 +390,7 @@ fn add_rm(
 }
 
 /// `$XDG_RUNTIME_DIR/hng/<prefix>` or `/tmp/hng-<prefix>`.
-fn default_run_dir(prefix: &str) -> PathBuf {
+pub(crate) fn default_run_dir(prefix: &str) -> PathBuf {
     let tag = prefix.trim_end_matches('_');
     match std::env::var_os("XDG_RUNTIME_DIR").filter(|d| !d.is_empty()) {
         Some(d) => PathBuf::from(d).join("hng").join(tag),
@@ -516,10 +527,14 @@ fn supervise_inner(
         software_enforcer: plan.modules.iter().any(|m| m.name == "rm"),
     };
     let recorder = crate::recording::start_for_run(prefix, &args.recording, &plan)?;
+    let logs = logs::RUN_LOG
+        .get()
+        .map(|l| l.open(&logs::log_dir(&run_dir)));
     let sup = Supervisor::with_hooks(
         plan.modules,
         SupervisorOptions {
             env,
+            logs,
             ..SupervisorOptions::default()
         },
         hooks,

@@ -9,6 +9,7 @@ mod eval;
 mod fault_matrix;
 mod faults;
 mod lockstep;
+mod logs;
 mod long_compute;
 mod mission;
 mod mission_cmd;

@@ -11,6 +11,7 @@
 //! Linux only (pidfd_open needs Linux 5.3).
 
 pub mod launch;
+pub mod logs;
 mod supervisor;
 mod sys;
 pub mod systemd;

@@ -28,440 +28,27 @@
 //! detection latency is the wake-up latency of `epoll_wait`, not a polling
 //! period. Timers are computed from the earliest deadline; nothing sleeps.
 
-use std::collections::{BTreeMap, HashMap, VecDeque};
+use std::collections::{HashMap, VecDeque};
 use std::fmt;
 use std::io;
 use std::os::fd::{AsFd, BorrowedFd};
-use std::os::unix::process::{CommandExt, ExitStatusExt};
-use std::process::{Child, Command, ExitStatus, Stdio};
+use std::os::unix::process::CommandExt;
+use std::process::{Child, Command, Stdio};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use nix::sys::signal::Signal;
-use serde::Serialize;
 
 use crate::launch::{ModuleSpec, RestartPolicy};
 use crate::sys::{self, Epoll, EventFd, PidFd};
 
+pub use self::options::{NoHooks, SupervisorError, SupervisorHooks, SupervisorOptions, Waker};
+pub use self::status::{Event, EventKind, ExitCause, ModuleState, ModuleStatus};
+
+mod options;
+mod status;
+
 const WAKE_TOKEN: u64 = u64::MAX;
-
-/// Serialize a `Duration` as floating-point milliseconds (for JSON).
-mod ms {
-    use serde::Serializer;
-    use std::time::Duration;
-
-    pub fn serialize<S: Serializer>(d: &Duration, s: S) -> Result<S::Ok, S::Error> {
-        s.serialize_f64(d.as_secs_f64() * 1e3)
-    }
-
-    pub mod opt {
-        use serde::Serializer;
-        use std::time::Duration;
-
-        pub fn serialize<S: Serializer>(d: &Option<Duration>, s: S) -> Result<S::Ok, S::Error> {
-            match d {
-                Some(d) => s.serialize_some(&(d.as_secs_f64() * 1e3)),
-                None => s.serialize_none(),
-            }
-        }
-    }
-}
-
-/// Why a module process ended.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
-#[serde(tag = "kind", rename_all = "snake_case")]
-pub enum ExitCause {
-    /// It called `exit(code)`.
-    Exited {
-        /// Exit status.
-        code: i32,
-    },
-    /// A signal killed it (that the supervisor did not send for a hang, a
-    /// limit or a stop; `kill()` fault injection shows up here).
-    Signaled {
-        /// `SIGSEGV`, `SIGKILL`, ...
-        signal: String,
-        /// Signal number.
-        number: i32,
-        /// A core dump was written.
-        core_dumped: bool,
-    },
-    /// The kernel OOM killer (as reported by [`SupervisorHooks::oom_killed`]).
-    OomKilled,
-    /// No heartbeat within the timeout; the supervisor sent SIGKILL.
-    Hang {
-        /// Time since the last heartbeat (or since spawn) when detected.
-        #[serde(rename = "silent_for_ms", with = "ms")]
-        silent_for: Duration,
-    },
-    /// Killed at the caller's request for exceeding a resource limit.
-    OverLimit {
-        /// The caller's reason, e.g. "memory 600 MiB > 512 MiB".
-        reason: String,
-    },
-    /// Did not exit within `stop_timeout` after SIGTERM; SIGKILLed.
-    StopTimeout,
-    /// The process could not be started.
-    SpawnFailed {
-        /// The OS error.
-        error: String,
-    },
-    /// The exit status could not be collected.
-    Unknown {
-        /// Why.
-        error: String,
-    },
-}
-
-impl ExitCause {
-    /// Everything except `exit(0)` is a failure (for `on-failure`).
-    pub fn is_failure(&self) -> bool {
-        !matches!(self, Self::Exited { code: 0 })
-    }
-
-    fn from_status(status: ExitStatus) -> Self {
-        if let Some(code) = status.code() {
-            return Self::Exited { code };
-        }
-        if let Some(number) = status.signal() {
-            return Self::Signaled {
-                signal: signal_name(number),
-                number,
-                core_dumped: status.core_dumped(),
-            };
-        }
-        Self::Unknown {
-            error: format!("unrecognised wait status {status:?}"),
-        }
-    }
-}
-
-/// `SIGSEGV` for 11, `SIG42` for an unnamed (real-time) signal.
-pub fn signal_name(number: i32) -> String {
-    Signal::try_from(number).map_or_else(|_| format!("SIG{number}"), |s| s.as_str().to_owned())
-}
-
-impl fmt::Display for ExitCause {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            Self::Exited { code } => write!(f, "exited with code {code}"),
-            Self::Signaled {
-                signal,
-                core_dumped,
-                ..
-            } => write!(
-                f,
-                "killed by {signal}{}",
-                if *core_dumped { " (core dumped)" } else { "" }
-            ),
-            Self::OomKilled => write!(f, "killed by the OOM killer"),
-            Self::Hang { silent_for } => write!(
-                f,
-                "hang: no heartbeat for {:.0} ms, SIGKILLed",
-                silent_for.as_secs_f64() * 1e3
-            ),
-            Self::OverLimit { reason } => write!(f, "killed over limit: {reason}"),
-            Self::StopTimeout => write!(f, "ignored SIGTERM, SIGKILLed after the stop timeout"),
-            Self::SpawnFailed { error } => write!(f, "could not start: {error}"),
-            Self::Unknown { error } => write!(f, "unknown exit: {error}"),
-        }
-    }
-}
-
-/// Lifecycle state of a module.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "snake_case")]
-pub enum ModuleState {
-    /// Spawned, no heartbeat yet (only with heartbeats configured).
-    Starting,
-    /// Alive (and heartbeating, if configured).
-    Running,
-    /// SIGTERM sent, waiting for exit (then SIGKILL).
-    Stopping,
-    /// Dead, waiting for its restart delay.
-    BackingOff,
-    /// Gave up: too many failures within the window. `start`/`restart` revive it.
-    Deactivated,
-    /// Not running and not going to be restarted.
-    Stopped,
-}
-
-impl fmt::Display for ModuleState {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(match self {
-            Self::Starting => "starting",
-            Self::Running => "running",
-            Self::Stopping => "stopping",
-            Self::BackingOff => "backing-off",
-            Self::Deactivated => "deactivated",
-            Self::Stopped => "stopped",
-        })
-    }
-}
-
-/// Something that happened to a module.
-#[derive(Debug, Clone, PartialEq, Serialize)]
-#[serde(tag = "event", rename_all = "snake_case")]
-pub enum EventKind {
-    /// A process was spawned.
-    Started {
-        /// Its pid.
-        pid: u32,
-        /// Restarts of this module before this start.
-        restarts: u32,
-    },
-    /// First heartbeat after a start.
-    Running {
-        /// Its pid.
-        pid: u32,
-    },
-    /// Spawning failed (the failure then goes through the restart policy).
-    SpawnFailed {
-        /// The OS error.
-        error: String,
-    },
-    /// No heartbeat within the timeout: SIGKILL sent.
-    HangDetected {
-        /// Its pid.
-        pid: u32,
-        /// Time since the last heartbeat (or since spawn).
-        #[serde(rename = "silent_for_ms", with = "ms")]
-        silent_for: Duration,
-    },
-    /// SIGTERM sent (stop, restart or shutdown).
-    StopRequested {
-        /// Its pid.
-        pid: u32,
-    },
-    /// `stop_timeout` elapsed after SIGTERM: SIGKILL sent.
-    StopTimedOut {
-        /// Its pid.
-        pid: u32,
-    },
-    /// The process ended.
-    Exited {
-        /// Its pid.
-        pid: u32,
-        /// Why.
-        cause: ExitCause,
-        /// How long it ran.
-        #[serde(rename = "uptime_ms", with = "ms")]
-        uptime: Duration,
-    },
-    /// A restart is scheduled.
-    Restarting {
-        /// Delay before the spawn (zero: immediately).
-        #[serde(rename = "delay_ms", with = "ms")]
-        delay: Duration,
-        /// Which restart this will be (1 for the first).
-        attempt: u32,
-    },
-    /// The give-up rule fired: more than `give_up_failures` restarts within
-    /// `give_up_window`. The module stays down until `start`/`restart`.
-    Deactivated {
-        /// Restarts counted in the window.
-        failures: u32,
-        /// The window.
-        #[serde(rename = "window_ms", with = "ms")]
-        window: Duration,
-    },
-    /// The module is down for good (policy, stop or shutdown).
-    Stopped,
-}
-
-/// An [`EventKind`] with its module and monotonic time.
-#[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct Event {
-    /// When the supervisor saw it (`Instant::now()` right after waking).
-    #[serde(skip)]
-    pub at: Instant,
-    /// The module.
-    pub module: String,
-    /// What happened.
-    #[serde(flatten)]
-    pub kind: EventKind,
-}
-
-impl fmt::Display for Event {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        let m = &self.module;
-        match &self.kind {
-            EventKind::Started { pid, restarts } => {
-                write!(f, "{m}: started, pid {pid} (restarts so far: {restarts})")
-            }
-            EventKind::Running { pid } => write!(f, "{m}: running (first heartbeat), pid {pid}"),
-            EventKind::SpawnFailed { error } => write!(f, "{m}: spawn failed: {error}"),
-            EventKind::HangDetected { pid, silent_for } => write!(
-                f,
-                "{m}: hang detected, pid {pid} silent for {:.0} ms, sending SIGKILL",
-                silent_for.as_secs_f64() * 1e3
-            ),
-            EventKind::StopRequested { pid } => write!(f, "{m}: SIGTERM sent to pid {pid}"),
-            EventKind::StopTimedOut { pid } => {
-                write!(f, "{m}: pid {pid} ignored SIGTERM, sending SIGKILL")
-            }
-            EventKind::Exited { pid, cause, uptime } => write!(
-                f,
-                "{m}: pid {pid} {cause} after {:.3} s",
-                uptime.as_secs_f64()
-            ),
-            EventKind::Restarting { delay, attempt } => write!(
-                f,
-                "{m}: restart #{attempt} in {:.0} ms",
-                delay.as_secs_f64() * 1e3
-            ),
-            EventKind::Deactivated { failures, window } => write!(
-                f,
-                "{m}: deactivated after {failures} failures within {:.1} s",
-                window.as_secs_f64()
-            ),
-            EventKind::Stopped => write!(f, "{m}: stopped"),
-        }
-    }
-}
-
-/// One row of `hng ps`.
-#[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct ModuleStatus {
-    /// Module name.
-    pub name: String,
-    /// Lifecycle state.
-    pub state: ModuleState,
-    /// Current pid.
-    pub pid: Option<u32>,
-    /// Time since the current process started.
-    #[serde(rename = "uptime_ms", with = "ms::opt")]
-    pub uptime: Option<Duration>,
-    /// Restarts since the module was (re)started by the user.
-    pub restarts: u32,
-    /// Why the previous process ended.
-    pub last_exit: Option<ExitCause>,
-    /// Age of the last heartbeat.
-    #[serde(rename = "heartbeat_age_ms", with = "ms::opt")]
-    pub heartbeat_age: Option<Duration>,
-    /// Time left before a scheduled restart.
-    #[serde(rename = "restart_in_ms", with = "ms::opt")]
-    pub restart_in: Option<Duration>,
-    /// The Manager module.
-    pub manager: bool,
-}
-
-/// Supervisor errors; each names the module concerned.
-#[derive(Debug, thiserror::Error)]
-pub enum SupervisorError {
-    /// No module of that name.
-    #[error("no module named {name:?} in this system")]
-    UnknownModule {
-        /// The name asked for.
-        name: String,
-    },
-    /// Two specs with the same name.
-    #[error("module {name:?} is defined twice")]
-    DuplicateModule {
-        /// The name.
-        name: String,
-    },
-    /// The module has no live process.
-    #[error("module {name:?} has no running process (state: {state})")]
-    NotRunning {
-        /// The module.
-        name: String,
-        /// Its state.
-        state: ModuleState,
-    },
-    /// Sending a signal failed.
-    #[error("sending {signal} to module {name:?} (pid {pid}) failed: {source}")]
-    Signal {
-        /// The module.
-        name: String,
-        /// Its pid.
-        pid: u32,
-        /// The signal.
-        signal: String,
-        /// The OS error.
-        #[source]
-        source: io::Error,
-    },
-    /// An OS call of the event loop failed.
-    #[error("supervisor {op} failed: {source}")]
-    Io {
-        /// The call.
-        op: &'static str,
-        /// The OS error.
-        #[source]
-        source: io::Error,
-    },
-}
-
-/// Caller hooks. Every method has a default that does nothing.
-pub trait SupervisorHooks {
-    /// Called before every spawn with the ready-to-spawn command: add
-    /// environment variables or a `pre_exec` step (e.g. writing `0` to an
-    /// already opened `cgroup.procs` so the child is charged to its cgroup
-    /// from its first page). An error counts as a spawn failure.
-    fn before_spawn(&mut self, module: &ModuleSpec, command: &mut Command) -> io::Result<()> {
-        let _ = (module, command);
-        Ok(())
-    }
-
-    /// Called right before a module is spawned again, with the pid of its
-    /// previous (dead, reaped) process: the place to clean stale iceoryx2
-    /// resources of that pid.
-    fn before_restart(&mut self, module: &ModuleSpec, dead_pid: u32) {
-        let _ = (module, dead_pid);
-    }
-
-    /// Called when a process died of a SIGKILL the supervisor did not send:
-    /// return true if it was the OOM killer (e.g. `memory.events` `oom_kill`
-    /// went up in the module's cgroup).
-    fn oom_killed(&mut self, module: &ModuleSpec, pid: u32) -> bool {
-        let _ = (module, pid);
-        false
-    }
-}
-
-/// Hooks that do nothing.
-#[derive(Debug, Default, Clone, Copy)]
-pub struct NoHooks;
-
-impl SupervisorHooks for NoHooks {}
-
-/// Process-level settings for all modules.
-#[derive(Debug, Clone)]
-pub struct SupervisorOptions {
-    /// Extra environment for every module (e.g. `HNG_PREFIX`).
-    pub env: BTreeMap<String, String>,
-    /// Put each module in its own process group (default true): terminal
-    /// signals (Ctrl-C) reach only the supervisor, which stops modules in
-    /// order, and after a module's main process dies, leftovers in its group
-    /// are SIGKILLed.
-    pub process_group: bool,
-    /// `PR_SET_PDEATHSIG(SIGKILL)` in each child (default true): modules die
-    /// if the thread that spawned them dies, so a crashed supervisor leaves
-    /// no orphans. Drive the supervisor from a thread that lives as long as it.
-    pub kill_on_supervisor_exit: bool,
-}
-
-impl Default for SupervisorOptions {
-    fn default() -> Self {
-        Self {
-            env: BTreeMap::new(),
-            process_group: true,
-            kill_on_supervisor_exit: true,
-        }
-    }
-}
-
-/// Wakes a blocked [`Supervisor::poll`] from another thread.
-#[derive(Debug, Clone)]
-pub struct Waker(Arc<EventFd>);
-
-impl Waker {
-    /// Make the current or next `poll` return promptly.
-    pub fn wake(&self) -> io::Result<()> {
-        self.0.signal()
-    }
-}
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum StopKind {
@@ -665,6 +252,15 @@ impl<H: SupervisorHooks> Supervisor<H> {
         }
         if self.opts.process_group {
             cmd.process_group(0);
+        }
+        if let Some(logs) = &self.opts.logs
+            && let Err(e) = logs.capture(&spec.name, &mut cmd)
+        {
+            tracing::warn!(
+                module = %spec.name,
+                file = %logs.path(&spec.name).display(),
+                "cannot write the module's log file ({e}); its output goes to the supervisor's stderr"
+            );
         }
         let kill_on_exit = self.opts.kill_on_supervisor_exit;
         let parent = sys::getpid();
@@ -1262,6 +858,7 @@ mod tests {
 
     #[test]
     fn signal_names() {
+        use super::status::signal_name;
         assert_eq!(signal_name(9), "SIGKILL");
         assert_eq!(signal_name(11), "SIGSEGV");
         assert_eq!(signal_name(6), "SIGABRT");

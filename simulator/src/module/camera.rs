@@ -4,9 +4,11 @@
 //! loaned shared-memory sample (no copy). Its stamp is the simulated time of the step it shows,
 //! and in lockstep it goes out with the step's other data, before the clock sample.
 //!
-//! The lighting factor starts at `sensors.camera.lighting` and follows `SimLighting` messages
-//! on `channels.lighting` (`sim/lighting`, a state channel: the latest value counts); a value
-//! that is not finite or negative is dropped and counted.
+//! The images are rendered with the world script's lighting (its `lighting` events and
+//! lighting zones, `Simulator::lighting`) times a factor that starts at
+//! `sensors.camera.lighting` and follows `SimLighting` messages on `channels.lighting`
+//! (`sim/lighting`, a state channel: the latest value counts; a value that is not finite or
+//! outside [0, 4] is dropped and counted). Boxes the world script adds are drawn.
 
 use hng_runtime::msg::{FrameId, Header, ImageInfo};
 use hng_runtime::qos::ChannelKind;
@@ -17,7 +19,7 @@ use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 
 use crate::render::{ImageParams, Renderer};
-use crate::world::{Pose2D, World};
+use crate::world::{BoxObstacle, Pose2D, World};
 
 /// The lighting of the camera images (published on `sim/lighting` to change it at run time).
 #[repr(C)]
@@ -97,8 +99,16 @@ impl ImageCamera {
         self.next_ns = now_ns;
     }
 
-    /// Renders and publishes an image of `pose` if one is due at simulated time `now_ns`.
-    pub(super) fn step(&mut self, now_ns: u64, pose: Pose2D) -> ModuleResult {
+    /// Renders and publishes an image of `pose` if one is due at simulated time `now_ns`,
+    /// with the world script's lighting (`script_lighting`, zones included) times the
+    /// lighting set on the channel, and the boxes the script added.
+    pub(super) fn step<'a>(
+        &mut self,
+        now_ns: u64,
+        pose: Pose2D,
+        script_lighting: f64,
+        script_boxes: impl IntoIterator<Item = &'a BoxObstacle>,
+    ) -> ModuleResult {
         if now_ns < self.next_ns {
             return Ok(());
         }
@@ -120,8 +130,10 @@ impl ImageCamera {
             step: p.width * 3,
             encoding: FrameId::new("rgb8").unwrap_or_default(),
         };
+        self.renderer.set_script_boxes(script_boxes);
+        let lighting = script_lighting * self.lighting;
         self.renderer
-            .render(pose, self.lighting, Some(&mut self.rng), loan.payload_mut());
+            .render(pose, lighting, Some(&mut self.rng), loan.payload_mut());
         loan.publish()?;
         self.published += 1;
         Ok(())

@@ -1,4 +1,6 @@
 use super::*;
+use std::os::unix::fs::PermissionsExt;
+use std::path::Path;
 
 fn opts() -> LoadOptions {
     LoadOptions {

@@ -1,0 +1,240 @@
+//! `hng bench idle`: what hng costs when nothing happens.
+//!
+//! - `module_no_input`: one SDK module with no input and no contract (`hng module
+//!   contract-probe` with an empty configuration) alone on its prefix.
+//! - `default_system_1x`: the built-in mission's whole system (`hng run --speed 1`), every
+//!   process of it, while the robot works through its goals in real time.
+//!
+//! Each process is read from procfs once a second for `--seconds` after a warm-up: CPU time
+//! (utime + stime of the process, all threads) and wake-ups (voluntary and involuntary context
+//! switches of every thread: each is one time the thread ran after sleeping or being
+//! preempted). A row's percentiles (`p50_ns` ...) are the CPU nanoseconds used per one-second
+//! window (`samples` = windows); `cpu_percent` and `wakeups_per_s` are the means. Targets
+//! (issue #15): an idle module under 10 wake-ups a second and 0.3 % of a core; the whole
+//! default system under 10 % of one core.
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context as _, Result};
+use clap::Args;
+use hng_runtime::shm;
+use hng_runtime::stats::{BenchRow, Percentiles};
+
+/// Arguments of `hng bench idle`.
+#[derive(Debug, Clone, Args)]
+pub struct IdleArgs {
+    /// Seconds measured per case (after the warm-up).
+    #[arg(long, default_value_t = 10)]
+    pub seconds: u32,
+    /// Seconds before measuring (start-up, first contracts).
+    #[arg(long, default_value_t = 3)]
+    pub warmup: u32,
+    /// Only this case (`module_no_input` or `default_system_1x`).
+    #[arg(long)]
+    pub case: Option<String>,
+    /// One JSON object per case instead of a table.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Targets of issue #15.
+pub const TARGET_MODULE_WAKEUPS_PER_S: f64 = 10.0;
+/// See [`TARGET_MODULE_WAKEUPS_PER_S`].
+pub const TARGET_MODULE_CPU_PERCENT: f64 = 0.3;
+/// See [`TARGET_MODULE_WAKEUPS_PER_S`].
+pub const TARGET_SYSTEM_CPU_PERCENT: f64 = 10.0;
+
+/// CPU ticks and context switches of one process, summed over its threads.
+#[derive(Debug, Clone, Copy, Default)]
+struct Usage {
+    cpu_ns: u64,
+    switches: u64,
+}
+
+fn usage(pid: i32) -> Option<Usage> {
+    let p = procfs::process::Process::new(pid).ok()?;
+    let stat = p.stat().ok()?;
+    let tick_ns = 1_000_000_000 / procfs::ticks_per_second().max(1);
+    let mut switches = 0;
+    for t in p.tasks().ok()?.flatten() {
+        if let Ok(s) = t.status() {
+            switches +=
+                s.voluntary_ctxt_switches.unwrap_or(0) + s.nonvoluntary_ctxt_switches.unwrap_or(0);
+        }
+    }
+    Some(Usage {
+        cpu_ns: (stat.utime + stat.stime) * tick_ns,
+        switches,
+    })
+}
+
+/// `root` and every process descended from it.
+fn tree(root: i32) -> Vec<i32> {
+    let mut parent: BTreeMap<i32, i32> = BTreeMap::new();
+    if let Ok(all) = procfs::process::all_processes() {
+        for p in all.flatten() {
+            if let Ok(s) = p.stat() {
+                parent.insert(s.pid, s.ppid);
+            }
+        }
+    }
+    let mut out = vec![root];
+    let mut i = 0;
+    while i < out.len() {
+        let pid = out[i];
+        out.extend(parent.iter().filter(|(_, pp)| **pp == pid).map(|(c, _)| *c));
+        i += 1;
+    }
+    out
+}
+
+/// The summed usage of `root`'s process tree, per pid (a pid that ends between two windows
+/// counts from the window where it is seen in both).
+fn tree_usage(root: i32) -> BTreeMap<i32, Usage> {
+    tree(root)
+        .into_iter()
+        .filter_map(|p| Some((p, usage(p)?)))
+        .collect()
+}
+
+/// Measures `root`'s tree once a second for `seconds`; per-window CPU ns and switches.
+fn measure(root: i32, seconds: u32) -> (Vec<u64>, Vec<u64>, f64) {
+    let mut cpu = Vec::new();
+    let mut wakeups = Vec::new();
+    let mut before = tree_usage(root);
+    let start = Instant::now();
+    let mut next = start;
+    for _ in 0..seconds {
+        next += Duration::from_secs(1);
+        // The window's length: the measurement's pace, not a synchronisation.
+        std::thread::sleep(next.saturating_duration_since(Instant::now()));
+        let now = tree_usage(root);
+        let (mut c, mut w) = (0, 0);
+        for (pid, u) in &now {
+            if let Some(b) = before.get(pid) {
+                c += u.cpu_ns.saturating_sub(b.cpu_ns);
+                w += u.switches.saturating_sub(b.switches);
+            }
+        }
+        cpu.push(c);
+        wakeups.push(w);
+        before = now;
+    }
+    (cpu, wakeups, start.elapsed().as_secs_f64())
+}
+
+/// A child process that is stopped (SIGTERM, then SIGKILL) when dropped.
+struct Guard(Child);
+
+impl Drop for Guard {
+    fn drop(&mut self) {
+        let pid = nix::unistd::Pid::from_raw(self.0.id() as i32);
+        let _ = nix::sys::signal::kill(pid, nix::sys::signal::Signal::SIGTERM);
+        let deadline = Instant::now() + Duration::from_secs(20);
+        while Instant::now() < deadline {
+            if let Ok(Some(_)) = self.0.try_wait() {
+                return;
+            }
+            // Waiting for the process to exit.
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+fn row(case: &str, cpu: &mut [u64], wakeups: &[u64], wall_s: f64, processes: usize) -> BenchRow {
+    let total_cpu: u64 = cpu.iter().sum();
+    let total_wake: u64 = wakeups.iter().sum();
+    let cpu_percent = total_cpu as f64 / 1e9 / wall_s * 100.0;
+    let wakeups_per_s = total_wake as f64 / wall_s;
+    BenchRow::new("idle", case, Percentiles::of(cpu))
+        .with("processes", processes as u64)
+        .with("seconds", (wall_s * 100.0).round() / 100.0)
+        .with("cpu_percent", (cpu_percent * 1000.0).round() / 1000.0)
+        .with("wakeups_per_s", (wakeups_per_s * 10.0).round() / 10.0)
+}
+
+fn module_no_input(args: &IdleArgs) -> Result<BenchRow> {
+    let prefix = shm::unique_prefix("benchidle");
+    let exe = std::env::current_exe().context("the hng binary")?;
+    let child = Command::new(&exe)
+        .args(["module", "contract-probe"])
+        .env("HNG_PREFIX", &prefix)
+        .env("HNG_MODULE_NAME", "idle")
+        .env("HNG_LOG", "warn")
+        .stdin(Stdio::null())
+        .spawn()
+        .context("start hng module contract-probe")?;
+    let guard = Guard(child);
+    std::thread::sleep(Duration::from_secs(u64::from(args.warmup)));
+    let (mut cpu, wake, wall) = measure(guard.0.id() as i32, args.seconds);
+    drop(guard);
+    shm::remove_prefix_files(&prefix);
+    let r = row("module_no_input", &mut cpu, &wake, wall, 1);
+    let ok = r
+        .get("cpu_percent")
+        .and_then(|v| v.as_f64())
+        .is_some_and(|c| c < TARGET_MODULE_CPU_PERCENT)
+        && r.get("wakeups_per_s")
+            .and_then(|v| v.as_f64())
+            .is_some_and(|w| w < TARGET_MODULE_WAKEUPS_PER_S);
+    Ok(r.with("target_cpu_percent", TARGET_MODULE_CPU_PERCENT)
+        .with("target_wakeups_per_s", TARGET_MODULE_WAKEUPS_PER_S)
+        .with("meets_target", ok))
+}
+
+fn default_system(args: &IdleArgs) -> Result<BenchRow> {
+    let prefix = shm::unique_prefix("benchidlesys");
+    let exe = std::env::current_exe().context("the hng binary")?;
+    let run_dir: PathBuf = std::env::temp_dir().join(format!("hng-{prefix}bench"));
+    let duration = (args.warmup + args.seconds + 30).to_string();
+    let child = Command::new(&exe)
+        .args(["run", "--speed", "1", "--duration", &duration])
+        .env("HNG_PREFIX", &prefix)
+        .env("HNG_RUN_DIR", &run_dir)
+        .env_remove("HNG_LOG")
+        .env_remove("RUST_LOG")
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .spawn()
+        .context("start hng run")?;
+    let guard = Guard(child);
+    std::thread::sleep(Duration::from_secs(u64::from(args.warmup)));
+    let processes = tree(guard.0.id() as i32).len();
+    let (mut cpu, wake, wall) = measure(guard.0.id() as i32, args.seconds);
+    drop(guard);
+    shm::remove_prefix_files(&prefix);
+    let _ = std::fs::remove_dir_all(&run_dir);
+    let r = row("default_system_1x", &mut cpu, &wake, wall, processes);
+    let ok = r
+        .get("cpu_percent")
+        .and_then(|v| v.as_f64())
+        .is_some_and(|c| c < TARGET_SYSTEM_CPU_PERCENT);
+    Ok(r.with("target_cpu_percent", TARGET_SYSTEM_CPU_PERCENT)
+        .with("meets_target", ok))
+}
+
+/// `hng bench idle`.
+pub fn run(args: &IdleArgs) -> Result<()> {
+    anyhow::ensure!(args.seconds > 0, "--seconds must be at least 1");
+    let want = |c: &str| args.case.as_deref().is_none_or(|w| w == c);
+    if let Some(c) = &args.case {
+        anyhow::ensure!(
+            ["module_no_input", "default_system_1x"].contains(&c.as_str()),
+            "unknown case {c:?}: module_no_input or default_system_1x"
+        );
+    }
+    let mut rows = Vec::new();
+    if want("module_no_input") {
+        rows.push(module_no_input(args)?);
+    }
+    if want("default_system_1x") {
+        rows.push(default_system(args)?);
+    }
+    crate::bench::print_rows(&rows, args.json);
+    Ok(())
+}

@@ -1,0 +1,279 @@
+//! Supervision settings of a module: its own over `[defaults]` over the built-in defaults.
+
+use std::collections::BTreeMap;
+use std::time::Duration;
+
+use super::raw::{RawSettings, S, Scalar};
+use super::*;
+use crate::units::{parse_duration, parse_size};
+
+/// Settings after merging module over defaults, still spanned.
+pub(crate) struct Merged<'r> {
+    pub(crate) d: &'r RawSettings,
+    pub(crate) m: &'r RawSettings,
+    pub(crate) d_prefix: &'r str,
+    pub(crate) m_prefix: String,
+}
+
+macro_rules! pick {
+    ($self:ident, $field:ident) => {
+        match (&$self.m.$field, &$self.d.$field) {
+            (Some(v), _) => Some((v, format!("{}.{}", $self.m_prefix, stringify!($field)))),
+            (None, Some(v)) => Some((v, format!("{}.{}", $self.d_prefix, stringify!($field)))),
+            (None, None) => None,
+        }
+    };
+}
+
+impl Cx<'_> {
+    /// Fill `spec` from module settings over defaults over built-in defaults.
+    /// Values coming from `[defaults]` are checked once by
+    /// `validate_settings_alone`, so errors are only reported here for values
+    /// the module sets itself.
+    pub(crate) fn apply_settings(&mut self, s: &Merged<'_>, spec: &mut ModuleSpec) {
+        let report = |field: &str| field.starts_with(&s.m_prefix);
+        let mut errs: Vec<(std::ops::Range<usize>, String, LaunchErrorKind)> = Vec::new();
+        type Errs = Vec<(std::ops::Range<usize>, String, LaunchErrorKind)>;
+        let dur = |v: Option<(&S<Scalar>, String)>,
+                   allow_off: bool,
+                   errs: &mut Errs|
+         -> Option<Option<Duration>> {
+            let (v, field) = v?;
+            let r = match v.get_ref() {
+                Scalar::Str(t) if allow_off && t.trim() == "off" => Ok(None),
+                Scalar::Str(t) => parse_duration(t).map(Some),
+                Scalar::Int(0) => Ok(Some(Duration::ZERO)),
+                Scalar::Int(_) | Scalar::Float(_) => Err(
+                    "a duration needs a unit: write a string such as \"250ms\" or \"2s\""
+                        .to_owned(),
+                ),
+            };
+            match r {
+                Ok(d) => Some(d),
+                Err(m) => {
+                    if report(&field) {
+                        errs.push((v.span(), field, LaunchErrorKind::InvalidValue(m)));
+                    }
+                    None
+                }
+            }
+        };
+        if let Some((v, _)) = pick!(s, restart) {
+            spec.restart = *v.get_ref();
+        }
+        if let Some(Some(d)) = dur(pick!(s, backoff_initial), false, &mut errs) {
+            spec.backoff_initial = d;
+        }
+        let backoff_max_field = pick!(s, backoff_max);
+        if let Some(Some(d)) = dur(backoff_max_field.clone(), false, &mut errs) {
+            spec.backoff_max = d;
+        }
+        if let Some(Some(d)) = dur(pick!(s, backoff_reset_after), false, &mut errs) {
+            spec.backoff_reset_after = d;
+        }
+        // A zero here would switch a safety mechanism off without saying so.
+        let zero = |f: &Option<(&S<Scalar>, String)>, why: &str, errs: &mut Errs| {
+            if let Some((v, field)) = f
+                && report(field)
+            {
+                errs.push((
+                    v.span(),
+                    field.clone(),
+                    LaunchErrorKind::InvalidValue(why.to_owned()),
+                ));
+            }
+        };
+        let f = pick!(s, give_up_window);
+        match dur(f.clone(), false, &mut errs) {
+            Some(Some(d)) if d.is_zero() => zero(
+                &f,
+                "give_up_window = 0 would never count a restart, so a crash loop would never be stopped: give a window such as \"60s\"",
+                &mut errs,
+            ),
+            Some(Some(d)) => spec.give_up_window = d,
+            _ => {}
+        }
+        let f = pick!(s, start_timeout);
+        match dur(f.clone(), false, &mut errs) {
+            Some(Some(d)) if d.is_zero() => zero(
+                &f,
+                "start_timeout = 0 would count every start as a hang: give the time a module may take to its first heartbeat, such as \"5s\"",
+                &mut errs,
+            ),
+            Some(Some(d)) => spec.start_timeout = d,
+            _ => {}
+        }
+        let f = pick!(s, stop_timeout);
+        match dur(f.clone(), false, &mut errs) {
+            Some(Some(d)) if d.is_zero() => zero(
+                &f,
+                "stop_timeout = 0 would SIGKILL every module without letting it stop (no final checkpoint): give a time such as \"5s\"",
+                &mut errs,
+            ),
+            Some(Some(d)) => spec.stop_timeout = d,
+            _ => {}
+        }
+        if let Some(d) = dur(pick!(s, checkpoint_period), true, &mut errs) {
+            spec.checkpoint_period = d.filter(|d| !d.is_zero());
+        }
+        let period_field = pick!(s, heartbeat_period);
+        let period = dur(period_field.clone(), true, &mut errs).flatten();
+        if period.is_some_and(|p| p.is_zero()) {
+            zero(
+                &period_field,
+                "heartbeat_period = 0 would switch hang detection off without saying so: give a period such as \"100ms\", or write \"off\"",
+                &mut errs,
+            );
+        }
+        let timeout_field = pick!(s, heartbeat_timeout);
+        let timeout = dur(timeout_field.clone(), false, &mut errs).flatten();
+        match (period, timeout, timeout_field) {
+            (Some(p), t, tf) if !p.is_zero() => {
+                let t = t.unwrap_or(p * DEFAULT_HEARTBEAT_TIMEOUT_PERIODS);
+                if t <= p
+                    && let Some((v, f)) = tf
+                    && report(&f)
+                {
+                    errs.push((
+                        v.span(),
+                        f,
+                        LaunchErrorKind::InvalidValue(format!(
+                            "heartbeat_timeout ({t:?}) must be longer than heartbeat_period ({p:?}); 3 periods is usual"
+                        )),
+                    ));
+                }
+                spec.heartbeat = Some(HeartbeatSpec {
+                    period: p,
+                    timeout: t,
+                });
+                if pick!(s, start_timeout).is_none() {
+                    spec.start_timeout = spec.start_timeout.max(t);
+                }
+            }
+            (_, Some(_), Some((v, f))) if report(&f) => errs.push((
+                v.span(),
+                f,
+                LaunchErrorKind::InvalidValue(
+                    "heartbeat_timeout is set but heartbeat_period is not: set heartbeat_period too"
+                        .to_owned(),
+                ),
+            )),
+            _ => spec.heartbeat = None,
+        }
+        if spec.backoff_initial > spec.backoff_max
+            && let Some((v, f)) = backoff_max_field
+            && report(&f)
+        {
+            errs.push((
+                v.span(),
+                f,
+                LaunchErrorKind::InvalidValue(format!(
+                    "backoff_max ({:?}) is smaller than backoff_initial ({:?})",
+                    spec.backoff_max, spec.backoff_initial
+                )),
+            ));
+        }
+        if let Some((v, f)) = pick!(s, give_up_failures) {
+            match u32::try_from(*v.get_ref()) {
+                Ok(n) => spec.give_up_failures = n,
+                Err(_) if report(&f) => errs.push((
+                    v.span(),
+                    f,
+                    LaunchErrorKind::InvalidValue(
+                        "give_up_failures must be a non-negative integer".to_owned(),
+                    ),
+                )),
+                Err(_) => {}
+            }
+        }
+        if let Some((v, f)) = pick!(s, cpu_quota) {
+            let r = match v.get_ref() {
+                Scalar::Float(x) => Ok(*x),
+                Scalar::Int(x) => Ok(*x as f64),
+                Scalar::Str(t) => t
+                    .trim()
+                    .strip_suffix('%')
+                    .and_then(|p| p.trim().parse::<f64>().ok())
+                    .map(|p| p / 100.0)
+                    .ok_or_else(|| format!("{t:?} is not a CPU quota: write 0.5 or \"50%\"")),
+            }
+            .and_then(|x| {
+                if x.is_finite() && x > 0.0 && x <= 4096.0 {
+                    Ok(x)
+                } else {
+                    Err(format!(
+                        "cpu_quota {x} must be > 0 (fraction of one CPU, e.g. 0.5)"
+                    ))
+                }
+            });
+            match r {
+                Ok(x) => spec.resources.cpu_quota = Some(x),
+                Err(m) if report(&f) => errs.push((v.span(), f, LaunchErrorKind::InvalidValue(m))),
+                Err(_) => {}
+            }
+        }
+        if let Some((v, f)) = pick!(s, memory_max) {
+            let r = match v.get_ref() {
+                Scalar::Str(t) if t.trim() == "max" => Ok(None),
+                Scalar::Str(t) => parse_size(t).map(Some),
+                Scalar::Int(x) => u64::try_from(*x)
+                    .map(Some)
+                    .map_err(|_| "memory_max must not be negative".to_owned()),
+                Scalar::Float(_) => {
+                    Err("memory_max: write bytes or a string such as \"512MiB\"".to_owned())
+                }
+            };
+            match r {
+                Ok(Some(0)) if report(&f) => errs.push((
+                    v.span(),
+                    f,
+                    LaunchErrorKind::InvalidValue(
+                        "memory_max of 0 bytes leaves no room to run".to_owned(),
+                    ),
+                )),
+                Ok(x) => spec.resources.memory_max = x,
+                Err(m) if report(&f) => errs.push((v.span(), f, LaunchErrorKind::InvalidValue(m))),
+                Err(_) => {}
+            }
+        }
+        if let Some((v, f)) = pick!(s, pids_max) {
+            let r = match v.get_ref() {
+                Scalar::Str(t) if t.trim() == "max" => Ok(None),
+                Scalar::Int(x) if *x >= 1 => Ok(u64::try_from(*x).ok()),
+                _ => Err("pids_max must be an integer >= 1 or \"max\"".to_owned()),
+            };
+            match r {
+                Ok(x) => spec.resources.pids_max = x,
+                Err(m) if report(&f) => errs.push((v.span(), f, LaunchErrorKind::InvalidValue(m))),
+                Err(_) => {}
+            }
+        }
+        let mut env = BTreeMap::new();
+        for (table, prefix) in [
+            (&s.d.env, s.d_prefix.to_owned()),
+            (&s.m.env, s.m_prefix.clone()),
+        ] {
+            for (k, v) in table.iter().flatten() {
+                let key = k.get_ref();
+                let field = format!("{prefix}.env.{key}");
+                if key.is_empty() || key.contains(['=', '\0']) || v.get_ref().contains('\0') {
+                    if report(&field) {
+                        errs.push((
+                            k.span(),
+                            field,
+                            LaunchErrorKind::InvalidValue(
+                                "environment names must be non-empty without '=' or NUL".to_owned(),
+                            ),
+                        ));
+                    }
+                    continue;
+                }
+                env.insert(key.clone(), v.get_ref().clone());
+            }
+        }
+        spec.env = env;
+        for (span, field, kind) in errs {
+            self.err(span, Some(field), kind);
+        }
+    }
+}
