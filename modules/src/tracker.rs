@@ -200,7 +200,7 @@ pub(crate) fn marker(
     let mut best: Option<(usize, usize)> = None;
     let mut start = None;
     for u in 0..=w {
-        let ok = u < w && good(&columns[u]);
+        let ok = columns.get(u).is_some_and(good);
         match (ok, start) {
             (true, None) => start = Some(u),
             (false, Some(s)) => {
