@@ -25,6 +25,9 @@ pub const BUILTIN: &[&str] = &[
     "maps",
     "walls",
     "wall_follower",
+    "tracker_colour",
+    "tracker_histogram",
+    "reacher",
 ];
 
 /// Runs built-in module `name` as this process.
@@ -50,6 +53,13 @@ pub fn run(name: &str) -> ExitCode {
         "wall_follower" => {
             hng_runtime::run_module::<hng_modules::wall_follower::WallFollowerModule>()
         }
+        "tracker_colour" => {
+            hng_runtime::run_module::<hng_modules::tracker_module::ColourTrackerModule>()
+        }
+        "tracker_histogram" => {
+            hng_runtime::run_module::<hng_modules::tracker_module::HistogramTrackerModule>()
+        }
+        "reacher" => hng_runtime::run_module::<hng_modules::reacher_module::ReacherModule>(),
         _ => {
             eprintln!(
                 "hng: no built-in module {name:?}; built-in modules: {}",

@@ -43,7 +43,7 @@ use std::time::Duration;
 
 use hng_runtime::channel::InputId;
 use hng_runtime::contract::{NeedSpec, ServiceOffer};
-use hng_runtime::control::{ProviderInfo, ProviderInput};
+use hng_runtime::control::ProviderInfo;
 use hng_runtime::msg::{
     BEHAVIOURS_CHANNEL, BeaconObservation, BeaconTrack, Behaviours, DESIGNATION_CHANNEL,
     Designation, FOLLOW_WALL_CHANNEL, FollowWallRequest, Goal, ORDER_CHANNEL, ORDER_STATUS_CHANNEL,
@@ -99,10 +99,11 @@ pub struct InterfaceConfig {
     pub status_in: Vec<String>,
     /// Detected walls for attention (default `walls/walls`).
     pub walls_in: String,
-    /// The camera's beacon observations for attention (default `camera/beacons`; empty:
-    /// none).
+    /// Beacon observations for attention (`BeaconObservation`; default none: the camera
+    /// gives images, and a beacon is offered once a tracker tracks it).
     pub beacons_in: String,
-    /// Trackers' `BeaconTrack` channels for attention (default none).
+    /// Trackers' `BeaconTrack` channels for attention (default the two built-in trackers',
+    /// `tracker_colour/track` and `tracker_histogram/track`).
     pub tracks_in: Vec<String>,
     /// Deadman of the teleop order: no command for this long, s: zero (default 0.5).
     pub deadman_s: f64,
@@ -132,8 +133,11 @@ impl Default for InterfaceConfig {
             goal_out: "interface/goal".into(),
             status_in: vec!["servo/status".into(), "planning/status".into()],
             walls_in: "walls/walls".into(),
-            beacons_in: "camera/beacons".into(),
-            tracks_in: Vec::new(),
+            beacons_in: String::new(),
+            tracks_in: vec![
+                "tracker_colour/track".into(),
+                "tracker_histogram/track".into(),
+            ],
             deadman_s: 0.5,
             period_s: 0.05,
             provider_timeout_s: 3.0,
@@ -170,7 +174,7 @@ pub struct InterfaceModule {
     teleop_in: Subscriber<Twist>,
     /// Commands to the contracted Robot's channel.
     cmd_out: Option<Publisher<Twist>>,
-    video: ProviderInput<BeaconObservation>,
+    video: crate::video::VideoInput,
     orders_in: Subscriber<Order>,
     status_out: Publisher<OrderStatus>,
     goal_in: Subscriber<Goal>,
@@ -563,7 +567,7 @@ impl Module for InterfaceModule {
             limits,
             teleop_in: ctx.subscribe(&cfg.teleop_in, None)?,
             cmd_out: None,
-            video: ProviderInput::new(),
+            video: crate::video::VideoInput::new(),
             orders_in: ctx.subscribe(ORDER_CHANNEL, None)?,
             status_out: ctx.publisher(ORDER_STATUS_CHANNEL)?,
             goal_in: ctx.subscribe(&cfg.goal_in, None)?,

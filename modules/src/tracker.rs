@@ -28,6 +28,9 @@ pub struct CameraModel {
     pub fov: f64,
     /// Height of a beacon marker, m.
     pub beacon_height: f64,
+    /// Radius of a beacon marker, m (its width gives the range when the marker is taller than
+    /// the image, close up).
+    pub beacon_radius: f64,
 }
 
 impl Default for CameraModel {
@@ -37,6 +40,7 @@ impl Default for CameraModel {
             height: 240,
             fov: 1.2,
             beacon_height: 0.6,
+            beacon_radius: 0.1,
         }
     }
 }
@@ -157,57 +161,91 @@ impl ColourTracker {
                 }
             }
         }
-        // The widest run of columns with the top band above the bottom band.
-        let good = |c: &(u32, u32, u32, u32)| c.0 > 0 && c.1 > 0 && c.2 < c.3;
-        let mut best: Option<(usize, usize)> = None;
-        let mut start = None;
-        for u in 0..=w {
-            let ok = u < w && good(&self.columns[u]);
-            match (ok, start) {
-                (true, None) => start = Some(u),
-                (false, Some(s)) => {
-                    if best.is_none_or(|(a, b)| u - s > b - a) {
-                        best = Some((s, u));
-                    }
-                    start = None;
-                }
-                _ => {}
-            }
-        }
-        let (u0, u1) = best?;
-        let cols = &self.columns[u0..u1];
-        let n_top: u32 = cols.iter().map(|c| c.0).sum();
-        let n_bottom: u32 = cols.iter().map(|c| c.1).sum();
-        if n_top < self.cfg.min_pixels || n_bottom < self.cfg.min_pixels {
-            return None;
-        }
-        let v0 = cols.iter().map(|c| c.2).min()?;
-        let v1 = cols.iter().map(|c| c.3).max()? + 1;
-        let f = self.camera.focal_px();
-        let uc = (u0 + u1) as f64 / 2.0;
-        let bearing = ((w as f64 / 2.0 - uc) / f).atan();
-        let height_px = f64::from(v1 - v0);
-        let range = f * self.camera.beacon_height / height_px / bearing.cos();
-        // Quality: how much of the box is band-coloured, how big the blob is (a few pixels say
-        // little about range), and how bright its pixels are (dim colours are noisy hues).
-        let area = ((u1 - u0) as f64) * height_px;
-        let n = n_top + n_bottom;
-        let fill = (f64::from(n) / area).min(1.0);
-        let size = (height_px / 12.0).min(1.0);
-        let mean_s = self.brightness[u0..u1].iter().sum::<u64>() as f64 / f64::from(n);
-        let (lo, hi) = (
-            f64::from(self.cfg.min_brightness),
-            f64::from(self.cfg.good_brightness.max(self.cfg.min_brightness + 1)),
-        );
-        let light = ((mean_s - lo) / (hi - lo)).clamp(0.0, 1.0);
-        Some(Detection {
+        let brightness = &self.brightness;
+        marker(
+            &self.camera,
+            &self.columns,
+            brightness,
             id,
-            bearing,
-            range,
-            quality: fill * size * light,
-            bbox: [u0 as u32, u1 as u32, v0, v1],
-        })
+            self.cfg.min_pixels,
+            |mean_s| {
+                let (lo, hi) = (
+                    f64::from(self.cfg.min_brightness),
+                    f64::from(self.cfg.good_brightness.max(self.cfg.min_brightness + 1)),
+                );
+                ((mean_s - lo) / (hi - lo)).clamp(0.0, 1.0)
+            },
+        )
     }
+}
+
+/// Per column of an image: top-band pixel count, bottom-band count, top band's first row,
+/// bottom band's last row (the trackers' common intermediate result).
+pub(crate) type Column = (u32, u32, u32, u32);
+
+/// The marker in per-column band counts: the widest run of columns with the top band above
+/// the bottom band, with at least `min_pixels` of each; bearing from its centre column, range
+/// from its height (from its width when it is cut by the image's top or bottom edge), and
+/// quality = band fill x blob size x `light(mean band brightness)`.
+pub(crate) fn marker(
+    camera: &CameraModel,
+    columns: &[Column],
+    brightness: &[u64],
+    id: u32,
+    min_pixels: u32,
+    light: impl Fn(f64) -> f64,
+) -> Option<Detection> {
+    let w = columns.len();
+    let good = |c: &Column| c.0 > 0 && c.1 > 0 && c.2 < c.3;
+    let mut best: Option<(usize, usize)> = None;
+    let mut start = None;
+    for u in 0..=w {
+        let ok = columns.get(u).is_some_and(good);
+        match (ok, start) {
+            (true, None) => start = Some(u),
+            (false, Some(s)) => {
+                if best.is_none_or(|(a, b)| u - s > b - a) {
+                    best = Some((s, u));
+                }
+                start = None;
+            }
+            _ => {}
+        }
+    }
+    let (u0, u1) = best?;
+    let cols = &columns[u0..u1];
+    let n_top: u32 = cols.iter().map(|c| c.0).sum();
+    let n_bottom: u32 = cols.iter().map(|c| c.1).sum();
+    if n_top < min_pixels || n_bottom < min_pixels {
+        return None;
+    }
+    let v0 = cols.iter().map(|c| c.2).min()?;
+    let v1 = cols.iter().map(|c| c.3).max()? + 1;
+    let f = camera.focal_px();
+    let uc = (u0 + u1) as f64 / 2.0;
+    let bearing = ((f64::from(camera.width) / 2.0 - uc) / f).atan();
+    let height_px = f64::from(v1 - v0);
+    let width_px = (u1 - u0) as f64;
+    let clipped = v0 == 0 || v1 >= camera.height;
+    let range = if clipped && u0 > 0 && u1 < w {
+        f * 2.0 * camera.beacon_radius / width_px / bearing.cos()
+    } else {
+        f * camera.beacon_height / height_px / bearing.cos()
+    };
+    // Quality: how much of the box is band-coloured, how big the blob is (a few pixels say
+    // little about range), and how bright its pixels are (dim colours are noisy hues).
+    let area = width_px * height_px;
+    let n = n_top + n_bottom;
+    let fill = (f64::from(n) / area).min(1.0);
+    let size = (height_px / 12.0).min(1.0);
+    let mean_s = brightness[u0..u1].iter().sum::<u64>() as f64 / f64::from(n);
+    Some(Detection {
+        id,
+        bearing,
+        range,
+        quality: fill * size * light(mean_s),
+        bbox: [u0 as u32, u1 as u32, v0, v1],
+    })
 }
 
 /// A beacon track over time: the last detection, predicted through short occlusions.

@@ -219,6 +219,10 @@ json_fixed!(
     hng_modules::msgs::GoalStatus,
     hng_modules::msgs::Mission,
     hng_modules::msgs::MissionStatus,
+    msg::BeaconTrack,
+    msg::Designation,
+    hng_modules::reacher_module::ReachStatus,
+    hng_simulator::module::SimLighting,
 );
 
 json_slice!(system::JsonInfo => true, msg::BytesInfo => false);
@@ -246,6 +250,10 @@ pub fn registry() -> Vec<TypeEntry> {
         fixed::<hng_modules::msgs::GoalStatus>(),
         fixed::<hng_modules::msgs::Mission>(),
         fixed::<hng_modules::msgs::MissionStatus>(),
+        fixed::<msg::BeaconTrack>(),
+        fixed::<msg::Designation>(),
+        fixed::<hng_modules::reacher_module::ReachStatus>(),
+        fixed::<hng_simulator::module::SimLighting>(),
         slice::<msg::GridInfo>(),
         slice::<msg::ImageInfo>(),
         slice::<msg::BytesInfo>(),

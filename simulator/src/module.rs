@@ -40,13 +40,10 @@ use hng_runtime::msg::{
     self, Beacon as MsgBeacon, BeaconObservation, FrameId, GridInfo, Header, LaserScan,
     MAX_BEACONS, MAX_BEAMS, ModuleReport, PoseWithCovariance, Twist, Velocity2D,
 };
-use hng_runtime::qos::ChannelKind;
 use hng_runtime::{
     Context, Module, ModuleResult, Node, NodeOptions, Publisher, RunOptions, SlicePublisher,
     Subscriber, TimerId, run_module_with,
 };
-use iceoryx2::prelude::ZeroCopySend;
-use serde::Serialize;
 
 use crate::map::{OccupancyGrid, grid_from_world};
 use crate::pacing::{Pacer, Speed};
@@ -54,12 +51,17 @@ use crate::sensors::{GpsStatus, SensorKind, SensorOutput};
 use crate::sim::{Simulator, secs_to_ns};
 use crate::snapshot::SimSnapshot;
 
+mod camera;
 mod config;
 mod lockstep;
+mod messages;
 
+use camera::ImageCamera;
+pub use camera::SimLighting;
 use config::config_error;
 pub use config::{Channels, SensorSwitches, SimModuleConfig};
 use lockstep::Lockstep;
+pub use messages::{SimCollision, SimStatus};
 
 /// Longest a tick keeps stepping before it returns to the executor.
 const TICK_BUDGET: Duration = Duration::from_millis(2);
@@ -67,65 +69,6 @@ const TICK_BUDGET: Duration = Duration::from_millis(2);
 const RESTART_WAIT: Duration = Duration::from_secs(2);
 /// Period of [`SimStatus`] messages, wall clock.
 const STATUS_PERIOD: Duration = Duration::from_millis(100);
-
-/// Counters and pacing of the simulator, published on `sim/status` (a state channel: late
-/// joiners get the latest). Header stamp: simulated time.
-#[repr(C)]
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize)]
-#[type_name("hng-simulator/SimStatus/v2")]
-pub struct SimStatus {
-    /// Header; `frame_id` is `map`.
-    pub header: Header,
-    /// Simulated time, ns.
-    pub sim_time_ns: u64,
-    /// Physics steps taken.
-    pub steps: u64,
-    /// Contacts begun between the robot and an obstacle.
-    pub collisions: u64,
-    /// Velocity commands rejected because they were NaN or infinite (the robot was stopped).
-    pub rejected_commands: u64,
-    /// Velocity commands accepted.
-    pub accepted_commands: u64,
-    /// Times the robot stopped because commands stopped coming.
-    pub command_timeouts: u64,
-    /// GPS readings not published because the robot was in an outage zone.
-    pub gps_no_fix: u64,
-    /// Smallest gap seen between robot and obstacle, m (+inf if none).
-    pub min_clearance: f64,
-    /// Simulated seconds per wall second over the last status period.
-    pub realtime_factor: f64,
-    /// The speed asked for (0 means as fast as possible).
-    pub target_factor: f64,
-    /// Length of the robot's true path since this simulator process started, m (every
-    /// physics step counted; a restarted simulator counts from 0 again).
-    pub path_length_m: f64,
-    /// Lockstep rounds opened so far (0 without lockstep), and of them those opened again
-    /// at the same simulated time because a module was still busy.
-    pub lockstep_rounds: u64,
-    /// See `lockstep_rounds`.
-    pub lockstep_extra_rounds: u64,
-}
-
-hng_runtime::impl_message!(SimStatus, ChannelKind::State);
-
-/// A collision began (published on `sim/collisions`). Header stamp: simulated time.
-#[repr(C)]
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize)]
-#[type_name("hng-simulator/SimCollision/v1")]
-pub struct SimCollision {
-    /// Header; `frame_id` is `map`.
-    pub header: Header,
-    /// Robot x, m.
-    pub x: f64,
-    /// Robot y, m.
-    pub y: f64,
-    /// Gap between robot and obstacle, m (≤ 0: penetration).
-    pub clearance: f64,
-    /// Collisions so far, this one included.
-    pub count: u64,
-}
-
-hng_runtime::impl_message!(SimCollision, ChannelKind::Sensor);
 
 /// The sensor publishers; `None` for a sensor switched off.
 struct Outputs {
@@ -137,6 +80,9 @@ struct Outputs {
     collisions: Publisher<SimCollision>,
     status: Publisher<SimStatus>,
     map: Option<SlicePublisher<GridInfo>>,
+    /// Camera images, and the lighting input.
+    image: Option<ImageCamera>,
+    lighting: Option<Subscriber<SimLighting>>,
 }
 
 /// The simulator module. See the [module documentation](self).
@@ -247,7 +193,13 @@ impl Module for SimulatorModule {
                 .as_ref()
                 .map(|g| node.slice_publisher::<GridInfo>(&ch.map, g.data().len()))
                 .transpose()?,
+            image: ImageCamera::new(&node, sim.world(), &ch.camera_image)?,
+            lighting: None,
         };
+        let mut outputs = outputs;
+        if outputs.image.is_some() {
+            outputs.lighting = Some(ctx.subscribe::<SimLighting>(&ch.lighting, None)?);
+        }
         let cmd = ctx.subscribe::<Twist>(&ch.cmd_vel, None)?;
         let lockstep = if cfg.lockstep.is_empty() {
             None
@@ -381,6 +333,14 @@ impl Module for SimulatorModule {
             l.read(ctx)?;
             return self.lockstep_advance(ctx);
         }
+        if let (Some(l), Some(cam)) = (&self.outputs.lighting, &mut self.outputs.image)
+            && l.id() == input
+        {
+            while let Some(m) = l.receive()? {
+                cam.set_lighting(m.lighting);
+            }
+            return Ok(());
+        }
         let mut rejected = false;
         while let Some(t) = self.cmd.receive()? {
             match self.sim.set_cmd_vel(t.linear_x, t.angular_z) {
@@ -445,6 +405,9 @@ impl Module for SimulatorModule {
     fn restore(&mut self, state: &[u8]) -> ModuleResult {
         let snap = SimSnapshot::from_bytes(state)?;
         self.sim.restore(&snap)?;
+        if let Some(cam) = &mut self.outputs.image {
+            cam.resume_at(snap.now_ns);
+        }
         self.restored = true;
         tracing::info!(
             sim_time_s = snap.now_ns as f64 * 1e-9,
@@ -603,7 +566,10 @@ impl SimulatorModule {
             // Lockstep: the step's data first, then the clock sample that opens the round.
             // Modules hold their inputs until they see the round, so they handle the whole
             // step together, at its time.
-            let sent = out.iter().try_for_each(|o| self.publish(o));
+            let sent = out
+                .iter()
+                .try_for_each(|o| self.publish(o))
+                .and_then(|()| self.publish_image());
             if let Some(l) = self.lockstep.as_mut() {
                 l.open(false);
             }
@@ -612,11 +578,27 @@ impl SimulatorModule {
             // The clock goes first, so a module woken by sensor data already has the new time.
             self.publish_clock()
                 .and_then(|()| out.iter().try_for_each(|o| self.publish(o)))
+                .and_then(|()| self.publish_image())
         } else {
             Ok(())
         };
         self.out = out;
         result
+    }
+
+    /// A camera image, when one is due (seen from the true pose).
+    fn publish_image(&mut self) -> ModuleResult {
+        let gt = self.sim.ground_truth();
+        let light = self.sim.lighting();
+        match &mut self.outputs.image {
+            Some(cam) => cam.step(
+                gt.stamp_ns,
+                crate::Pose2D::new(gt.x, gt.y, gt.theta),
+                light,
+                self.sim.script_boxes().map(|(_, b)| b),
+            ),
+            None => Ok(()),
+        }
     }
 
     fn publish(&mut self, output: &SensorOutput) -> ModuleResult {

@@ -120,6 +120,8 @@ struct BeaconMark {
 pub struct Renderer {
     params: ImageParams,
     edges: Vec<Edge>,
+    /// Edges of the drawn world; those after are the world script's boxes.
+    world_edges: usize,
     beacons: Vec<BeaconMark>,
     /// Per column: direction (x, y) in the camera frame (unit), and cos of its angle.
     columns: Vec<(f64, f64, f64)>,
@@ -142,17 +144,9 @@ impl Renderer {
         params.validate()?;
         let mut edges = Vec::new();
         for b in world.obstacle_boxes() {
-            let color = b.color.unwrap_or_else(|| shade_of(&b));
-            let c = b.corners();
-            for i in 0..4 {
-                let (p, q) = (c[i], c[(i + 1) % 4]);
-                edges.push(Edge {
-                    a: p,
-                    d: [q[0] - p[0], q[1] - p[1]],
-                    color,
-                });
-            }
+            push_box(&mut edges, &b);
         }
+        let world_edges = edges.len();
         let beacons = world
             .beacons
             .iter()
@@ -173,9 +167,19 @@ impl Renderer {
         Ok(Renderer {
             params,
             edges,
+            world_edges,
             beacons,
             columns,
         })
+    }
+
+    /// Sets the boxes a world script added (drawn like the world's own, replacing the last
+    /// set).
+    pub fn set_script_boxes<'a>(&mut self, boxes: impl IntoIterator<Item = &'a BoxObstacle>) {
+        self.edges.truncate(self.world_edges);
+        for b in boxes {
+            push_box(&mut self.edges, b);
+        }
     }
 
     /// The parameters.
@@ -264,6 +268,13 @@ impl Renderer {
                 *b = v.clamp(0.0, 255.0) as u8;
             }
         }
+    }
+
+    /// [`Renderer::render`] with the pixel noise drawn from a generator seeded with `seed`
+    /// (for callers without a random number generator of their own: tools, benches).
+    pub fn render_seeded(&self, pose: Pose2D, lighting: f64, seed: u64, out: &mut [u8]) {
+        let mut rng = <rand_chacha::ChaCha8Rng as rand::SeedableRng>::seed_from_u64(seed);
+        self.render(pose, lighting, Some(&mut rng), out);
     }
 
     /// The image rectangle (columns `u0..u1`, rows `v0..v1`) where beacon `id` is drawn from
@@ -358,6 +369,20 @@ impl Renderer {
                 }
             }
         }
+    }
+}
+
+/// The four edges of a box, in its colour.
+fn push_box(edges: &mut Vec<Edge>, b: &BoxObstacle) {
+    let color = b.color.unwrap_or_else(|| shade_of(b));
+    let c = b.corners();
+    for i in 0..4 {
+        let (p, q) = (c[i], c[(i + 1) % 4]);
+        edges.push(Edge {
+            a: p,
+            d: [q[0] - p[0], q[1] - p[1]],
+            color,
+        });
     }
 }
 

@@ -467,6 +467,19 @@ pub struct CameraConfig {
     pub bearing_sigma: f64,
     /// Standard deviation of the distance, metres (default 0.05).
     pub range_sigma: f64,
+    /// Render RGB8 images (`sim/camera/image`, `ImageInfo` + bytes) with the same `fov`
+    /// (default true); the beacon list above stays as ground truth.
+    pub image: bool,
+    /// Images per second (default 15).
+    pub image_rate: f64,
+    /// Image width, pixels (default 320).
+    pub width: u32,
+    /// Image height, pixels (default 240).
+    pub height: u32,
+    /// Standard deviation of the pixel noise, 8-bit steps (default 2).
+    pub noise_sigma: f64,
+    /// Lighting factor of the images at the start (1 normal, lower is darker; default 1).
+    pub lighting: f64,
 }
 
 impl Default for CameraConfig {
@@ -478,6 +491,12 @@ impl Default for CameraConfig {
             max_range: 8.0,
             bearing_sigma: 0.01,
             range_sigma: 0.05,
+            image: true,
+            image_rate: 15.0,
+            width: 320,
+            height: 240,
+            noise_sigma: 2.0,
+            lighting: 1.0,
         }
     }
 }
@@ -728,6 +747,26 @@ impl World {
         check_pos(c.max_range, "sensors.camera.max_range")?;
         check_nonneg(c.bearing_sigma, "sensors.camera.bearing_sigma")?;
         check_nonneg(c.range_sigma, "sensors.camera.range_sigma")?;
+        check_rate(c.image_rate, "sensors.camera.image_rate")?;
+        for (v, f) in [
+            (c.width, "sensors.camera.width"),
+            (c.height, "sensors.camera.height"),
+        ] {
+            check(
+                (8..=4096).contains(&v),
+                f,
+                &format!("must be in 8..=4096 pixels, got {v}"),
+            )?;
+        }
+        check_nonneg(c.noise_sigma, "sensors.camera.noise_sigma")?;
+        check_nonneg(c.lighting, "sensors.camera.lighting")?;
+        if c.image {
+            check(
+                c.fov < 3.0,
+                "sensors.camera.fov",
+                "must be below 3.0 rad for images",
+            )?;
+        }
         check_rate(s.ground_truth.rate, "sensors.ground_truth.rate")?;
         crate::script::validate(&self.events, &self.lighting_zones)
     }

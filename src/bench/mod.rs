@@ -15,6 +15,7 @@ pub mod record;
 pub mod recovery;
 pub mod rm;
 pub mod sim;
+pub mod vision;
 pub mod walls;
 
 #[derive(Debug, Subcommand)]
@@ -33,6 +34,8 @@ pub enum BenchCommand {
     Loop(loop_::LoopArgs),
     /// Flight recorder: 64 B and 1 MiB messages to an MCAP file, MB/s and drops.
     Record(record::BenchRecordArgs),
+    /// Camera images and trackers: render per frame, each tracker per frame, 230 KB image hop.
+    Vision(vision::VisionArgs),
     /// Idle cost: wake-ups and CPU of a module with no input, and of the default system at 1x.
     Idle(idle::IdleArgs),
     /// Wall detection per 360-beam scan (split-and-merge).
@@ -59,6 +62,7 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
         BenchCommand::Recovery(args) => recovery::run(&args),
         BenchCommand::Loop(args) => loop_::run(&args),
         BenchCommand::Record(args) => record::run(&args),
+        BenchCommand::Vision(args) => vision::run(&args),
         BenchCommand::Idle(args) => idle::run(&args),
         BenchCommand::Walls(args) => walls::run(&args),
     }

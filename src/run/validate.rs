@@ -48,6 +48,9 @@ fn check_config(name: &str, text: &str) -> Option<Result<(), ModuleProblem>> {
         "maps" => config_of::<m::maps::MapsModule>(text),
         "walls" => config_of::<m::walls_module::WallsModule>(text),
         "wall_follower" => config_of::<m::wall_follower::WallFollowerModule>(text),
+        "tracker_colour" => config_of::<m::tracker_module::ColourTrackerModule>(text),
+        "tracker_histogram" => config_of::<m::tracker_module::HistogramTrackerModule>(text),
+        "reacher" => config_of::<m::reacher_module::ReacherModule>(text),
         _ => return None,
     })
 }

@@ -43,6 +43,7 @@ fn the_colour_tracker_finds_rendered_beacons_within_2_degrees_and_10_percent() {
         height: params.height,
         fov: params.fov,
         beacon_height: params.beacon_height,
+        ..CameraModel::default()
     };
     let mut tracker = ColourTracker::new(ColourTrackerConfig::default(), camera);
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
@@ -95,4 +96,91 @@ fn the_colour_tracker_finds_rendered_beacons_within_2_degrees_and_10_percent() {
     let night = quality_at(0.1, &mut tracker, &mut img);
     assert!(bright > 0.8, "{bright}");
     assert!(dusk < bright && night < 0.05, "{bright} {dusk} {night}");
+}
+
+/// Both trackers on rendered images of one scene at falling light: the colour tracker rates
+/// itself higher in good light and loses the beacon in the dark (0.15), where the histogram
+/// tracker keeps it; near black (0.1) both rate themselves low. Where a tracker vouches for a
+/// detection (Q >= 0.2) its bearing is within 2 degrees and its range within 12 %.
+#[test]
+fn the_histogram_tracker_keeps_the_beacon_in_the_dark_the_colour_tracker_loses() {
+    use hng_modules::tracker_hist::{HistogramTracker, HistogramTrackerConfig};
+    let world = yard();
+    let params = ImageParams {
+        noise_sigma: 2.0,
+        ..ImageParams::default()
+    };
+    let renderer = Renderer::new(&world, params).expect("renderer");
+    let camera = CameraModel {
+        width: params.width,
+        height: params.height,
+        fov: params.fov,
+        beacon_height: params.beacon_height,
+        ..CameraModel::default()
+    };
+    let mut colour = ColourTracker::new(ColourTrackerConfig::default(), camera);
+    let mut hist = HistogramTracker::new(HistogramTrackerConfig::default(), camera);
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
+    let mut img = vec![0u8; params.image_bytes()];
+    let pose = Pose2D::new(1.0, 0.5, 0.1);
+    let truth = |b: &Beacon| {
+        let (dx, dy) = (b.position[0] - pose.x, b.position[1] - pose.y);
+        (dy.atan2(dx) - pose.theta, dx.hypot(dy))
+    };
+    let mut table = Vec::new();
+    for light in [1.0, 0.6, 0.3, 0.15, 0.1] {
+        renderer.render(pose, light, Some(&mut rng), &mut img);
+        for b in world
+            .beacons
+            .iter()
+            .filter(|b| renderer.beacon_box(pose, b.id).is_some())
+        {
+            let c = colour.detect(&img, b.id);
+            let h = hist.detect(&img, b.id);
+            let (bearing, range) = truth(b);
+            // Accuracy is asserted where a tracker vouches for its detection (Q >= 0.2).
+            for d in [c, h].into_iter().flatten().filter(|d| d.quality >= 0.2) {
+                assert!(
+                    (d.bearing - bearing).abs() < 2f64.to_radians(),
+                    "beacon {} at light {light}: {d:?} vs {bearing}",
+                    b.id
+                );
+                assert!(
+                    (d.range - range).abs() < 0.12 * range,
+                    "beacon {} at light {light}: {d:?} vs {range}",
+                    b.id
+                );
+            }
+            let q = |d: Option<hng_modules::tracker::Detection>| d.map_or(0.0, |d| d.quality);
+            table.push((light, b.id, q(c), q(h)));
+        }
+    }
+    assert_eq!(
+        table.len(),
+        5,
+        "one beacon in view at every light: {table:?}"
+    );
+    for (light, id, c, h) in &table {
+        println!("light {light:4}: beacon {id}: colour Q {c:.2}, histogram Q {h:.2}");
+    }
+    for &(light, _, c, h) in &table {
+        if light >= 0.6 {
+            assert!(
+                c > h + 0.1,
+                "good light ({light}): colour {c} must beat histogram {h} by the hysteresis"
+            );
+        }
+        if (0.12..=0.2).contains(&light) {
+            assert!(
+                c < 0.05 && h > c + 0.3,
+                "dark ({light}): colour {c}, histogram {h}"
+            );
+        }
+        if light < 0.12 {
+            assert!(
+                c < 0.05 && h < 0.2,
+                "near black ({light}): both rate themselves low: {c} {h}"
+            );
+        }
+    }
 }

@@ -25,6 +25,8 @@ pub struct SensorSwitches {
     pub camera: Option<bool>,
     /// Ground truth on `channels.ground_truth`.
     pub ground_truth: Option<bool>,
+    /// Rendered camera images on `channels.camera_image` (with the camera on).
+    pub camera_image: Option<bool>,
 }
 
 /// Channel names.
@@ -39,6 +41,10 @@ pub struct Channels {
     pub gps: String,
     /// Beacon camera, `BeaconObservation` in `camera` (default `sim/camera`).
     pub camera: String,
+    /// Rendered camera images, `ImageInfo` + RGB8 bytes (default `sim/camera/image`).
+    pub camera_image: String,
+    /// Lighting factor of the images in, `SimLighting` (default `sim/lighting`).
+    pub lighting: String,
     /// True pose, `PoseWithCovariance` in `map`, evaluation only (default `sim/ground_truth`).
     pub ground_truth: String,
     /// Collision events, [`SimCollision`] (default `sim/collisions`).
@@ -59,6 +65,8 @@ impl Default for Channels {
             odom: "sim/odom".into(),
             gps: "sim/gps".into(),
             camera: "sim/camera".into(),
+            camera_image: "sim/camera/image".into(),
+            lighting: "sim/lighting".into(),
             ground_truth: "sim/ground_truth".into(),
             collisions: "sim/collisions".into(),
             status: "sim/status".into(),
@@ -188,6 +196,7 @@ impl SimModuleConfig {
             (s.gps, &mut sw.gps.enabled),
             (s.camera, &mut sw.camera.enabled),
             (s.ground_truth, &mut sw.ground_truth.enabled),
+            (s.camera_image, &mut sw.camera.image),
         ] {
             if let Some(on) = switch {
                 *enabled = on;

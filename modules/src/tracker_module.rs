@@ -1,0 +1,353 @@
+//! The Visual tracker modules (Table 1: "Track beacon"): `hng module tracker_colour`
+//! ([`ColourTrackerModule`], [`crate::tracker::ColourTracker`]) and `hng module
+//! tracker_histogram` ([`HistogramTrackerModule`], [`crate::tracker_hist::HistogramTracker`]),
+//! two providers of one service with different cost and robustness, so attention has a real
+//! choice.
+//!
+//! Each needs "Video" (rank 1, required) and reads the operator's [`Designation`] on
+//! [`DESIGNATION_CHANNEL`] (a state channel: the latest designation counts). It tracks all
+//! the time, selected or not (its images come from the configured `image` channel until a
+//! "Video" provider is contracted), so its self-evaluation is current when a client compares
+//! it with the other tracker. For every image it publishes a [`BeaconTrack`] (state, bearing,
+//! range, quality) on its offer's data channel (`track_out`, default `<module>/track`); through
+//! an occlusion the track is predicted for `hold_s` with a quality falling to 0, then lost.
+//!
+//! Quality Q (`ctx.set_quality`): the track's quality (the detector's fill x size x
+//! brightness; the histogram tracker's at most 0.75), half of it, falling to 0 over `hold_s`,
+//! while the beacon is only predicted; 0 when the beacon is lost, not
+//! designated or unknown (an unknown id has no colours in view: lost); aptitude 0 and Q = -1
+//! without images for `frame_timeout_s`. Malformed images (payload not `width * height * 3`
+//! bytes of rgb8) are dropped and counted.
+//!
+//! `lie = true` (tests of client feedback): the tracker claims Q = 1 and state "seen" for
+//! every image, reporting the bearing off by `lie_bearing_rad` and, once it loses the beacon,
+//! the last values it had; its clients' feedback is what exposes it.
+
+use std::marker::PhantomData;
+use std::time::Duration;
+
+use hng_runtime::channel::InputId;
+use hng_runtime::contract::{NeedSpec, ServiceOffer};
+use hng_runtime::control::ProviderInfo;
+use hng_runtime::msg::{
+    BeaconTrack, DESIGNATION_CHANNEL, Designation, FrameId, Header, TRACK_LOST, TRACK_PREDICTED,
+    TRACK_SEEN,
+};
+use hng_runtime::{Context, Module, ModuleResult, Publisher, Subscriber, TimerId};
+use serde::{Deserialize, Serialize};
+
+use crate::common::{decode_state, encode_state, field_error, seconds};
+use crate::tracker::{
+    BeaconTrack as Track, CameraModel, ColourTracker, ColourTrackerConfig, Detection, TrackState,
+};
+use crate::tracker_hist::{HistogramTracker, HistogramTrackerConfig};
+use crate::video::{VideoInput, check_rgb8};
+
+/// The service the trackers provide.
+pub const TRACK_BEACON: &str = "Track beacon";
+/// Rank of the trackers' "Video" need.
+pub const VIDEO_NEED: u16 = 1;
+
+/// A tracking algorithm the module can run.
+pub trait Detector: Sized + 'static {
+    /// Its parameters (the `algorithm` table of the module's config).
+    type Params: Default + Clone + for<'de> Deserialize<'de> + std::fmt::Debug;
+    /// A detector for images of `camera`.
+    fn build(params: Self::Params, camera: CameraModel) -> Self;
+    /// Beacon `id` in one RGB8 image.
+    fn detect(&mut self, image: &[u8], id: u32) -> Option<Detection>;
+}
+
+impl Detector for ColourTracker {
+    type Params = ColourTrackerConfig;
+    fn build(params: ColourTrackerConfig, camera: CameraModel) -> Self {
+        ColourTracker::new(params, camera)
+    }
+    fn detect(&mut self, image: &[u8], id: u32) -> Option<Detection> {
+        ColourTracker::detect(self, image, id)
+    }
+}
+
+impl Detector for HistogramTracker {
+    type Params = HistogramTrackerConfig;
+    fn build(params: HistogramTrackerConfig, camera: CameraModel) -> Self {
+        HistogramTracker::new(params, camera)
+    }
+    fn detect(&mut self, image: &[u8], id: u32) -> Option<Detection> {
+        HistogramTracker::detect(self, image, id)
+    }
+}
+
+/// Configuration of the tracker modules.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct TrackerConfig<P> {
+    /// Images read until a "Video" provider is contracted (default `camera/image`).
+    pub image: String,
+    /// Where tracks go, the offer's data channel (default `<module name>/track`).
+    pub track_out: String,
+    /// Designations (default `operator/designation`).
+    pub designation: String,
+    /// Horizontal field of view of the camera, rad (default 1.2, the simulator's).
+    pub fov: f64,
+    /// Height of the beacon markers, m (default 0.6).
+    pub beacon_height: f64,
+    /// Radius of the beacon markers, m (default 0.1).
+    pub beacon_radius: f64,
+    /// How long a hidden beacon is predicted, s (default 1.5).
+    pub hold_s: f64,
+    /// No image for this long: aptitude 0, s (default 1.0).
+    pub frame_timeout_s: f64,
+    /// Claim Q = 1 while reporting a wrong bearing (tests of client feedback; default false).
+    pub lie: bool,
+    /// The liar's bearing error, rad (default 0.5).
+    pub lie_bearing_rad: f64,
+    /// The algorithm's parameters.
+    pub algorithm: P,
+}
+
+impl<P: Default> Default for TrackerConfig<P> {
+    fn default() -> Self {
+        TrackerConfig {
+            image: "camera/image".into(),
+            track_out: String::new(),
+            designation: DESIGNATION_CHANNEL.into(),
+            fov: 1.2,
+            beacon_height: 0.6,
+            beacon_radius: 0.1,
+            hold_s: 1.5,
+            frame_timeout_s: 1.0,
+            lie: false,
+            lie_bearing_rad: 0.5,
+            algorithm: P::default(),
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, Default, Serialize, Deserialize, PartialEq)]
+struct TrackerState {
+    frames: u64,
+    dropped: u64,
+    seen: u64,
+}
+
+/// A tracker module running detector `D`; see the module documentation.
+pub struct TrackerModule<D: Detector> {
+    cfg: TrackerConfig<D::Params>,
+    video: VideoInput,
+    designation: Subscriber<Designation>,
+    out: Publisher<BeaconTrack>,
+    /// The designated beacon, if any.
+    target: Option<u32>,
+    detector: Option<(CameraModel, D)>,
+    track: Track,
+    /// The liar's last report.
+    lied: Option<(f64, f64)>,
+    last_frame: Option<Duration>,
+    state: TrackerState,
+    _d: PhantomData<D>,
+}
+
+/// `hng module tracker_colour`.
+pub type ColourTrackerModule = TrackerModule<ColourTracker>;
+/// `hng module tracker_histogram`.
+pub type HistogramTrackerModule = TrackerModule<HistogramTracker>;
+
+impl<D: Detector> std::fmt::Debug for TrackerModule<D> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("TrackerModule")
+            .field("target", &self.target)
+            .field("state", &self.state)
+            .finish_non_exhaustive()
+    }
+}
+
+impl<D: Detector> Module for TrackerModule<D> {
+    type Config = TrackerConfig<D::Params>;
+
+    fn configure(ctx: &mut Context, mut cfg: Self::Config) -> ModuleResult<Self> {
+        seconds("hold_s", cfg.hold_s)?;
+        let timeout = seconds("frame_timeout_s", cfg.frame_timeout_s)?;
+        if !(cfg.fov.is_finite() && cfg.fov > 0.05 && cfg.fov < 3.0) {
+            return Err(field_error("fov", "must be in (0.05, 3.0) rad").into());
+        }
+        for (f, v) in [
+            ("beacon_height", cfg.beacon_height),
+            ("beacon_radius", cfg.beacon_radius),
+        ] {
+            crate::common::positive(f, v)?;
+        }
+        if !cfg.lie_bearing_rad.is_finite() {
+            return Err(field_error("lie_bearing_rad", "must be finite").into());
+        }
+        if cfg.track_out.is_empty() {
+            cfg.track_out = format!("{}/track", ctx.name());
+        }
+        let mut offer = ServiceOffer::new(TRACK_BEACON, "hng/BeaconTrack/v1");
+        offer.channel = cfg.track_out.clone();
+        ctx.provide(offer)
+            .need(NeedSpec::required("Video", VIDEO_NEED));
+        ctx.set_quality(false, -1.0);
+        // The frame timeout: a timer looks at the age of the last image.
+        ctx.add_timer(timeout.min(Duration::from_millis(250)));
+        let mut video = VideoInput::new();
+        video.follow_channel(ctx, &cfg.image)?;
+        if cfg.lie {
+            tracing::warn!(
+                module = ctx.name(),
+                "lie = true: claiming Q = 1 with a wrong bearing (a test of client feedback)"
+            );
+        }
+        Ok(TrackerModule {
+            designation: ctx.subscribe(&cfg.designation, None)?,
+            out: ctx.publisher(&cfg.track_out)?,
+            video,
+            target: None,
+            detector: None,
+            track: Track::default(),
+            lied: None,
+            last_frame: None,
+            state: TrackerState::default(),
+            cfg,
+            _d: PhantomData,
+        })
+    }
+
+    fn on_input(&mut self, ctx: &mut Context, input: InputId) -> ModuleResult {
+        if input == self.designation.id() {
+            while let Some(d) = self.designation.receive()? {
+                let next = (d.active != 0).then_some(d.beacon_id);
+                if next != self.target {
+                    tracing::info!(module = ctx.name(), beacon = ?next, "designation");
+                    self.track = Track::default();
+                    self.lied = None;
+                }
+                self.target = next;
+            }
+            return Ok(());
+        }
+        if !self.video.is(input) {
+            return Ok(());
+        }
+        while let Some(frame) = self.video.receive()? {
+            let info = *frame.header();
+            if let Some(why) = check_rgb8(&info, frame.data().len()) {
+                self.state.dropped += 1;
+                let c = &ctx.node().counters().msgs_dropped;
+                c.set(c.get() + 1);
+                tracing::warn!(
+                    module = ctx.name(),
+                    dropped = self.state.dropped,
+                    "image dropped: {why}"
+                );
+                continue;
+            }
+            self.state.frames += 1;
+            self.last_frame = Some(ctx.now());
+            let t = info.header.stamp_ns as f64 * 1e-9;
+            let target = self.target;
+            let detector = self.detector_for(info.width, info.height);
+            let detection = match (target, detector) {
+                (Some(id), Some(d)) => d.detect(frame.data(), id),
+                _ => None,
+            };
+            drop(frame);
+            let state = self.track.update(detection, t, self.cfg.hold_s);
+            self.report(ctx, state)?;
+        }
+        Ok(())
+    }
+
+    fn on_tick(&mut self, ctx: &mut Context, _timer: TimerId) -> ModuleResult {
+        let silent = self
+            .last_frame
+            .is_none_or(|t| ctx.now().saturating_sub(t).as_secs_f64() > self.cfg.frame_timeout_s);
+        if silent {
+            ctx.set_quality(false, -1.0);
+        }
+        Ok(())
+    }
+
+    fn on_provider_changed(
+        &mut self,
+        ctx: &mut Context,
+        need: u16,
+        provider: Option<&ProviderInfo>,
+    ) -> ModuleResult {
+        if need == VIDEO_NEED {
+            match provider {
+                Some(p) => self.video.follow(ctx, Some(p))?,
+                None => self.video.follow_channel(ctx, &self.cfg.image)?,
+            }
+        }
+        Ok(())
+    }
+
+    fn checkpoint(&self) -> Option<Vec<u8>> {
+        encode_state(&self.state)
+    }
+
+    fn restore(&mut self, state: &[u8]) -> ModuleResult {
+        self.state = decode_state(state)?;
+        Ok(())
+    }
+}
+
+impl<D: Detector> TrackerModule<D> {
+    /// The detector for images of `width` x `height` (rebuilt when the size changes).
+    fn detector_for(&mut self, width: u32, height: u32) -> Option<&mut D> {
+        let camera = CameraModel {
+            width,
+            height,
+            fov: self.cfg.fov,
+            beacon_height: self.cfg.beacon_height,
+            beacon_radius: self.cfg.beacon_radius,
+        };
+        if self.detector.as_ref().is_none_or(|(c, _)| *c != camera) {
+            self.detector = Some((camera, D::build(self.cfg.algorithm.clone(), camera)));
+        }
+        self.detector.as_mut().map(|(_, d)| d)
+    }
+
+    /// Publishes the track of one image and sets Q from it.
+    fn report(&mut self, ctx: &mut Context, state: TrackState) -> ModuleResult {
+        let beacon_id = self.target.unwrap_or(0);
+        let mut msg = BeaconTrack {
+            header: Header {
+                frame_id: FrameId::CAMERA,
+                ..Header::default()
+            },
+            beacon_id,
+            ..Default::default()
+        };
+        let q = match state {
+            TrackState::Seen(d) => {
+                self.state.seen += 1;
+                (msg.state, msg.bearing, msg.range) = (TRACK_SEEN, d.bearing, d.range);
+                d.quality
+            }
+            TrackState::Predicted(d, _) => {
+                (msg.state, msg.bearing, msg.range) = (TRACK_PREDICTED, d.bearing, d.range);
+                // A prediction is worth at most half a sighting: a tracker that sees the
+                // beacon beats one that only remembers it.
+                0.5 * d.quality
+            }
+            TrackState::Lost => {
+                msg.state = TRACK_LOST;
+                0.0
+            }
+        };
+        msg.quality = q as f32;
+        if self.cfg.lie && self.target.is_some() {
+            if msg.state == TRACK_SEEN {
+                self.lied = Some((msg.bearing + self.cfg.lie_bearing_rad, msg.range));
+            }
+            if let Some((b, r)) = self.lied {
+                (msg.state, msg.bearing, msg.range, msg.quality) = (TRACK_SEEN, b, r, 1.0);
+            }
+        }
+        ctx.set_quality(true, msg.quality);
+        self.out.publish(msg)?;
+        Ok(())
+    }
+}

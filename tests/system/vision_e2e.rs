@@ -1,0 +1,551 @@
+//! Camera images, the two trackers and the Beacon reacher end to end: `hng run` of a launch
+//! file (simulator in lockstep at `max`, camera, robot, tracker_colour, tracker_histogram,
+//! reacher, and a contract-probe Manager whose one objective is "Reach beacon"), every module
+//! its own process, under its own prefix. The world script (`[[events]]`) hides the beacon
+//! behind boxes or darkens the camera at set simulated times. The test plays the operator: it
+//! designates the beacon on `operator/designation`; it reads the true pose (`sim/ground_truth`), the reacher's `reacher/status` and the contract
+//! tables (`hng/contracts`: which tracker holds the reacher's "Track beacon" contract, the
+//! contract log), all stamped in simulated time.
+
+use std::io::Read as _;
+use std::path::PathBuf;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use hng_modules::reacher_module::{REACH_LOST, REACH_REACHED, ReachStatus};
+use hng_runtime::msg::{
+    BeaconTrack, DESIGNATION_CHANNEL, Designation, PoseWithCovariance, TRACK_LOST, TRACK_PREDICTED,
+};
+use hng_runtime::system::{CONTRACTS, ContractRole, ContractTable};
+use hng_runtime::wait::{WaitMode, Waiter};
+use hng_runtime::{Node, NodeOptions, Publisher, Subscriber, shm};
+
+/// The beacon, 6 m ahead of the robot's start, a little to the left.
+const BEACON: [f64; 2] = [7.0, 3.4];
+const BEACON_ID: u32 = 3;
+
+/// The world file, with `script` (world-script events) appended.
+fn world(dir: &std::path::Path, script: &str) -> PathBuf {
+    let text = format!(
+        r#"
+name = "beacon-room"
+seed = 5
+dt = 0.01
+
+[robot]
+start = {{ x = 1.0, y = 3.0, theta = 0.0 }}
+
+[[walls]]
+from = [0.0, 0.0]
+to = [10.0, 0.0]
+color = [180, 170, 150]
+
+[[walls]]
+from = [10.0, 0.0]
+to = [10.0, 6.0]
+color = [150, 160, 175]
+
+[[walls]]
+from = [10.0, 6.0]
+to = [0.0, 6.0]
+color = [180, 170, 150]
+
+[[walls]]
+from = [0.0, 6.0]
+to = [0.0, 0.0]
+
+[[beacons]]
+id = {BEACON_ID}
+position = [{}, {}]
+
+[[beacons]]
+id = 8
+position = [5.0, 0.6]
+
+[sensors.gps]
+enabled = false
+
+[sensors.lidar]
+enabled = false
+{script}
+"#,
+        BEACON[0], BEACON[1]
+    );
+    let path = dir.join("beacon-room.toml");
+    std::fs::write(&path, text).expect("world file");
+    path
+}
+
+/// The launch file; `reacher` and `colour` are extra config lines of those modules.
+fn launch(world: &std::path::Path, reacher: &str, colour: &str) -> String {
+    let modules = [
+        "camera",
+        "robot",
+        "tracker_colour",
+        "tracker_histogram",
+        "reacher",
+        "client",
+    ];
+    let list = modules
+        .iter()
+        .map(|m| format!("{m:?}"))
+        .collect::<Vec<_>>()
+        .join(", ");
+    let mut s = format!(
+        r#"system = "vision"
+clock = "sim"
+
+[defaults]
+restart = "on-failure"
+heartbeat_period = "200ms"
+heartbeat_timeout = "5s"
+start_timeout = "30s"
+stop_timeout = "3s"
+
+[[module]]
+name = "simulator"
+command = ["hng", "module", "simulator"]
+
+[module.config]
+world = {:?}
+speed = "max"
+wait_for = [{list}]
+lockstep = [{list}]
+"#,
+        world.to_string_lossy()
+    );
+    for (name, module, config, extra) in [
+        ("camera", "camera", "", ""),
+        ("robot", "robot", "", ""),
+        ("tracker_colour", "tracker_colour", colour, ""),
+        ("tracker_histogram", "tracker_histogram", "", ""),
+        ("reacher", "reacher", reacher, ""),
+        (
+            "client",
+            "contract-probe",
+            "manager = [\"Reach beacon\"]",
+            "manager = true\n",
+        ),
+    ] {
+        s.push_str(&format!(
+            "\n[[module]]\nname = {name:?}\ncommand = [\"hng\", \"module\", {module:?}]\n{extra}"
+        ));
+        if !config.is_empty() {
+            s.push_str(&format!("\n[module.config]\n{config}\n"));
+        }
+    }
+    s
+}
+
+/// One `hng run` of the launch file, and the operator's ports; stops it and cleans up on drop.
+struct Run {
+    prefix: String,
+    dir: PathBuf,
+    child: Option<Child>,
+    _node: Node,
+    truth: Subscriber<PoseWithCovariance>,
+    status: Subscriber<ReachStatus>,
+    tables: Subscriber<ContractTable>,
+    colour_track: Subscriber<BeaconTrack>,
+    designation: Publisher<Designation>,
+    waiter: Waiter,
+    /// Latest simulated time (of the ground truth), ns.
+    now_ns: u64,
+    /// True pose.
+    pose: (f64, f64),
+    /// Latest reacher status.
+    last_status: Option<ReachStatus>,
+    /// Module names by id, from the contract tables.
+    names: std::collections::BTreeMap<u32, String>,
+    /// The contract log: (simulated time, module id of the tracker holding the reacher's
+    /// "Track beacon").
+    switches: Vec<(f64, u32)>,
+    /// Colour tracker's track states seen.
+    colour_states: Vec<(f64, u8)>,
+}
+
+impl Run {
+    fn start(tag: &str, script: &str, reacher: &str, colour: &str) -> Run {
+        let prefix = shm::unique_prefix(tag);
+        let dir = std::env::temp_dir().join(format!("hng-test-{}", prefix.trim_end_matches('_')));
+        std::fs::create_dir_all(&dir).expect("test dir");
+        let w = world(&dir, script);
+        let file = dir.join("vision.launch.toml");
+        std::fs::write(&file, launch(&w, reacher, colour)).expect("launch file");
+        let node = Node::new(NodeOptions::new("operator").prefix(&prefix)).expect("node");
+        let truth = node
+            .subscriber::<PoseWithCovariance>("sim/ground_truth")
+            .expect("truth");
+        let mut waiter = Waiter::new(WaitMode::default()).expect("waiter");
+        waiter.attach(&truth).expect("attach");
+        let run = Run {
+            status: node.subscriber("reacher/status").expect("status"),
+            tables: node.subscriber(CONTRACTS).expect("tables"),
+            colour_track: node.subscriber("tracker_colour/track").expect("track"),
+            designation: node.publisher(DESIGNATION_CHANNEL).expect("designation"),
+            truth,
+            waiter,
+            _node: node,
+            child: None,
+            now_ns: 0,
+            pose: (1.0, 3.0),
+            last_status: None,
+            names: Default::default(),
+            switches: Vec::new(),
+            colour_states: Vec::new(),
+            prefix,
+            dir,
+        };
+        let mut run = run;
+        let child = Command::new(env!("CARGO_BIN_EXE_hng"))
+            .arg("--prefix")
+            .arg(&run.prefix)
+            .arg("run")
+            .arg("--no-rm")
+            .arg("--run-dir")
+            .arg(run.dir.join("run"))
+            .arg(&file)
+            .env("HNG_LOG", "warn")
+            .env("HNG_WAIT", "blocking:0")
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("hng run");
+        run.child = Some(child);
+        run
+    }
+
+    fn now_s(&self) -> f64 {
+        self.now_ns as f64 * 1e-9
+    }
+
+    fn distance_to_beacon(&self) -> f64 {
+        (self.pose.0 - BEACON[0]).hypot(self.pose.1 - BEACON[1])
+    }
+
+    fn designate(&self, id: u32) {
+        self.designation
+            .publish(Designation {
+                beacon_id: id,
+                active: 1,
+                ..Default::default()
+            })
+            .expect("designate");
+    }
+
+    fn name(&self, id: u32) -> String {
+        self.names
+            .get(&id)
+            .cloned()
+            .unwrap_or_else(|| format!("m{id}"))
+    }
+
+    /// The tracker holding the reacher's "Track beacon" contract now.
+    fn tracker(&self) -> Option<String> {
+        self.switches.last().map(|(_, id)| self.name(*id))
+    }
+
+    /// The contract log with names.
+    fn log(&self) -> Vec<(String, String)> {
+        self.switches
+            .iter()
+            .map(|(t, id)| (format!("{t:.2} s"), self.name(*id)))
+            .collect()
+    }
+
+    /// Reads everything that arrived; waits for the next ground truth (at most 20 s wall).
+    fn pump(&mut self) {
+        self.waiter
+            .wait(Some(Duration::from_secs(20)))
+            .expect("wait for the simulation");
+        while let Some(g) = self.truth.receive().expect("truth") {
+            self.now_ns = self.now_ns.max(g.header.stamp_ns);
+            self.pose = (g.pose.x, g.pose.y);
+        }
+        while let Some(s) = self.status.receive().expect("status") {
+            self.last_status = Some(*s);
+        }
+        while let Some(t) = self.colour_track.receive().expect("track") {
+            let now = self.now_s();
+            if self.colour_states.last().is_none_or(|(_, s)| *s != t.state) {
+                self.colour_states.push((now, t.state));
+            }
+        }
+        while let Some(t) = self.tables.receive().expect("tables") {
+            self.names.insert(t.module_id, t.module().to_owned());
+            if t.module() != "reacher" {
+                continue;
+            }
+            for e in t.entries() {
+                if e.role() == Some(ContractRole::Client)
+                    && e.service() == "Track beacon"
+                    && self.switches.last().map(|s| s.1) != Some(e.peer)
+                {
+                    self.switches.push((self.now_s(), e.peer));
+                }
+            }
+        }
+    }
+
+    /// Pumps until `done` or `limit_s` of simulated time (or 240 s of wall time) has passed.
+    fn until(&mut self, limit_s: f64, mut done: impl FnMut(&Run) -> bool) -> bool {
+        let wall = Instant::now() + Duration::from_secs(240);
+        loop {
+            if done(self) {
+                return true;
+            }
+            if self.now_s() >= limit_s {
+                return false;
+            }
+            assert!(
+                Instant::now() < wall,
+                "simulation too slow: at {:.2} s simulated",
+                self.now_s()
+            );
+            self.assert_running();
+            self.pump();
+        }
+    }
+
+    fn assert_running(&mut self) {
+        if let Some(c) = &mut self.child
+            && let Ok(Some(status)) = c.try_wait()
+        {
+            let mut err = String::new();
+            if let Some(mut e) = c.stderr.take() {
+                let _ = e.read_to_string(&mut err);
+            }
+            panic!("hng run ended early: {status}\n{err}");
+        }
+    }
+
+    /// Stops the system (SIGTERM to `hng run`) and checks it stopped cleanly.
+    fn finish(mut self) {
+        let Some(mut c) = self.child.take() else {
+            return;
+        };
+        let _ = nix::sys::signal::kill(
+            nix::unistd::Pid::from_raw(c.id() as i32),
+            nix::sys::signal::Signal::SIGTERM,
+        );
+        let mut err = String::new();
+        if let Some(mut e) = c.stderr.take() {
+            let _ = e.read_to_string(&mut err);
+        }
+        let status = c.wait().expect("wait");
+        assert!(status.success(), "hng run: {status}\n{err}");
+    }
+}
+
+impl Drop for Run {
+    fn drop(&mut self) {
+        if let Some(c) = &mut self.child {
+            let _ = c.kill();
+            let _ = c.wait();
+        }
+        shm::remove_prefix_files(&self.prefix);
+        let _ = std::fs::remove_dir_all(&self.dir);
+    }
+}
+
+#[test]
+fn the_reacher_ignores_an_unknown_beacon_then_reaches_the_designated_one_within_half_a_metre() {
+    let _heavy = crate::common::heavy();
+    let mut r = Run::start("vis_reach", "", "", "");
+    // Beacon 42 is in no world: the trackers report it lost, nothing moves, the reacher
+    // says so once its timeout has passed.
+    assert!(r.until(30.0, |r| r.now_ns > 0), "the simulation started");
+    r.designate(42);
+    let t0 = r.now_s();
+    assert!(
+        r.until(t0 + 4.0, |r| r
+            .last_status
+            .is_some_and(|s| s.beacon_id == 42 && s.state == REACH_LOST)),
+        "the reacher reports the unknown beacon lost: {:?}",
+        r.last_status
+    );
+    let moved = (r.pose.0 - 1.0).hypot(r.pose.1 - 3.0);
+    assert!(
+        moved < 0.02,
+        "nothing moves for an unknown beacon: {moved} m"
+    );
+    assert!(
+        r.colour_states.iter().all(|(_, s)| *s == TRACK_LOST),
+        "{:?}",
+        r.colour_states
+    );
+    r.designate(BEACON_ID);
+    let t1 = r.now_s();
+    let reached = r.until(t1 + 40.0, |r| {
+        r.last_status
+            .is_some_and(|s| s.beacon_id == BEACON_ID && s.state == REACH_REACHED)
+    });
+    let d = r.distance_to_beacon();
+    println!(
+        "reached: {reached} at {:.2} s ({:.2} s after the designation), true distance {d:.3} m",
+        r.now_s(),
+        r.now_s() - t1
+    );
+    assert!(reached, "beacon reached: {:?}", r.last_status);
+    // It holds there: one more simulated second.
+    let t2 = r.now_s();
+    r.until(t2 + 1.0, |_| false);
+    let d = r.distance_to_beacon();
+    assert!(
+        d <= 0.5 && d > 0.1,
+        "stopped within 0.5 m of the beacon: {d:.3} m"
+    );
+    assert_eq!(
+        r.tracker().as_deref(),
+        Some("tracker_colour"),
+        "{:?}",
+        r.log()
+    );
+    r.finish();
+}
+
+/// A screen (a box of the world script) stands between the robot and the beacon from 4 to 5 s,
+/// and again from 7 to 11 s; the robot, 1.2 m into its 6 m approach at 4 s, is far from it.
+const SCREENS: &str = r#"
+[[events]]
+at_s = 4.0
+add_box = { name = "screen", center = [5.0, 3.25], size = [0.1, 0.8] }
+
+[[events]]
+at_s = 5.0
+remove_box = "screen"
+
+[[events]]
+at_s = 7.0
+add_box = { name = "screen2", center = [5.0, 3.25], size = [0.1, 0.8] }
+
+[[events]]
+at_s = 11.0
+remove_box = "screen2"
+"#;
+
+#[test]
+fn the_track_survives_a_one_second_occlusion_and_the_reacher_stops_after_a_longer_one() {
+    let _heavy = crate::common::heavy();
+    let mut r = Run::start("vis_occl", SCREENS, "", "");
+    assert!(r.until(30.0, |r| r.now_ns > 0), "the simulation started");
+    r.designate(BEACON_ID);
+    r.until(4.0, |_| false);
+    let d_before = r.distance_to_beacon();
+    r.until(5.0, |_| false);
+    r.until(6.0, |_| false);
+    let hidden: Vec<_> = r
+        .colour_states
+        .iter()
+        .filter(|(t, _)| *t >= 4.0 && *t <= 5.1)
+        .collect();
+    println!("track states during the 1 s occlusion: {hidden:?}");
+    assert!(
+        hidden.iter().any(|(_, s)| *s == TRACK_PREDICTED)
+            && !hidden.iter().any(|(_, s)| *s == TRACK_LOST),
+        "predicted through the occlusion, never lost: {:?}",
+        r.colour_states
+    );
+    assert_ne!(
+        r.last_status.map(|s| s.state),
+        Some(REACH_LOST),
+        "the reacher goes on through 1 s"
+    );
+    assert!(
+        r.distance_to_beacon() < d_before - 0.3,
+        "and keeps approaching: {} -> {}",
+        d_before,
+        r.distance_to_beacon()
+    );
+    // Hidden again from 7 s, for 4 s: the reacher stops once the beacon is unseen for its
+    // timeout (1.5 s).
+    let stopped = r.until(11.0, |r| {
+        r.last_status.is_some_and(|s| s.state == REACH_LOST)
+    });
+    let t_lost = r.now_s() - 7.0;
+    println!("long occlusion: reacher reported the beacon lost {t_lost:.2} s after it was hidden");
+    assert!(
+        stopped,
+        "the reacher reports the beacon lost: {:?}",
+        r.last_status
+    );
+    assert!(
+        t_lost > 1.0 && t_lost < 2.5,
+        "lost after {t_lost} s (timeout 1.5 s)"
+    );
+    let at = r.pose;
+    let t3 = r.now_s();
+    r.until(t3 + 1.0, |_| false);
+    let drift = (r.pose.0 - at.0).hypot(r.pose.1 - at.1);
+    assert!(
+        drift < 0.1,
+        "stopped: moved {drift} m after reporting the loss"
+    );
+    r.finish();
+}
+
+/// Dusk from 3 s (lighting 0.15), daylight again from 7 s.
+const DUSK: &str = r#"
+[[events]]
+at_s = 3.0
+lighting = 0.15
+
+[[events]]
+at_s = 7.0
+lighting = 1.0
+"#;
+
+#[test]
+fn track_beacon_moves_to_the_histogram_tracker_in_the_dark_and_back_in_the_light() {
+    let _heavy = crate::common::heavy();
+    // Slow, so the beacon stays far and in view while the light changes.
+    let mut r = Run::start("vis_attn", DUSK, "law = { max_speed = 0.05 }", "");
+    assert!(r.until(30.0, |r| r.now_ns > 0), "the simulation started");
+    r.designate(BEACON_ID);
+    assert!(
+        r.until(3.0, |r| r.tracker().as_deref() == Some("tracker_colour")),
+        "the colour tracker first: {:?}",
+        r.log()
+    );
+    let moved = r.until(7.0, |r| r.tracker().as_deref() == Some("tracker_histogram"));
+    let t_dark = r.now_s() - 3.0;
+    println!(
+        "dusk at 3 s: Track beacon moved to the histogram tracker after {t_dark:.2} s simulated"
+    );
+    assert!(moved, "{:?}", r.log());
+    assert!(t_dark <= 1.0, "within 1 s of simulated time: {t_dark:.2} s");
+    r.until(7.0, |_| false);
+    let back = r.until(12.0, |r| r.tracker().as_deref() == Some("tracker_colour"));
+    let t_back = r.now_s() - 7.0;
+    println!("light at 7 s: Track beacon back to the colour tracker after {t_back:.2} s simulated");
+    assert!(back, "{:?}", r.log());
+    println!("contract log: {:?}", r.log());
+    r.finish();
+}
+
+#[test]
+fn a_lying_tracker_loses_its_contract_through_the_reachers_feedback() {
+    let _heavy = crate::common::heavy();
+    let mut r = Run::start("vis_lie", "", "", "lie = true\nlie_bearing_rad = 0.8");
+    assert!(r.until(30.0, |r| r.now_ns > 0), "the simulation started");
+    r.designate(BEACON_ID);
+    let t0 = r.now_s();
+    assert!(
+        r.until(t0 + 5.0, |r| r.tracker().as_deref()
+            == Some("tracker_colour")),
+        "the liar (Q = 1) wins first: {:?}",
+        r.log()
+    );
+    let chosen = r.switches.last().map_or(t0, |s| s.0);
+    let lost = r.until(chosen + 15.0, |r| {
+        r.tracker().as_deref() == Some("tracker_histogram")
+    });
+    let after = r.now_s() - chosen;
+    println!(
+        "the liar lost Track beacon after {after:.2} s simulated; log {:?}",
+        r.log()
+    );
+    assert!(lost, "the liar keeps its contract: {:?}", r.log());
+    r.finish();
+}
