@@ -71,7 +71,9 @@ pub fn parse_addr(addr: &str) -> Result<SocketAddr> {
         a.to_owned()
     };
     a.to_socket_addrs()
-        .with_context(|| format!("operator page address {addr:?}: expected HOST:PORT, e.g. {DEFAULT_ADDR}"))?
+        .with_context(|| {
+            format!("operator page address {addr:?}: expected HOST:PORT, e.g. {DEFAULT_ADDR}")
+        })?
         .next()
         .with_context(|| format!("operator page address {addr:?} resolves to nothing"))
 }
@@ -107,7 +109,8 @@ pub fn run(prefix: &str, args: &GuiArgs) -> Result<()> {
     mask.add(Signal::SIGINT);
     mask.add(Signal::SIGTERM);
     mask.add(Signal::SIGHUP);
-    mask.thread_block().context("blocking the termination signals")?;
+    mask.thread_block()
+        .context("blocking the termination signals")?;
     let child = args.listen_fd.is_some();
     let listener = match args.listen_fd {
         // SAFETY: `hng run` put a listening socket on this descriptor for this process
@@ -214,7 +217,9 @@ pub fn start_for_run(prefix: &str, args: &RunGuiArgs) -> Option<GuiChild> {
         drop(listener);
         println!("operator page: {}", url(&bound, token.as_deref()));
         if token.is_some() {
-            println!("  (not a loopback address: the token in this address is required on every order and on the live stream)");
+            println!(
+                "  (not a loopback address: the token in this address is required on every order and on the live stream)"
+            );
         }
         Ok(GuiChild {
             child,

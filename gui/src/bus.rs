@@ -640,9 +640,11 @@ fn encode(topic: &str, src: &Sources, st: &State) -> Option<(Value, u64)> {
             {
                 obj.insert(
                     "in_force".into(),
-                    json!((o.active != 0)
-                        .then(|| OrderKind::from_u32(o.in_force).map(OrderKind::name))
-                        .flatten()),
+                    json!(
+                        (o.active != 0)
+                            .then(|| OrderKind::from_u32(o.in_force).map(OrderKind::name))
+                            .flatten()
+                    ),
                 );
             }
             Some((v, stamp))

@@ -212,7 +212,10 @@ impl Hub {
 
     /// Starts (or restarts) recording scan-to-send latencies.
     pub fn measure_latency(&self) {
-        *self.latencies.lock().unwrap_or_else(PoisonError::into_inner) = Some(Vec::new());
+        *self
+            .latencies
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner) = Some(Vec::new());
     }
 
     /// The latencies recorded so far (and stops recording).

@@ -107,10 +107,7 @@ impl Server {
                 prefix: opts.prefix.clone(),
                 channels: opts.channels.clone(),
             };
-            threads.push(spawn(
-                "bus",
-                Box::new(move || bus::run(&bus, &hub, &stop)),
-            )?);
+            threads.push(spawn("bus", Box::new(move || bus::run(&bus, &hub, &stop)))?);
         }
         {
             let (prefix, stop) = (opts.prefix.clone(), Arc::clone(&stop));
@@ -147,10 +144,9 @@ impl Server {
             tokio::net::TcpListener::from_std(listener)?
         };
         runtime.spawn(async move {
-            let serve = axum::serve(listener, server::router(app))
-                .with_graceful_shutdown(async {
-                    let _ = on_shutdown.await;
-                });
+            let serve = axum::serve(listener, server::router(app)).with_graceful_shutdown(async {
+                let _ = on_shutdown.await;
+            });
             if let Err(e) = serve.await {
                 tracing::error!("operator page: server stopped: {e}");
             }

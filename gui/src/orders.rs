@@ -178,9 +178,9 @@ pub fn order(body: &[u8], seq: u32) -> Result<Order, Invalid> {
     o.count = req.points.len() as u32;
     match kind {
         OrderKind::ReachBeacon => {
-            o.beacon_id = req.beacon_id.ok_or_else(|| {
-                Invalid::Range("reach_beacon: beacon_id is required".to_owned())
-            })?;
+            o.beacon_id = req
+                .beacon_id
+                .ok_or_else(|| Invalid::Range("reach_beacon: beacon_id is required".to_owned()))?;
         }
         OrderKind::FollowWall => {
             o.side = match req.side {
@@ -370,8 +370,11 @@ mod tests {
         assert_eq!(e.status(), 422);
         let e = order(br#"{"kind":"goal","points":[{"x":1e300,"y":0}]}"#, 1).unwrap_err();
         assert!(e.to_string().contains("points[0].x"), "{e}");
-        let e = order(br#"{"kind":"goal","points":[{"x":1,"y":1}],"tolerance_m":-1}"#, 1)
-            .unwrap_err();
+        let e = order(
+            br#"{"kind":"goal","points":[{"x":1,"y":1}],"tolerance_m":-1}"#,
+            1,
+        )
+        .unwrap_err();
         assert!(e.to_string().contains("tolerance_m"), "{e}");
         let many: Vec<String> = (0..17).map(|i| format!(r#"{{"x":{i},"y":0}}"#)).collect();
         let body = format!(r#"{{"kind":"waypoints","points":[{}]}}"#, many.join(","));
@@ -401,7 +404,12 @@ mod tests {
     fn module_commands_name_a_module_and_a_known_signal() {
         let (r, s) = module_command(br#"{"op":"kill","module":"slam","signal":"segv"}"#).unwrap();
         assert_eq!((r.op, r.module.as_str(), s), (ModuleOp::Kill, "slam", 11));
-        assert_eq!(module_command(br#"{"op":"restart","module":"slam"}"#).unwrap().1, 9);
+        assert_eq!(
+            module_command(br#"{"op":"restart","module":"slam"}"#)
+                .unwrap()
+                .1,
+            9
+        );
         assert!(module_command(br#"{"op":"kill","module":"slam","signal":"NOPE"}"#).is_err());
         assert!(module_command(br#"{"op":"explode","module":"slam"}"#).is_err());
         assert!(module_command(br#"{"op":"kill","module":""}"#).is_err());

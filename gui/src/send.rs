@@ -3,13 +3,11 @@
 //! control thread sends module commands to the supervisor and waits for its
 //! acknowledgement, exactly as `hng kill`/`hng restart` do, without holding up an order.
 
-use std::sync::mpsc::{Receiver, RecvTimeoutError, Sender};
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::{Receiver, RecvTimeoutError, Sender};
 use std::time::{Duration, Instant};
 
-use hng_runtime::msg::{
-    DESIGNATION_CHANNEL, Designation, ORDER_CHANNEL, Order, OrderKind, Twist,
-};
+use hng_runtime::msg::{DESIGNATION_CHANNEL, Designation, ORDER_CHANNEL, Order, OrderKind, Twist};
 use hng_runtime::system::{
     CommandOp, JsonInfo, SUPERVISOR_COMMAND, SUPERVISOR_STATUS, SupervisorCommand,
 };
@@ -133,8 +131,9 @@ pub fn control(
         };
         let deadline = Instant::now() + ANSWER_TIMEOUT;
         let answer = (|| -> Result<String, String> {
-            let before = read(&mut waiter, deadline, &|_| true)
-                .ok_or_else(|| "no status from the supervisor (is the system running?)".to_owned())?;
+            let before = read(&mut waiter, deadline, &|_| true).ok_or_else(|| {
+                "no status from the supervisor (is the system running?)".to_owned()
+            })?;
             let names: Vec<&str> = before["modules"]
                 .as_array()
                 .map(|m| m.iter().filter_map(|r| r["name"].as_str()).collect())

@@ -130,6 +130,7 @@ pub fn router(app: Arc<App>) -> Router {
             "/style.css",
             get(|| async { asset(STYLE_CSS, "text/css; charset=utf-8") }),
         )
+        .route("/favicon.ico", get(|| async { StatusCode::NO_CONTENT }))
         .route("/ws", get(ws))
         .route("/api/info", get(info))
         .route("/api/order", post(order))
@@ -259,10 +260,7 @@ async fn module(
     match tokio::time::timeout(Duration::from_secs(10), answer).await {
         Ok(Ok(Ok(done))) => axum::Json(json!({ "done": done })).into_response(),
         Ok(Ok(Err(why))) => error(StatusCode::CONFLICT, &why),
-        _ => error(
-            StatusCode::GATEWAY_TIMEOUT,
-            "no answer from the supervisor",
-        ),
+        _ => error(StatusCode::GATEWAY_TIMEOUT, "no answer from the supervisor"),
     }
 }
 

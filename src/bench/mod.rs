@@ -8,6 +8,7 @@ use clap::Subcommand;
 use hng_runtime::stats::{BenchRow, table};
 
 pub mod contracts;
+pub mod gui;
 pub mod ipc;
 pub mod loop_;
 pub mod record;
@@ -31,6 +32,8 @@ pub enum BenchCommand {
     Loop(loop_::LoopArgs),
     /// Flight recorder: 64 B and 1 MiB messages to an MCAP file, MB/s and drops.
     Record(record::BenchRecordArgs),
+    /// Operator page: scan-to-WebSocket-send latency at 10 Hz with 1 and 3 clients.
+    Gui(gui::GuiBenchArgs),
 }
 
 /// Prints rows as JSON lines or as a table.
@@ -53,5 +56,6 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
         BenchCommand::Recovery(args) => recovery::run(&args),
         BenchCommand::Loop(args) => loop_::run(&args),
         BenchCommand::Record(args) => record::run(&args),
+        BenchCommand::Gui(args) => gui::run(&args),
     }
 }

@@ -80,7 +80,14 @@ impl RunningSystem {
         waiter.attach(&count).expect("attach");
         let log = std::fs::File::create(dir.join("run.log")).expect("log file");
         let child = Command::new(HNG)
-            .args(["run", "--no-rm", "--no-gui", "--status-period-ms", "100", "--run-dir"])
+            .args([
+                "run",
+                "--no-rm",
+                "--no-gui",
+                "--status-period-ms",
+                "100",
+                "--run-dir",
+            ])
             .arg(&dir)
             .arg(&file)
             .env("HNG_PREFIX", &prefix)

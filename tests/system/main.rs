@@ -8,6 +8,7 @@ mod dataplane;
 mod eval;
 mod fault_matrix;
 mod faults;
+mod gui;
 mod lockstep;
 mod long_compute;
 mod mission;
