@@ -21,15 +21,18 @@ macro_rules! out {
 }
 
 use hng::bench;
+mod behaviours;
 mod contracts;
 mod doc;
 mod eval;
 mod gui;
 mod mission;
 mod modules;
+mod order;
 mod recording;
 mod run;
 mod sim;
+mod teleop;
 mod top;
 mod topic;
 mod topic_pub;
@@ -68,6 +71,16 @@ enum Command {
         #[command(subcommand)]
         command: mission::MissionCommand,
     },
+    /// Give the operator's order to the running Interface (stop, teleop, release, goal,
+    /// waypoints, reach-beacon, follow-wall) and wait for its answer; `show` the order in force.
+    Order {
+        #[command(subcommand)]
+        command: order::OrderCommand,
+    },
+    /// Drive the robot from the keyboard (arrows/WASD, space stops, q quits), with a deadman.
+    Teleop(teleop::TeleopArgs),
+    /// The behaviours attention offers now (follows the list; --json, --once).
+    Behaviours(behaviours::BehavioursArgs),
     /// Run a built-in module as this process (what launch files start).
     Module {
         /// The module's name.
@@ -155,6 +168,9 @@ fn main() -> ExitCode {
         Command::Stop { module } => run::ctl::stop(&cli.prefix, module.as_deref()),
         Command::Topic { command } => topic::run(&cli.prefix, command),
         Command::Mission { command } => mission::run(&cli.prefix, command),
+        Command::Order { command } => order::run(&cli.prefix, command),
+        Command::Teleop(args) => teleop::run(&cli.prefix, &args),
+        Command::Behaviours(args) => behaviours::run(&cli.prefix, &args),
         Command::Top(args) => top::run(&cli.prefix, &args),
         Command::Contracts(args) => contracts::run(&cli.prefix, &args),
         Command::Bench { bench } => bench::run(bench),

@@ -23,6 +23,8 @@ pub const BUILTIN: &[&str] = &[
     "slam",
     "gps",
     "maps",
+    "walls",
+    "wall_follower",
 ];
 
 /// Runs built-in module `name` as this process.
@@ -44,6 +46,10 @@ pub fn run(name: &str) -> ExitCode {
         "slam" => hng_runtime::run_module::<hng_modules::slam_module::SlamModule>(),
         "gps" => hng_runtime::run_module::<hng_modules::gps::GpsModule>(),
         "maps" => hng_runtime::run_module::<hng_modules::maps::MapsModule>(),
+        "walls" => hng_runtime::run_module::<hng_modules::walls_module::WallsModule>(),
+        "wall_follower" => {
+            hng_runtime::run_module::<hng_modules::wall_follower::WallFollowerModule>()
+        }
         _ => {
             eprintln!(
                 "hng: no built-in module {name:?}; built-in modules: {}",

@@ -9,6 +9,7 @@
 //! [`gps`], [`maps`]. Their messages beyond the runtime's are in [`msgs`]. See
 //! `docs/modules.md`.
 
+pub mod attention;
 pub mod camera;
 pub mod common;
 pub mod gps;
@@ -27,7 +28,9 @@ pub mod slam;
 pub mod slam_module;
 pub mod tracker;
 pub mod wall_follow;
+pub mod wall_follower;
 pub mod walls;
+pub mod walls_module;
 
 /// Re-exported so users of the SLAM API (poses are `nalgebra` types) need not
 /// depend on a matching version themselves.

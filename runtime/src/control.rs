@@ -105,6 +105,8 @@ pub(crate) struct ContractSpec {
     pub(crate) hysteresis: Option<f64>,
     pub(crate) tau: Option<Duration>,
     pub(crate) drives: Vec<(String, Duration)>,
+    /// Optional needs switched off before the agent existed (`Context::set_need_enabled`).
+    pub(crate) disabled: Vec<u16>,
 }
 
 impl ContractSpec {
@@ -219,7 +221,10 @@ impl ControlPlane {
         }
         let tick = tick_period(&cfg.timing);
         let cfg_reply_window = cfg.timing.reply_window;
-        let agent = ContractAgent::new(cfg).map_err(|e| Error::Config(e.to_string()))?;
+        let mut agent = ContractAgent::new(cfg).map_err(|e| Error::Config(e.to_string()))?;
+        for &need in &spec.disabled {
+            agent.set_need_enabled(need, false);
+        }
 
         let inbox = node.slice_subscriber::<ControlInfo>(&inbox_channel(id))?;
         waiter.attach(&inbox)?;

@@ -355,6 +355,25 @@ impl Context {
         self
     }
 
+    /// Switches optional need `need` off or on, in `configure` or at any time later (an
+    /// order changes what the module asks for: see [`ContractAgent::set_need_enabled`]).
+    /// Returns false for an unknown rank or a required need.
+    pub fn set_need_enabled(&mut self, need: u16, enabled: bool) -> bool {
+        if let Some(p) = self.plane.as_mut() {
+            return p.agent_mut().set_need_enabled(need, enabled);
+        }
+        match self.contract_spec.needs.iter().find(|n| n.rank == need) {
+            Some(n) if !n.is_required() => {
+                self.contract_spec.disabled.retain(|&r| r != need);
+                if !enabled {
+                    self.contract_spec.disabled.push(need);
+                }
+                true
+            }
+            _ => false,
+        }
+    }
+
     /// Replaces the protocol timing (reply window, refresh period, peer timeout, ...).
     pub fn contract_timing(&mut self, timing: Timing) -> &mut Self {
         self.contract_spec.timing = Some(timing);

@@ -18,6 +18,8 @@ use crate::qos::ChannelKind;
 
 mod operator;
 pub use operator::*;
+mod walls;
+pub use walls::*;
 
 /// Length of a frame id, in bytes (NUL-padded UTF-8).
 pub const FRAME_ID_LEN: usize = 20;

@@ -308,10 +308,12 @@ give_up_window = "60s"
     );
     module(&mut s, "slam", "slam");
     let _ = writeln!(s, "\n[module.config]\ninitial_pose = {start_t}\n");
-    for (name, cmd) in [("planning", "planning"), ("servo", "servo")] {
-        module(&mut s, name, cmd);
-        let _ = writeln!(s);
-    }
+    // Planning pursues the goal the Interface passes on: the Manager's, or the operator's
+    // while a goal order is in force (docs/autonomy.md).
+    module(&mut s, "planning", "planning");
+    let _ = writeln!(s, "\n[module.config]\ngoal = \"interface/goal\"\n");
+    module(&mut s, "servo", "servo");
+    let _ = writeln!(s);
     module(&mut s, "manager", "manager");
     let _ = writeln!(s, "manager = true\n\n[module.config]\ngoals = [");
     for (x, y) in goals {

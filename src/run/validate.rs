@@ -46,6 +46,8 @@ fn check_config(name: &str, text: &str) -> Option<Result<(), ModuleProblem>> {
         "slam" => config_of::<m::slam_module::SlamModule>(text),
         "gps" => config_of::<m::gps::GpsModule>(text),
         "maps" => config_of::<m::maps::MapsModule>(text),
+        "walls" => config_of::<m::walls_module::WallsModule>(text),
+        "wall_follower" => config_of::<m::wall_follower::WallFollowerModule>(text),
         _ => return None,
     })
 }

@@ -14,6 +14,7 @@ mod long_compute;
 mod mission;
 mod mission_cmd;
 mod modules;
+mod orders;
 mod recording;
 mod rm;
 mod sdk;

@@ -275,6 +275,9 @@ struct NeedSlot {
     last_provider: Option<ModuleId>,
     /// The provider this need last switched away from, and when.
     left: Option<(ModuleId, Duration)>,
+    /// False while the module code switched this optional need off
+    /// ([`ContractAgent::set_need_enabled`]): no call, no contract, no penalty.
+    enabled: bool,
 }
 
 #[derive(Debug, Clone)]
@@ -355,6 +358,7 @@ impl ContractAgent {
                 optional_unmet: false,
                 last_provider: None,
                 left: None,
+                enabled: true,
             })
             .collect();
         let (priority, lineage) = if cfg.manager {
@@ -419,6 +423,13 @@ impl ContractAgent {
         }
     }
 
+    /// How many providers of `service` the transport said listen now
+    /// ([`Self::set_provider_count`]; `None`: never said). Attention uses it to offer only
+    /// the behaviours some module could provide.
+    pub fn provider_count(&self, service: &str) -> Option<usize> {
+        self.expected.get(service).copied()
+    }
+
     fn all_replied(&self, i: usize, replied: usize) -> bool {
         self.expected
             .get(&self.needs[i].spec.service)
@@ -444,6 +455,35 @@ impl ContractAgent {
     }
 
     // ----- inputs from the module code, the RM and the watchdog -----
+
+    /// Switches an optional need on or off while the module runs (adjustable autonomy: the
+    /// Interface asks for "Follow wall" only while that order is in force). Off: a contract
+    /// for it is cancelled ([`Reason::NotNeeded`]) and a call in progress dropped at the next
+    /// tick, and the need is neither called nor counted unmet; on: it is called at the next
+    /// tick like any idle need. Returns false (and changes nothing) for an unknown rank or a
+    /// required need (a required need defines whether the module can work at all).
+    pub fn set_need_enabled(&mut self, need: u16, enabled: bool) -> bool {
+        let Some(i) = self.slot_index(need) else {
+            return false;
+        };
+        let slot = &mut self.needs[i];
+        if slot.spec.is_required() {
+            return false;
+        }
+        if slot.enabled != enabled {
+            slot.enabled = enabled;
+            slot.optional_unmet = false;
+            if enabled && matches!(slot.state, NeedState::Waiting { .. }) {
+                slot.state = NeedState::Idle;
+            }
+        }
+        true
+    }
+
+    /// False while optional need `need` is switched off ([`Self::set_need_enabled`]).
+    pub fn need_enabled(&self, need: u16) -> bool {
+        self.slot_index(need).is_none_or(|i| self.needs[i].enabled)
+    }
 
     /// Sets the self-evaluated quality `Q` (clamped to `[-1, 1]`; NaN makes
     /// the module unable, as `f = 0`). Takes effect at the next tick.
@@ -563,7 +603,7 @@ impl ContractAgent {
         let penalty: f64 = self
             .needs
             .iter()
-            .filter(|s| s.optional_unmet)
+            .filter(|s| s.optional_unmet && s.enabled)
             .map(|s| match s.spec.requirement {
                 super::service::Requirement::Optional { penalty } => penalty.clamp(0.0, 2.0),
                 super::service::Requirement::Required => 0.0,
@@ -1181,6 +1221,28 @@ impl ContractAgent {
         }
     }
 
+    /// Need `i` is switched off: end its contract or call.
+    fn switch_off(&mut self, i: usize, out: &mut Vec<Outgoing>) {
+        let slot = &mut self.needs[i];
+        match std::mem::replace(&mut slot.state, NeedState::Idle) {
+            NeedState::Contracted { provider, .. } => {
+                let body = Message::Cancel(Cancel {
+                    need: slot.spec.rank,
+                    reason: Reason::NotNeeded,
+                    sender: Role::Client,
+                });
+                self.events.push(AgentEvent::ProviderLost {
+                    need: slot.spec.rank,
+                    provider,
+                });
+                send(out, self.cfg.id, Destination::Module(provider), body);
+            }
+            NeedState::Calling { .. } | NeedState::Waiting { .. } | NeedState::Idle => {}
+        }
+        self.needs[i].candidates.clear();
+        self.needs[i].optional_unmet = false;
+    }
+
     /// Need `i` lost its provider (dead, cancelled, silent): next best at once.
     fn lose_provider(&mut self, i: usize, now: Duration, out: &mut Vec<Outgoing>) {
         if let NeedState::Contracted { provider, .. } = self.needs[i].state {
@@ -1191,7 +1253,7 @@ impl ContractAgent {
             });
         }
         self.needs[i].state = NeedState::Idle;
-        if self.priority.is_none() {
+        if self.priority.is_none() || !self.needs[i].enabled {
             return;
         }
         match self.needs[i].candidates.first().cloned() {
@@ -1202,9 +1264,12 @@ impl ContractAgent {
 
     fn contract_with(&mut self, i: usize, p: Proposal, now: Duration, out: &mut Vec<Outgoing>) {
         let rank = self.needs[i].spec.rank;
-        let Some(priority) = self.need_priority(rank) else {
-            self.needs[i].state = NeedState::Idle;
-            return;
+        let priority = match self.need_priority(rank) {
+            Some(p) if self.needs[i].enabled => p,
+            _ => {
+                self.needs[i].state = NeedState::Idle;
+                return;
+            }
         };
         let id = self.cfg.id;
         let body = Message::Accept(Accept {
@@ -1384,6 +1449,10 @@ impl ContractAgent {
         // Client side.
         if self.priority.is_some() {
             for i in 0..self.needs.len() {
+                if !self.needs[i].enabled {
+                    self.switch_off(i, out);
+                    continue;
+                }
                 match &self.needs[i].state {
                     NeedState::Idle => self.start_call(i, now, out),
                     NeedState::Calling {

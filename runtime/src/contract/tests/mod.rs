@@ -3,6 +3,7 @@
 mod dwell;
 mod props;
 mod scenarios;
+mod switch;
 
 use std::time::Duration;
 
