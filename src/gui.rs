@@ -215,11 +215,11 @@ pub fn start_for_run(prefix: &str, args: &RunGuiArgs) -> Option<GuiChild> {
         }
         let child = cmd.spawn().context("starting the page's process")?;
         drop(listener);
-        println!("operator page: {}", url(&bound, token.as_deref()));
+        outln!("operator page: {}", url(&bound, token.as_deref()))?;
         if token.is_some() {
-            println!(
+            outln!(
                 "  (not a loopback address: the token in this address is required on every order and on the live stream)"
-            );
+            )?;
         }
         Ok(GuiChild {
             child,
@@ -229,7 +229,7 @@ pub fn start_for_run(prefix: &str, args: &RunGuiArgs) -> Option<GuiChild> {
     match started {
         Ok(g) => Some(g),
         Err(e) => {
-            println!("operator page: not served: {e:#}; the run goes on without it");
+            let _ = outln!("operator page: not served: {e:#}; the run goes on without it");
             None
         }
     }
@@ -243,7 +243,10 @@ impl GuiChild {
         }
         if let Ok(Some(status)) = self.child.try_wait() {
             self.reported = true;
-            println!("operator page: its process ended ({status}); the system goes on without it");
+            // Never a panic on a closed stdout: the supervisor goes on.
+            let _ = outln!(
+                "operator page: its process ended ({status}); the system goes on without it"
+            );
         }
     }
 

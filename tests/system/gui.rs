@@ -152,6 +152,22 @@ impl Drop for GuiRun {
     }
 }
 
+/// Sends STOP until the Interface answers it (it may still be starting): the robot holds,
+/// and the mission does not end under the test. Returns the answer's body.
+fn hold(run: &GuiRun, token: Option<&str>) -> String {
+    let deadline = Instant::now() + Duration::from_secs(90);
+    loop {
+        let (code, text) = run.http("POST", "/api/order", token, r#"{"kind":"stop"}"#);
+        if code == 200 {
+            return text;
+        }
+        assert!(
+            code == 202 && Instant::now() < deadline,
+            "no answer to STOP: {code} {text}"
+        );
+    }
+}
+
 /// Orders seen on the order channel within `wait`.
 fn orders_seen(
     sub: &hng_runtime::Subscriber<Order>,
@@ -183,9 +199,21 @@ fn the_operator_page_refuses_bad_orders_and_wrong_tokens_and_publishes_nothing_f
         .expect("order subscriber");
     let mut waiter = Waiter::new(WaitMode::default()).expect("waiter");
     waiter.attach(&sub).expect("attach");
+    // A good order, with the token in the query as the page's address carries it, goes out
+    // once, as a Stop (which also holds the robot: the mission does not end under the test).
+    let stop = r#"{"kind":"stop"}"#;
+    hold(&run, Some("s3cret"));
+    let _ = orders_seen(&sub, &mut waiter, Duration::from_millis(200));
+    let (code, text) = run.http("POST", "/api/order?token=s3cret", None, stop);
+    assert_eq!(code, 200, "the Interface answers: {text}");
+    let sent = orders_seen(&sub, &mut waiter, Duration::from_secs(1));
+    assert_eq!(sent.len(), 1, "{sent:?}");
+    assert_eq!(sent[0].kind, OrderKind::Stop as u32);
+    let v: Value = serde_json::from_str(&text).expect("JSON");
+    assert_eq!(v["seq"].as_u64(), Some(u64::from(sent[0].seq)), "{text}");
+    assert_eq!(v["answer"]["accepted"], true, "{text}");
     // The page itself is public; everything under /api and the stream need the token.
     assert_eq!(run.http("GET", "/", None, "").0, 200);
-    let stop = r#"{"kind":"stop"}"#;
     let (code, body) = run.http("POST", "/api/order", None, stop);
     assert_eq!(code, 401, "{body}");
     assert!(body.contains("token"), "{body}");
@@ -239,15 +267,16 @@ fn the_operator_page_refuses_bad_orders_and_wrong_tokens_and_publishes_nothing_f
     assert!(text.contains("slam"), "{text}");
     let bad = orders_seen(&sub, &mut waiter, Duration::from_millis(500));
     assert!(bad.is_empty(), "refused requests published orders: {bad:?}");
-    // A good order, with the token in the query as the page's address carries it, goes out
-    // once, as a Stop.
-    let (code, text) = run.http("POST", "/api/order?token=s3cret", None, stop);
-    assert!(code == 200 || code == 202, "{code} {text}");
-    let sent = orders_seen(&sub, &mut waiter, Duration::from_secs(2));
-    assert_eq!(sent.len(), 1, "{sent:?}");
-    assert_eq!(sent[0].kind, OrderKind::Stop as u32);
+    // What only the Interface can judge comes back as its answer: a goal far outside the map.
+    let (code, text) = run.http(
+        "POST",
+        "/api/order",
+        Some("s3cret"),
+        r#"{"kind":"goal","points":[{"x":500,"y":500}]}"#,
+    );
+    assert_eq!(code, 200, "{text}");
     let v: Value = serde_json::from_str(&text).expect("JSON");
-    assert_eq!(v["seq"].as_u64(), Some(u64::from(sent[0].seq)), "{text}");
+    assert!(v["answer"].is_object(), "{text}");
 }
 
 #[test]
@@ -259,6 +288,8 @@ fn a_client_that_stops_reading_is_dropped_and_never_slows_the_robot() {
     let clock = node.subscriber::<Clock>(CLOCK_CHANNEL).expect("clock");
     let mut waiter = Waiter::new(WaitMode::default()).expect("waiter");
     waiter.attach(&scans).expect("attach");
+    // Hold the robot (the mission does not end under the test).
+    hold(&run, None);
     // A client that completes the handshake and then never reads a byte.
     let (stuck, status) = run.ws(None);
     assert!(status.contains(" 101 "), "{status}");
