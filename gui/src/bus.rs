@@ -306,16 +306,16 @@ pub fn run(opts: &BusOptions, hub: &Arc<Hub>, stop: &AtomicBool) -> Result<(), c
         let now = Instant::now();
         let mut next: Option<Instant> = None;
         if clients > 0 {
-            for i in 0..TOPICS.len() {
+            for (i, topic) in TOPICS.iter().enumerate() {
                 if !st.dirty[i] {
                     continue;
                 }
-                let due = st.last_put[i].map_or(now, |t| t + min_interval(TOPICS[i]));
+                let due = st.last_put[i].map_or(now, |t| t + min_interval(topic));
                 if due <= now {
                     st.dirty[i] = false;
                     st.last_put[i] = Some(now);
-                    if let Some((v, stamp)) = encode(TOPICS[i], &src, &st) {
-                        hub.put_json(TOPICS[i], &v, stamp);
+                    if let Some((v, stamp)) = encode(topic, &src, &st) {
+                        hub.put_json(topic, &v, stamp);
                     }
                 } else {
                     next = Some(next.map_or(due, |n: Instant| n.min(due)));

@@ -61,8 +61,11 @@ pub struct Server {
     stop: Arc<AtomicBool>,
     shutdown: Option<tokio::sync::oneshot::Sender<()>>,
     runtime: Option<tokio::runtime::Runtime>,
-    threads: Vec<(&'static str, JoinHandle<Result<(), Error>>)>,
+    threads: Vec<Worker>,
 }
+
+/// A worker thread and its name.
+type Worker = (&'static str, JoinHandle<Result<(), Error>>);
 
 /// A random access token (128 bits from the OS, hex).
 pub fn new_token() -> Result<String, Error> {
@@ -93,7 +96,7 @@ impl Server {
         let mut threads = Vec::new();
         let spawn = |name: &'static str,
                      f: Box<dyn FnOnce() -> Result<(), Error> + Send>|
-         -> Result<(&'static str, JoinHandle<Result<(), Error>>), Error> {
+         -> Result<Worker, Error> {
             Ok((
                 name,
                 std::thread::Builder::new()

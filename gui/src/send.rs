@@ -27,7 +27,7 @@ const ANSWER_TIMEOUT: Duration = Duration::from_secs(3);
 #[derive(Debug)]
 pub enum Outgoing {
     /// An order.
-    Order(Order),
+    Order(Box<Order>),
     /// A teleop command.
     Teleop(Twist),
     /// A designation.
@@ -63,7 +63,7 @@ pub fn orders(
         match rx.recv_timeout(Duration::from_millis(250)) {
             Ok(Outgoing::Order(o)) => {
                 order.update_connections();
-                if let Err(e) = order.publish(o) {
+                if let Err(e) = order.publish(*o) {
                     tracing::warn!("operator page: publishing an order: {e}");
                 }
                 let kind = OrderKind::from_u32(o.kind).map_or("?", OrderKind::name);

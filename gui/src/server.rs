@@ -163,7 +163,7 @@ async fn order(
     };
     let mut answers = app.hub.answers();
     answers.mark_unchanged();
-    if app.senders.out.send(Outgoing::Order(o)).is_err() {
+    if app.senders.out.send(Outgoing::Order(Box::new(o))).is_err() {
         return error(
             StatusCode::SERVICE_UNAVAILABLE,
             "the operator station is stopping",
