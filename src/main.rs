@@ -26,6 +26,7 @@ mod contracts;
 mod doc;
 mod eval;
 mod eval_nav;
+mod gui;
 mod mission;
 mod modules;
 mod order;
@@ -142,6 +143,8 @@ enum Command {
     Replay(recording::ReplayArgs),
     /// Live view of a running system for Foxglove / Lichtblick (WebSocket).
     Foxglove(recording::FoxgloveArgs),
+    /// Serve the operator page (http://127.0.0.1:8080) for the running system.
+    Gui(gui::GuiArgs),
     /// The peer side of a two-process benchmark (started by `hng bench`).
     #[command(hide = true, name = "__bench-peer")]
     BenchPeer(bench::ipc::PeerArgs),
@@ -187,6 +190,7 @@ fn main() -> ExitCode {
         Command::Info(args) => recording::info(&args),
         Command::Replay(args) => recording::replay(&cli.prefix, &args),
         Command::Foxglove(args) => recording::foxglove(&cli.prefix, &args),
+        Command::Gui(args) => gui::run(&cli.prefix, &args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

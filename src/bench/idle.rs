@@ -193,7 +193,7 @@ fn default_system(args: &IdleArgs) -> Result<BenchRow> {
     let run_dir: PathBuf = std::env::temp_dir().join(format!("hng-{prefix}bench"));
     let duration = (args.warmup + args.seconds + 30).to_string();
     let child = Command::new(&exe)
-        .args(["run", "--speed", "1", "--duration", &duration])
+        .args(["run", "--no-gui", "--speed", "1", "--duration", &duration])
         .env("HNG_PREFIX", &prefix)
         .env("HNG_RUN_DIR", &run_dir)
         .env_remove("HNG_LOG")

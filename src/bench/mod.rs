@@ -8,6 +8,7 @@ use clap::Subcommand;
 use hng_runtime::stats::{BenchRow, table};
 
 pub mod contracts;
+pub mod gui;
 pub mod idle;
 pub mod ipc;
 pub mod loop_;
@@ -40,6 +41,8 @@ pub enum BenchCommand {
     Idle(idle::IdleArgs),
     /// Wall detection per 360-beam scan (split-and-merge).
     Walls(walls::WallsArgs),
+    /// Operator page: scan-to-WebSocket-send latency at 10 Hz with 1 and 3 clients.
+    Gui(gui::GuiBenchArgs),
 }
 
 /// Prints rows as JSON lines or as a table.
@@ -65,5 +68,6 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
         BenchCommand::Vision(args) => vision::run(&args),
         BenchCommand::Idle(args) => idle::run(&args),
         BenchCommand::Walls(args) => walls::run(&args),
+        BenchCommand::Gui(args) => gui::run(&args),
     }
 }

@@ -93,7 +93,7 @@ config = {{ output = "bench/probe", period_ms = 10 }}
         waiter.attach(&events)?;
         waiter.attach(&count)?;
         let child = Command::new(exe)
-            .args(["run", "--no-rm", "--run-dir"])
+            .args(["run", "--no-rm", "--no-gui", "--run-dir"])
             .arg(&dir)
             .arg(&file)
             .env("HNG_PREFIX", &prefix)

@@ -141,6 +141,7 @@ pub fn run(p: &Problem, o: &RunOptions) -> Result<ProblemResult> {
         .arg("--prefix")
         .arg(&prefix)
         .arg("run")
+        .arg("--no-gui")
         .arg("--run-dir")
         .arg(dir.join("run"))
         .arg("--world")

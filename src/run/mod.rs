@@ -115,6 +115,8 @@ pub struct RunArgs {
     pub verbose: u8,
     #[command(flatten)]
     pub recording: crate::recording::RunRecordArgs,
+    #[command(flatten)]
+    pub gui: crate::gui::RunGuiArgs,
 }
 
 impl RunArgs {
@@ -421,6 +423,7 @@ struct Runner {
     shutdown_signals: u32,
     monitor: Option<Monitor>,
     recorder: Option<hng_recorder::RecorderThread>,
+    gui: Option<crate::gui::GuiChild>,
 }
 
 /// Runs the system until it stops; with a mission `monitor`, also returns its outcome (the
@@ -532,6 +535,8 @@ fn supervise_inner(
         caps: HashMap::new(),
         software_enforcer: plan.modules.iter().any(|m| m.name == "rm"),
     };
+    // The operator page first: its address is among the first lines printed.
+    let gui = crate::gui::start_for_run(prefix, &args.gui);
     let recorder = crate::recording::start_for_run(prefix, &args.recording, &plan)?;
     let logs = logs::RUN_LOG
         .get()
@@ -562,6 +567,7 @@ fn supervise_inner(
         shutdown_signals: 0,
         monitor: monitor.take(),
         recorder,
+        gui,
     };
     tracing::info!(
         system = %runner.system,
@@ -631,6 +637,9 @@ impl Runner {
             }
             self.node.update_connections();
             if changed || now >= next_status {
+                if let Some(g) = &mut self.gui {
+                    g.check();
+                }
                 self.publish_status(now);
                 next_status = now + status_period;
             }
@@ -790,8 +799,11 @@ impl Runner {
             node,
             monitor,
             recorder,
+            gui,
             ..
         } = self;
+        // The page's process goes first: its nodes are gone before the prefix's files.
+        drop(gui);
         let _ = sup.shutdown();
         let outcome = monitor.map(Monitor::finish);
         crate::recording::finish_for_run(recorder);

@@ -142,7 +142,7 @@ fn built_in_module_names_configs_and_zero_durations_are_checked_before_anything_
     ];
     std::fs::write(&file, text.join("\n")).expect("write");
     let out = Command::new(HNG)
-        .args(["run", "--no-rm"])
+        .args(["run", "--no-rm", "--no-gui"])
         .arg(&file)
         .env("HNG_PREFIX", &prefix)
         .output()

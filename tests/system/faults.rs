@@ -80,7 +80,14 @@ impl RunningSystem {
         waiter.attach(&count).expect("attach");
         let log = std::fs::File::create(dir.join("run.log")).expect("log file");
         let child = Command::new(HNG)
-            .args(["run", "--no-rm", "--status-period-ms", "100", "--run-dir"])
+            .args([
+                "run",
+                "--no-rm",
+                "--no-gui",
+                "--status-period-ms",
+                "100",
+                "--run-dir",
+            ])
             .arg(&dir)
             .arg(&file)
             .env("HNG_PREFIX", &prefix)
@@ -566,7 +573,7 @@ fn a_bad_launch_file_is_reported_with_line_and_field_before_anything_starts() {
     ];
     std::fs::write(&file, text.join("\n")).expect("write");
     let out = Command::new(HNG)
-        .args(["run", "--no-rm", "--prefix", &prefix])
+        .args(["run", "--no-rm", "--no-gui", "--prefix", &prefix])
         .arg(&file)
         .output()
         .expect("hng run");

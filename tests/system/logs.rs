@@ -36,7 +36,7 @@ fn run_echoer(tag: &str, extra: &[&str]) -> (String, PathBuf, Output) {
     )
     .expect("launch file");
     let run_dir = dir.join("run");
-    let mut args = vec!["run", "--no-rm"];
+    let mut args = vec!["run", "--no-rm", "--no-gui"];
     args.extend_from_slice(extra);
     let launch = launch.to_string_lossy().into_owned();
     args.push(&launch);

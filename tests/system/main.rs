@@ -9,6 +9,7 @@ mod dataplane;
 mod eval;
 mod fault_matrix;
 mod faults;
+mod gui;
 mod lockstep;
 mod logs;
 mod long_compute;

@@ -18,7 +18,10 @@ const SPEED: &str = "10";
 
 pub(crate) fn hng() -> Command {
     let mut c = Command::new(env!("CARGO_BIN_EXE_hng"));
-    c.env("HNG_LOG", "warn").stdin(Stdio::null());
+    // No operator page: tests do not fight for its port (tests/system/gui.rs tests it).
+    c.env("HNG_LOG", "warn")
+        .env("HNG_NO_GUI", "true")
+        .stdin(Stdio::null());
     c
 }
 

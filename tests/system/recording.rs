@@ -26,7 +26,9 @@ const SPEED: &str = "4";
 
 fn hng() -> Command {
     let mut c = Command::new(env!("CARGO_BIN_EXE_hng"));
-    c.env("HNG_LOG", "warn").stdin(Stdio::null());
+    c.env("HNG_LOG", "warn")
+        .env("HNG_NO_GUI", "true")
+        .stdin(Stdio::null());
     c
 }
 

@@ -395,7 +395,7 @@ fraction = 0.6
     waiter.attach(&sup).expect("attach");
     let log = std::fs::File::create(dir.join("run.log")).expect("log file");
     let child = Command::new(HNG)
-        .args(["run", "--status-period-ms", "100", "--run-dir"])
+        .args(["run", "--no-gui", "--status-period-ms", "100", "--run-dir"])
         .arg(&dir)
         .arg(&file)
         .env("HNG_PREFIX", &prefix)

@@ -51,6 +51,7 @@ impl Run {
         let log = std::fs::File::create(dir.join(format!("run{n}.log"))).expect("log file");
         let mut child = Command::new(HNG)
             .arg("run")
+            .arg("--no-gui")
             .arg("--run-dir")
             .arg(dir.join("run"))
             .args(args)
@@ -573,8 +574,8 @@ fn a_second_run_on_a_live_prefix_is_refused_and_the_first_mission_succeeds() {
         "system = \"intruder\"\n\n[[module]]\nname = \"sleeper\"\ncommand = [\"/bin/sleep\", \"1000\"]\n",
     );
     for args in [
-        vec!["run", "--speed", "10"],
-        vec!["run", "--no-rm", file.to_str().expect("path")],
+        vec!["run", "--no-gui", "--speed", "10"],
+        vec!["run", "--no-gui", "--no-rm", file.to_str().expect("path")],
     ] {
         let out = first.hng(&args);
         let err = String::from_utf8_lossy(&out.stderr);

@@ -202,6 +202,7 @@ impl Run {
             .arg(&run.prefix)
             .arg("run")
             .arg("--no-rm")
+            .arg("--no-gui")
             .arg("--run-dir")
             .arg(run.dir.join("run"))
             .arg(&file)

@@ -1,0 +1,395 @@
+// hng operator station: the page. Vanilla JS, no build step. It draws the latest frame of
+// each topic the server streams on /ws, and sends orders with POST /api/* (teleop commands,
+// sent while a key is held, go on the stream: stop sending and the Interface's deadman stops
+// the robot).
+"use strict";
+
+const params = new URLSearchParams(location.search);
+const token = params.get("token");
+const state = { counts: {}, waypoints: [], answers: [], teleop: null };
+window.hng = { state };
+
+const $ = (id) => document.getElementById(id);
+const mapCanvas = $("map"), mctx = mapCanvas.getContext("2d");
+const camCanvas = $("camera"), cctx = camCanvas.getContext("2d");
+
+function authHeaders() {
+  const h = { "Content-Type": "application/json" };
+  if (token) h["Authorization"] = "Bearer " + token;
+  return h;
+}
+
+async function post(path, body) {
+  const r = await fetch(path, { method: "POST", headers: authHeaders(), body: JSON.stringify(body) });
+  let j = null;
+  try { j = await r.json(); } catch (e) { j = { error: "no JSON answer" }; }
+  return { status: r.status, body: j };
+}
+
+function showAnswer(what, r) {
+  let text;
+  if (r.status >= 400) text = `${what}: refused by the page server (${r.status}): ${r.body.error}`;
+  else if (r.body.answer) {
+    const a = r.body.answer;
+    text = `${what} (seq ${r.body.seq}): ${a.accepted ? "accepted" : "refused"}${a.reason ? ": " + a.reason : ""}`;
+  } else if (r.body.note) text = `${what} (seq ${r.body.seq}): ${r.body.note}`;
+  else text = `${what}: ${r.body.done || "sent"}`;
+  state.answers.push({ what, status: r.status, body: r.body });
+  $("answer").textContent = text;
+  $("answer").className = "bar " + (r.status >= 400 || (r.body.answer && !r.body.answer.accepted) ? "bad" : "good");
+}
+
+async function order(body, what) { showAnswer(what || body.kind, await post("/api/order", body)); }
+
+// ---- the live stream -------------------------------------------------------------------
+let ws = null;
+function connect() {
+  const url = `${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws${token ? "?token=" + encodeURIComponent(token) : ""}`;
+  ws = new WebSocket(url);
+  ws.onopen = () => { $("conn").textContent = "live"; $("conn").className = "good"; };
+  ws.onclose = () => {
+    $("conn").textContent = "disconnected (retrying)"; $("conn").className = "bad";
+    setTimeout(connect, 1000);
+  };
+  ws.onmessage = (ev) => {
+    const m = JSON.parse(ev.data);
+    state.counts[m.t] = (state.counts[m.t] || 0) + 1;
+    state[m.t] = m.v;
+    if (m.t === "map" || m.t === "slam_map") gridImage(m.t, m.v);
+    if (m.t === "image") cameraImage(m.v);
+    if (m.t === "hello") $("prefix").textContent = m.v.prefix;
+    if (m.t === "error") { $("answer").textContent = "stream: " + m.v; $("answer").className = "bar bad"; }
+    dirty = true;
+  };
+}
+
+// ---- map view -----------------------------------------------------------------------------
+const grids = {};
+function gridImage(name, g) {
+  const bytes = Uint8Array.from(atob(g.cells), (c) => c.charCodeAt(0));
+  const c = document.createElement("canvas");
+  c.width = g.width; c.height = g.height;
+  const ctx = c.getContext("2d");
+  const img = ctx.createImageData(g.width, g.height);
+  for (let j = 0; j < g.height; j++) {
+    for (let i = 0; i < g.width; i++) {
+      const v = bytes[j * g.width + i];
+      const o = ((g.height - 1 - j) * g.width + i) * 4;
+      let shade;
+      if (v === 255) shade = 60; // unknown (-1)
+      else shade = 235 - Math.round((Math.min(v, 100) / 100) * 220);
+      img.data[o] = img.data[o + 1] = img.data[o + 2] = shade;
+      img.data[o + 3] = 255;
+    }
+  }
+  ctx.putImageData(img, 0, 0);
+  grids[name] = { canvas: c, info: g };
+}
+
+function worldBounds() {
+  const g = (grids.map || grids.slam_map || {}).info;
+  if (g) return { x0: g.origin.x, y0: g.origin.y, w: g.width * g.resolution, h: g.height * g.resolution };
+  return { x0: 0, y0: 0, w: 20, h: 15 };
+}
+
+const view = {
+  fit() {
+    const b = worldBounds(), W = mapCanvas.width, H = mapCanvas.height, pad = 10;
+    const s = Math.min((W - 2 * pad) / b.w, (H - 2 * pad) / b.h);
+    return { s, b, ox: pad, oy: H - pad };
+  },
+  toCanvas(x, y) { const f = this.fit(); return [f.ox + (x - f.b.x0) * f.s, f.oy - (y - f.b.y0) * f.s]; },
+  toWorld(px, py) { const f = this.fit(); return [f.b.x0 + (px - f.ox) / f.s, f.b.y0 + (f.oy - py) / f.s]; },
+  // Page coordinates (for tests and tools) of a world point.
+  worldToClient(x, y) {
+    const [cx, cy] = this.toCanvas(x, y), r = mapCanvas.getBoundingClientRect();
+    return [r.left + cx * r.width / mapCanvas.width, r.top + cy * r.height / mapCanvas.height];
+  },
+};
+window.hng.view = view;
+
+function drawPose(p, color, covariance) {
+  const [cx, cy] = view.toCanvas(p.x, p.y), s = view.fit().s;
+  if (covariance) {
+    // 2-sigma ellipse of the (x, y) covariance.
+    const a = covariance[0], b = covariance[1], d = covariance[4];
+    const t = (a + d) / 2, q = Math.sqrt(Math.max(((a - d) / 2) ** 2 + b * b, 0));
+    const l1 = Math.max(t + q, 0), l2 = Math.max(t - q, 0);
+    const ang = Math.atan2(l1 - a, b || 1e-12);
+    mctx.save();
+    mctx.strokeStyle = color; mctx.globalAlpha = 0.6;
+    mctx.beginPath();
+    mctx.ellipse(cx, cy, Math.max(2 * Math.sqrt(l1) * s, 1), Math.max(2 * Math.sqrt(l2) * s, 1), -ang, 0, 2 * Math.PI);
+    mctx.stroke();
+    mctx.restore();
+  }
+  const r = 0.2 * s;
+  mctx.fillStyle = color;
+  mctx.beginPath(); mctx.arc(cx, cy, r, 0, 2 * Math.PI); mctx.fill();
+  mctx.strokeStyle = "#000"; mctx.beginPath(); mctx.moveTo(cx, cy);
+  mctx.lineTo(cx + Math.cos(p.theta) * r * 1.6, cy - Math.sin(p.theta) * r * 1.6); mctx.stroke();
+}
+
+function cross(x, y, color, label) {
+  const [cx, cy] = view.toCanvas(x, y);
+  mctx.strokeStyle = color; mctx.lineWidth = 2;
+  mctx.beginPath(); mctx.moveTo(cx - 6, cy - 6); mctx.lineTo(cx + 6, cy + 6);
+  mctx.moveTo(cx + 6, cy - 6); mctx.lineTo(cx - 6, cy + 6); mctx.stroke();
+  mctx.lineWidth = 1;
+  if (label) { mctx.fillStyle = color; mctx.fillText(label, cx + 8, cy - 6); }
+}
+
+function drawMap() {
+  mctx.fillStyle = "#111"; mctx.fillRect(0, 0, mapCanvas.width, mapCanvas.height);
+  const which = $("show-slam").checked && grids.slam_map ? "slam_map" : grids.map ? "map" : "slam_map";
+  const g = grids[which];
+  if (g) {
+    const [x0, y1] = view.toCanvas(g.info.origin.x, g.info.origin.y + g.info.height * g.info.resolution);
+    const s = view.fit().s;
+    mctx.imageSmoothingEnabled = false;
+    mctx.drawImage(g.canvas, x0, y1, g.info.width * g.info.resolution * s, g.info.height * g.info.resolution * s);
+  }
+  const pose = state.pose && state.pose.pose;
+  // Mission goals.
+  for (const goal of (state.mission && state.mission.goals) || []) {
+    cross(goal.x, goal.y, goal.state === "reached" ? "#6c6" : goal.state === "active" ? "#fc3" : "#888", "" + goal.id);
+  }
+  if (state.goal && state.goal.id) cross(state.goal.pose.x, state.goal.pose.y, "#fc3", "goal");
+  // Waypoints being composed.
+  mctx.strokeStyle = "#5af"; mctx.beginPath();
+  state.waypoints.forEach((w, i) => { const [cx, cy] = view.toCanvas(w.x, w.y); i ? mctx.lineTo(cx, cy) : mctx.moveTo(cx, cy); });
+  mctx.stroke();
+  state.waypoints.forEach((w, i) => cross(w.x, w.y, "#5af", "w" + (i + 1)));
+  // Planning's carrot.
+  if (state.waypoint && pose) {
+    const w = state.waypoint.pose, [ax, ay] = view.toCanvas(pose.x, pose.y), [bx, by] = view.toCanvas(w.x, w.y);
+    mctx.strokeStyle = "#f6f"; mctx.setLineDash([4, 3]); mctx.beginPath(); mctx.moveTo(ax, ay); mctx.lineTo(bx, by); mctx.stroke(); mctx.setLineDash([]);
+    mctx.fillStyle = "#f6f"; mctx.beginPath(); mctx.arc(bx, by, 3, 0, 2 * Math.PI); mctx.fill();
+  }
+  // Laser points, from the pose shown.
+  if (state.scan && pose) {
+    mctx.fillStyle = "#f33";
+    const sc = state.scan;
+    sc.ranges.forEach((r, i) => {
+      if (r === null) return;
+      const a = pose.theta + sc.angle_min + i * sc.angle_increment;
+      const [cx, cy] = view.toCanvas(pose.x + r * Math.cos(a), pose.y + r * Math.sin(a));
+      mctx.fillRect(cx - 1, cy - 1, 2, 2);
+    });
+  }
+  // Beacons seen (camera frame = robot heading).
+  if (state.beacons && pose) {
+    for (const b of state.beacons.beacons.slice(0, state.beacons.count)) {
+      const a = pose.theta + b.bearing;
+      const [cx, cy] = view.toCanvas(pose.x + b.range * Math.cos(a), pose.y + b.range * Math.sin(a));
+      mctx.strokeStyle = "#0ff"; mctx.strokeRect(cx - 4, cy - 4, 8, 8);
+      mctx.fillStyle = "#0ff"; mctx.fillText("b" + b.id, cx + 6, cy + 4);
+    }
+  }
+  if (state.truth) drawPose(state.truth.pose, "rgba(120,255,120,0.5)", null);
+  if (pose) drawPose(pose, "#39f", state.pose.covariance);
+}
+
+mapCanvas.addEventListener("click", (ev) => {
+  const r = mapCanvas.getBoundingClientRect();
+  const [x, y] = view.toWorld((ev.clientX - r.left) * mapCanvas.width / r.width, (ev.clientY - r.top) * mapCanvas.height / r.height);
+  const p = { x: Math.round(x * 100) / 100, y: Math.round(y * 100) / 100 };
+  if (ev.shiftKey) {
+    if (state.waypoints.length < 16) state.waypoints.push(p);
+  } else {
+    state.waypoints = [];
+    order({ kind: "goal", points: [p] }, `goal (${p.x}, ${p.y})`);
+  }
+  updateWaypointButton(); dirty = true;
+});
+function updateWaypointButton() {
+  $("send-wp").textContent = `send waypoints (${state.waypoints.length})`;
+  $("send-wp").disabled = state.waypoints.length === 0;
+}
+$("send-wp").onclick = () => { order({ kind: "waypoints", points: state.waypoints }, "waypoints"); state.waypoints = []; updateWaypointButton(); dirty = true; };
+$("clear-wp").onclick = () => { state.waypoints = []; updateWaypointButton(); dirty = true; };
+$("release").onclick = () => order({ kind: "release" });
+$("stop").onclick = () => { teleopRelease(); order({ kind: "stop" }, "STOP"); };
+$("show-slam").onchange = () => { dirty = true; };
+
+// ---- teleop with a deadman: commands flow only while a key or button is held ---------------
+const keys = { ArrowUp: [0.4, 0], w: [0.4, 0], ArrowDown: [-0.3, 0], s: [-0.3, 0], ArrowLeft: [0, 1], a: [0, 1], ArrowRight: [0, -1], d: [0, -1] };
+const held = new Map();
+let teleopTimer = null;
+function teleopCommand() {
+  let v = 0, w = 0;
+  for (const [dv, dw] of held.values()) { v += dv; w += dw; }
+  return { linear_x: Math.max(-0.6, Math.min(0.6, v)), angular_z: Math.max(-1.5, Math.min(1.5, w)) };
+}
+function teleopSend() {
+  if (held.size === 0 || !ws || ws.readyState !== 1) return;
+  const c = teleopCommand();
+  state.teleop = c;
+  ws.send(JSON.stringify({ teleop: c }));
+  $("teleop-state").textContent = `v ${c.linear_x.toFixed(2)} m/s, w ${c.angular_z.toFixed(2)} rad/s`;
+}
+function teleopPress(id, vw) {
+  if (held.size === 0) {
+    const inForce = state.order_status && state.order_status.in_force;
+    if (inForce !== "teleop") order({ kind: "teleop" }, "teleop");
+    teleopTimer = setInterval(teleopSend, 40);
+  }
+  held.set(id, vw);
+  teleopSend();
+}
+function teleopUp(id) {
+  held.delete(id);
+  if (held.size === 0) teleopRelease();
+}
+function teleopRelease() {
+  held.clear();
+  if (teleopTimer) { clearInterval(teleopTimer); teleopTimer = null; }
+  if (ws && ws.readyState === 1) ws.send(JSON.stringify({ teleop: { linear_x: 0, angular_z: 0 } }));
+  state.teleop = null;
+  $("teleop-state").textContent = "idle";
+}
+document.addEventListener("keydown", (ev) => {
+  const k = keys[ev.key];
+  if (!k || ev.target.tagName === "INPUT") return;
+  ev.preventDefault();
+  if (!held.has("k" + ev.key)) teleopPress("k" + ev.key, k);
+});
+document.addEventListener("keyup", (ev) => { if (keys[ev.key]) teleopUp("k" + ev.key); });
+window.addEventListener("blur", teleopRelease);
+for (const b of document.querySelectorAll("#teleop button")) {
+  const vw = [parseFloat(b.dataset.v), parseFloat(b.dataset.w)];
+  const id = "b" + b.textContent;
+  b.addEventListener("pointerdown", () => teleopPress(id, vw));
+  for (const e of ["pointerup", "pointerleave", "pointercancel"]) b.addEventListener(e, () => held.has(id) && teleopUp(id));
+}
+
+// ---- camera, beacons, designation -------------------------------------------------------
+const CAMERA_FOV = 1.2; // rad: the simulator's default horizontal field of view
+function cameraImage(im) {
+  const bytes = Uint8Array.from(atob(im.data), (c) => c.charCodeAt(0));
+  if (camCanvas.width !== im.width) { camCanvas.width = im.width; camCanvas.height = im.height; }
+  const img = cctx.createImageData(im.width, im.height);
+  const rgb = im.encoding !== "mono8";
+  for (let y = 0; y < im.height; y++) {
+    for (let x = 0; x < im.width; x++) {
+      const o = (y * im.width + x) * 4, i = y * im.step + x * (rgb ? 3 : 1);
+      img.data[o] = bytes[i]; img.data[o + 1] = bytes[rgb ? i + 1 : i]; img.data[o + 2] = bytes[rgb ? i + 2 : i]; img.data[o + 3] = 255;
+    }
+  }
+  cctx.putImageData(img, 0, 0);
+}
+function seenBeacons() { return state.beacons ? state.beacons.beacons.slice(0, state.beacons.count) : []; }
+function designate(id) {
+  post("/api/designate", { beacon_id: id }).then((r) => showAnswer(`designate beacon ${id}`, r));
+}
+camCanvas.addEventListener("click", (ev) => {
+  const r = camCanvas.getBoundingClientRect();
+  const u = (ev.clientX - r.left) * camCanvas.width / r.width;
+  const f = camCanvas.width / 2 / Math.tan(CAMERA_FOV / 2);
+  const bearing = Math.atan2(camCanvas.width / 2 - u, f);
+  let best = null;
+  for (const b of seenBeacons()) if (!best || Math.abs(b.bearing - bearing) < Math.abs(best.bearing - bearing)) best = b;
+  if (best && Math.abs(best.bearing - bearing) < 0.12) designate(best.id);
+  else { $("answer").textContent = "no beacon there"; $("answer").className = "bar bad"; }
+});
+
+// ---- panels -----------------------------------------------------------------------------
+function fmtBytes(b) { return b == null ? "-" : (b / 1048576).toFixed(1) + "M"; }
+function drawModules() {
+  const st = state.status; if (!st) return;
+  const sup = (st.supervisor && st.supervisor.modules) || [], rm = (st.rm && st.rm.modules) || [];
+  const rmBy = Object.fromEntries(rm.map((m) => [m.name, m]));
+  const vBy = Object.fromEntries(((state.contracts && state.contracts.modules) || []).map((m) => [m.name, m]));
+  const rows = sup.map((m) => {
+    const r = rmBy[m.name] || {}, c = vBy[m.name] || {};
+    const caps = m.caps ? [m.caps.cpu_quota != null ? `cpu ${(m.caps.cpu_quota * 100).toFixed(0)}%` : "", m.caps.memory_max != null ? `mem ${fmtBytes(m.caps.memory_max)}` : ""].join(" ") : "-";
+    return `<tr><td>${m.name}${m.manager ? "*" : ""}</td><td>${m.state}</td><td>${m.pid ?? "-"}</td>` +
+      `<td>${r.cpu_percent != null ? r.cpu_percent.toFixed(1) : "-"}</td><td>${fmtBytes(r.rss_bytes)}</td><td>${caps}</td>` +
+      `<td>${m.restarts}</td><td>${c.value != null ? c.value.toFixed(2) : "-"}</td>` +
+      `<td><button data-op="kill" data-m="${m.name}">kill</button><button data-op="restart" data-m="${m.name}">restart</button></td></tr>`;
+  });
+  $("modules").tBodies[0].innerHTML = rows.join("");
+  $("stream").textContent = st.stream ? `stream: ${st.stream.clients} client(s), ${st.stream.frames_sent} frames sent, ${st.stream.frames_skipped} skipped (latest wins), ${st.stream.clients_dropped} slow client(s) dropped` : "";
+}
+$("modules").addEventListener("click", (ev) => {
+  const b = ev.target.closest("button"); if (!b) return;
+  const body = { op: b.dataset.op, module: b.dataset.m };
+  if (b.dataset.op === "kill" && !confirm(`Send SIGKILL to ${b.dataset.m}? (the watchdog restarts it)`)) return;
+  post("/api/module", body).then((r) => showAnswer(`${body.op} ${body.module}`, r));
+});
+
+function drawContracts() {
+  const c = state.contracts; if (!c) return;
+  const svg = $("contracts");
+  // Depth of each module: the length of its priority (the root has none).
+  const depth = {};
+  for (const m of c.modules) depth[m.name] = m.root ? 0 : m.priority === "-" ? null : m.priority.split(".").length;
+  const levels = {};
+  for (const m of c.modules) { const d = depth[m.name] ?? 5; (levels[d] = levels[d] || []).push(m.name); }
+  const pos = {}, keys = Object.keys(levels).map(Number).sort((a, b) => a - b);
+  const W = svg.clientWidth || 560, rowH = 46;
+  svg.setAttribute("height", keys.length * rowH + 10);
+  keys.forEach((d, row) => levels[d].sort().forEach((n, i, a) => { pos[n] = [((i + 0.5) * W) / a.length, 18 + row * rowH]; }));
+  const vBy = Object.fromEntries(c.modules.map((m) => [m.name, m]));
+  let out = "";
+  for (const k of c.contracts) {
+    const a = pos[k.client], b = pos[k.provider]; if (!a || !b) continue;
+    const mx = (a[0] + b[0]) / 2, my = (a[1] + b[1]) / 2;
+    out += `<line x1="${a[0]}" y1="${a[1]}" x2="${b[0]}" y2="${b[1]}" stroke="#6a7" />`;
+    out += `<text x="${mx + 3}" y="${my}">${k.service} ${k.priority} V ${k.value.toFixed(2)}</text>`;
+  }
+  for (const [n, [x, y]] of Object.entries(pos)) {
+    const m = vBy[n];
+    out += `<rect x="${x - 38}" y="${y - 9}" width="76" height="16" rx="3" fill="${m.active ? "#2d5b8a" : "#444"}" />`;
+    out += `<text x="${x}" y="${y + 3}" text-anchor="middle">${n}${m.value != null ? " " + m.value.toFixed(2) : ""}</text>`;
+  }
+  svg.innerHTML = out;
+  // Who commands the wheels: the Robot's clients by priority.
+  const holders = c.contracts.filter((k) => k.service === "Robot control").sort((a, b) => a.priority.localeCompare(b.priority, undefined, { numeric: true }));
+  $("wheels").textContent = holders.length ? holders.map((k) => `${k.client} ${k.priority}`).join(" > ") : "-";
+}
+
+function drawTimeline() {
+  const ev = state.events || [];
+  $("timeline").innerHTML = ev.slice().reverse().map((e) => `<li class="${e.kind}">[${e.sim_s.toFixed(1)} s] ${e.text}</li>`).join("");
+}
+
+function drawBehaviours() {
+  const b = state.behaviours, el = $("behaviours");
+  const items = (b && b.items) || [];
+  if (!items.length) { el.innerHTML = "<em>none offered</em>"; return; }
+  el.innerHTML = "";
+  for (const it of items) {
+    const btn = document.createElement("button");
+    let body = { kind: it.kind }, label = it.kind;
+    if (it.kind === "reach_beacon") { body.beacon_id = it.param; label = `reach beacon ${it.param}`; }
+    if (it.kind === "follow_wall") { body.side = it.param > 0 ? "left" : "right"; label = `follow wall (${body.side})`; }
+    btn.textContent = `${label} (${it.quality.toFixed(2)})`;
+    btn.onclick = () => order(body, label);
+    el.appendChild(btn);
+  }
+}
+
+function drawHeader() {
+  if (state.clock) $("simtime").textContent = state.clock.sim_s.toFixed(1) + " s";
+  const os = state.order_status;
+  $("level").textContent = os && os.active ? `operator: ${os.in_force}` : "autonomy (mission)";
+  if (state.odom) $("speed").textContent = `v ${state.odom.vx.toFixed(2)} m/s`;
+  const list = seenBeacons().map((b) => `<button data-b="${b.id}">designate ${b.id}</button>`).join(" ");
+  $("beacons").innerHTML = list;
+}
+$("beacons").addEventListener("click", (ev) => { const b = ev.target.closest("button"); if (b) designate(Number(b.dataset.b)); });
+
+let dirty = true;
+let lastPanels = 0;
+function frame(t) {
+  if (dirty) {
+    dirty = false;
+    drawMap();
+    drawHeader();
+    if (t - lastPanels > 250) { lastPanels = t; drawModules(); drawContracts(); drawTimeline(); drawBehaviours(); }
+  }
+  requestAnimationFrame(frame);
+}
+connect();
+requestAnimationFrame(frame);

@@ -1,0 +1,75 @@
+// The operator page in a real browser (tests/system/gui.rs): headless Chromium driven by
+// playwright-core. It prints one JSON object per line ({"event": ...}) for the Rust test,
+// which checks the robot itself on the data plane.
+//
+// node gui.mjs URL ARTEFACT_DIR GOAL_X GOAL_Y [TIMEOUT_MS]
+//   - loads the page, waits until the pose and the laser update;
+//   - clicks the goal on the map; waits until the page's pose is within 0.5 m of it;
+//   - waits until the robot moves again (the mission's next goal), presses STOP, waits until
+//     the page shows it stopped;
+//   - saves screenshots in ARTEFACT_DIR.
+import { chromium } from "playwright-core";
+import path from "node:path";
+import fs from "node:fs";
+
+const [url, dir, gx, gy, timeoutArg] = process.argv.slice(2);
+const goal = { x: Number(gx), y: Number(gy) };
+const timeout = Number(timeoutArg || 120000);
+const say = (o) => process.stdout.write(JSON.stringify(o) + "\n");
+fs.mkdirSync(dir, { recursive: true });
+
+const userDir = fs.mkdtempSync(path.join(dir, "profile-"));
+// A fresh profile (--user-data-dir, which playwright takes as launchPersistentContext's
+// first argument).
+const browser = await chromium.launchPersistentContext(userDir, {
+  executablePath: process.env.CHROMIUM || "/usr/bin/chromium",
+  headless: true,
+  viewport: { width: 1500, height: 950 },
+  args: [
+    "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+    "--disable-background-networking", "--disable-component-update", "--disable-sync",
+  ],
+});
+let code = 0;
+try {
+  const page = browser.pages()[0] || (await browser.newPage());
+  page.on("pageerror", (e) => say({ event: "page_error", error: String(e) }));
+  await page.goto(url);
+  const counts = () => page.evaluate(() => ({ ...window.hng.state.counts }));
+  await page.waitForFunction(() => (window.hng.state.counts.pose || 0) >= 2 && (window.hng.state.counts.scan || 0) >= 2, null, { timeout });
+  const c0 = await counts();
+  await page.waitForFunction((c) => window.hng.state.counts.pose > c.pose + 3 && window.hng.state.counts.scan > c.scan + 3, c0, { timeout });
+  const c1 = await counts();
+  say({ event: "live", before: c0, after: c1 });
+
+  const [cx, cy] = await page.evaluate((g) => window.hng.view.worldToClient(g.x, g.y), goal);
+  await page.mouse.click(cx, cy);
+  await page.waitForFunction(() => window.hng.state.answers.length > 0, null, { timeout: 10000 });
+  const answer = await page.evaluate(() => window.hng.state.answers[0]);
+  say({ event: "goal_clicked", at: [cx, cy], answer, answer_text: await page.textContent("#answer") });
+
+  await page.waitForFunction((g) => {
+    const p = window.hng.state.pose && window.hng.state.pose.pose;
+    return p && Math.hypot(p.x - g.x, p.y - g.y) < 0.5;
+  }, goal, { timeout, polling: 50 });
+  say({ event: "goal_reached_on_page", pose: await page.evaluate(() => window.hng.state.pose.pose) });
+  await page.screenshot({ path: path.join(dir, "gui-goal.png") });
+
+  // The mission resumes once the operator's goal is done: wait for motion, then STOP.
+  await page.waitForFunction(() => window.hng.state.odom && Math.abs(window.hng.state.odom.vx) > 0.15, null, { timeout, polling: 20 });
+  say({ event: "moving", vx: await page.evaluate(() => window.hng.state.odom.vx) });
+  await page.click("#stop");
+  say({ event: "stop_clicked" });
+  await page.waitForFunction(() => window.hng.state.odom && Math.abs(window.hng.state.odom.vx) < 0.01, null, { timeout: 20000, polling: 20 });
+  say({ event: "stopped_on_page", answer_text: await page.textContent("#answer"), level: await page.textContent("#level") });
+  await page.waitForTimeout(300); // let the panels draw for the screenshot
+  await page.screenshot({ path: path.join(dir, "gui-stop.png") });
+  say({ event: "done" });
+} catch (e) {
+  say({ event: "error", error: String(e && e.stack || e) });
+  code = 1;
+} finally {
+  await browser.close();
+  fs.rmSync(userDir, { recursive: true, force: true });
+}
+process.exit(code);
