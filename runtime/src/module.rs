@@ -38,9 +38,11 @@ use crate::msg::{self, Message, ModuleReport, ModuleState, SliceMessage};
 use crate::wait::{WaitMode, Waiter, Wake};
 
 mod checkpoints;
+mod logging;
 mod options;
 
-use checkpoints::Checkpoints;
+use checkpoints::{Checkpoints, save_checkpoint};
+pub use logging::init_tracing;
 pub use options::RunOptions;
 
 /// The well-known channel every module publishes its [`ModuleReport`] on.
@@ -484,22 +486,6 @@ impl Context {
     }
 }
 
-/// Sets up `tracing` for a process: `HNG_LOG` (else `RUST_LOG`) is the filter (default `info`), output to
-/// stderr, with colours only when stderr is a terminal (a log file or a pipe gets plain text).
-/// Safe to call more than once.
-pub fn init_tracing() {
-    use std::io::IsTerminal;
-    let filter = tracing_subscriber::EnvFilter::try_from_env("HNG_LOG")
-        .or_else(|_| tracing_subscriber::EnvFilter::try_from_env("RUST_LOG"))
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
-    let _ = tracing_subscriber::fmt()
-        .with_env_filter(filter)
-        .with_writer(std::io::stderr)
-        .with_ansi(std::io::stderr().is_terminal())
-        .with_target(false)
-        .try_init();
-}
-
 /// Runs module `M` as this process, configured from the environment; returns the exit code.
 pub fn run_module<M: Module>() -> ExitCode {
     init_tracing();
@@ -801,15 +787,6 @@ fn poll_contracts<M: Module>(module: &mut M, ctx: &mut Context, name: &str) {
         };
         if let Err(e) = r {
             tracing::warn!(module = %name, event = ?ev, "contract callback: {e}");
-        }
-    }
-}
-
-fn save_checkpoint<M: Module>(module: &M, store: &Checkpoints, ctx: &mut Context, name: &str) {
-    if let Some(bytes) = module.checkpoint() {
-        match store.save(M::STATE_VERSION, &bytes) {
-            Ok(()) => ctx.checkpoints += 1,
-            Err(e) => tracing::warn!(module = %name, "checkpoint not written: {e}"),
         }
     }
 }

@@ -183,6 +183,25 @@ pub fn remove_prefix_files_but_lock(prefix: &str) -> usize {
     n
 }
 
+/// Takes the prefix's lock (one system per prefix). When the last system on the prefix died
+/// without its orderly stop, says so: what its processes left is reclaimed by iceoryx2's
+/// dead-node clean-up as this system's nodes start (not by removing the prefix's files, which
+/// a tool or a test may already have opened for this run), and the orderly stop removes the
+/// rest.
+pub(super) fn lock_prefix(prefix: &str) -> Result<SystemLock> {
+    let got = SystemLock::acquire(prefix)?;
+    if let Some(pid) = got.stale_pid {
+        tracing::warn!(
+            prefix,
+            lock = %got.lock.path().display(),
+            dead_supervisor = pid,
+            files = hng_runtime::shm::prefix_files(prefix).len(),
+            "the previous system on this prefix ended without an orderly stop; its dead processes' resources are reclaimed as modules start"
+        );
+    }
+    Ok(got.lock)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

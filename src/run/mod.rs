@@ -173,25 +173,6 @@ pub fn block_termination_signals() {
     }
 }
 
-/// Takes the prefix's lock (one system per prefix). When the last system on the prefix died
-/// without its orderly stop, says so: what its processes left is reclaimed by iceoryx2's
-/// dead-node clean-up as this system's nodes start (not by removing the prefix's files, which
-/// a tool or a test may already have opened for this run), and the orderly stop removes the
-/// rest.
-fn lock_prefix(prefix: &str) -> Result<SystemLock> {
-    let got = SystemLock::acquire(prefix)?;
-    if let Some(pid) = got.stale_pid {
-        tracing::warn!(
-            prefix,
-            lock = %got.lock.path().display(),
-            dead_supervisor = pid,
-            files = hng_runtime::shm::prefix_files(prefix).len(),
-            "the previous system on this prefix ended without an orderly stop; its dead processes' resources are reclaimed as modules start"
-        );
-    }
-    Ok(got.lock)
-}
-
 /// `hng run`: returns the process's exit code.
 pub fn run(prefix: &str, args: &RunArgs) -> ExitCode {
     let _ = logs::RUN_LOG.set(logs::RunLog::init(logs::Verbosity::new(args.verbose)));
@@ -220,7 +201,7 @@ pub fn run(prefix: &str, args: &RunArgs) -> ExitCode {
             }
         };
     }
-    let lock = match lock_prefix(prefix) {
+    let lock = match lock::lock_prefix(prefix) {
         Ok(l) => l,
         Err(e) => {
             eprintln!("hng: error: {e:#}");
@@ -279,7 +260,7 @@ fn run_mission(prefix: &str, args: &RunArgs) -> ExitCode {
             }
         };
     }
-    let lock = match lock_prefix(prefix) {
+    let lock = match lock::lock_prefix(prefix) {
         Ok(l) => l,
         Err(e) => {
             eprintln!("hng: error: {e:#}");

@@ -10,7 +10,7 @@
 
 use std::path::Path;
 
-use super::{Module, ModuleError};
+use super::{Context, Module, ModuleError};
 use crate::checkpoint::CheckpointStore;
 
 /// The latest checkpoint and the one before it.
@@ -89,5 +89,20 @@ impl Checkpoints {
             tracing::debug!("keeping the previous checkpoint: {e}");
         }
         self.latest.save(state_version, bytes)
+    }
+}
+
+/// Writes the module's checkpoint, if it gives one (a failure is logged, the module runs on).
+pub(super) fn save_checkpoint<M: Module>(
+    module: &M,
+    store: &Checkpoints,
+    ctx: &mut Context,
+    name: &str,
+) {
+    if let Some(bytes) = module.checkpoint() {
+        match store.save(M::STATE_VERSION, &bytes) {
+            Ok(()) => ctx.checkpoints += 1,
+            Err(e) => tracing::warn!(module = %name, "checkpoint not written: {e}"),
+        }
     }
 }
