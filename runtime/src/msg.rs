@@ -18,6 +18,8 @@ use crate::qos::ChannelKind;
 
 mod operator;
 pub use operator::*;
+mod path;
+pub use path::*;
 mod walls;
 pub use walls::*;
 
