@@ -8,7 +8,7 @@
 //! 2. the software check of the limits the kernel does not enforce
 //!    ([`SoftwareEnforcer`]): a module over its CPU or memory limit yields an
 //!    [`OverLimitCommand`] for the supervisor (once per process and
-//!    [`RmConfig::over_limit_repeat_ms`]);
+//!    [`RmConfig::over_limit_repeat_s`]);
 //! 3. C_R(t) and the degraded mode ([`RmCore`]) from the free resources, the
 //!    wait-for-resources flags and the largest report delay, over the priorities of the
 //!    active contracts of the CONTRACTS tables;
@@ -224,7 +224,7 @@ impl ResourceManager {
         let tps = procfs::ticks_per_second().max(1);
         Ok(ResourceManager {
             enforcer: SoftwareEnforcer::new(SoftwareEnforcerConfig {
-                cpu_window: Duration::from_millis(config.cpu_window_ms.max(1)),
+                cpu_window: Duration::from_secs_f64(config.cpu_window_s),
             }),
             config,
             sampler,
@@ -465,7 +465,7 @@ impl ResourceManager {
         self.passes += 1;
         let samples: Vec<ModuleSample> = self.sampler.sample(now).to_vec();
         let mut over_limit = Vec::new();
-        let repeat = Duration::from_millis(self.config.over_limit_repeat_ms);
+        let repeat = Duration::from_secs_f64(self.config.over_limit_repeat_s);
         for s in &samples {
             match s.liveness {
                 Liveness::Alive => {}
@@ -503,7 +503,7 @@ impl ResourceManager {
             }
         }
         // Forget modules gone for long.
-        let forget = Duration::from_millis(self.config.forget_after_ms);
+        let forget = Duration::from_secs_f64(self.config.forget_after_s);
         self.modules.retain(|_, t| {
             let silent = t
                 .last_report
@@ -513,7 +513,7 @@ impl ResourceManager {
                     .is_some_and(|g| now.saturating_duration_since(g) >= forget)
                 && silent)
         });
-        let table_timeout = Duration::from_millis(self.config.table_timeout_ms);
+        let table_timeout = Duration::from_secs_f64(self.config.table_timeout_s);
         self.tables
             .retain(|_, t| now.saturating_duration_since(t.at) < table_timeout);
 

@@ -1,7 +1,8 @@
 //! Tests with real processes and real cgroups. Each test creates its own cgroup run
 //! (`hng/test-<name>-<pid>-<ns>`), and kills, reaps and removes everything it created,
 //! also when an assertion fails (drop guards). Tests that need a writable cgroup
-//! controller print `SKIP: <reason>` and return when there is none.
+//! controller say that they skipped and why (`skip`, visible in the runner and listed by
+//! `.ci/run`) and return when there is none.
 
 use std::io::{BufRead, BufReader};
 use std::os::unix::process::{CommandExt, ExitStatusExt};
@@ -60,10 +61,10 @@ fn support_with(controllers: &[Controller]) -> Option<CgroupSupport> {
     if missing.is_empty() {
         Some(s)
     } else {
-        println!(
-            "SKIP: no writable cgroup controller {missing:?} ({})",
+        skip(&format!(
+            "no writable cgroup controller {missing:?} ({})",
             s.describe()
-        );
+        ));
         None
     }
 }
@@ -79,8 +80,24 @@ fn python3() -> Option<&'static str> {
     if ok {
         Some("python3")
     } else {
-        println!("SKIP: python3 not available");
+        skip("python3 not available");
         None
+    }
+}
+
+/// Says that a test (or part of one) skipped and why, where cargo's runner cannot hide it:
+/// straight to stderr and into the workspace's `target/skipped-tests.txt` (`.ci/run` prints it).
+fn skip(why: &str) {
+    use std::io::Write as _;
+    let line = format!("SKIPPED hng-rm real_processes: {why}\n");
+    let _ = std::io::stderr().write_all(line.as_bytes());
+    let list = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../target/skipped-tests.txt");
+    if let Ok(mut file) = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(list)
+    {
+        let _ = file.write_all(line.as_bytes());
     }
 }
 
@@ -392,13 +409,16 @@ fn software_enforcement_without_cgroups() {
 #[test]
 fn cgroup_v2_placement_counter_kill_and_teardown() {
     let Some(base) = CgroupSupport::own_v2_dir() else {
-        println!("SKIP: no cgroup2 file system mounted");
+        skip("cgroup_v2_placement_counter_kill_and_teardown: no cgroup2 file system mounted");
         return;
     };
     let support = match CgroupSupport::with_v2_base(&base) {
         Ok(s) => s,
         Err(e) => {
-            println!("SKIP: cgroup v2 at {} not usable: {e}", base.display());
+            skip(&format!(
+                "cgroup_v2_placement_counter_kill_and_teardown: cgroup v2 at {} not usable: {e}",
+                base.display()
+            ));
             return;
         }
     };

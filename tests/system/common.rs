@@ -137,3 +137,21 @@ pub fn heavy() -> std::sync::MutexGuard<'static, ()> {
         .lock()
         .unwrap_or_else(|poisoned| poisoned.into_inner())
 }
+
+/// Says that `test` skipped because `why` (a client it needs is missing), where the runner's
+/// summary cannot hide it: straight to the process's stderr (cargo's test harness captures
+/// only `eprintln!`), and as a line in `target/skipped-tests.txt`, which `.ci/run` prints
+/// after the tests. A skip is never silent.
+pub fn skip(test: &str, why: &str) {
+    use std::io::Write as _;
+    let line = format!("SKIPPED {test}: {why}\n");
+    let _ = std::io::stderr().write_all(line.as_bytes());
+    let list = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("target/skipped-tests.txt");
+    if let Ok(mut file) = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(&list)
+    {
+        let _ = file.write_all(line.as_bytes());
+    }
+}

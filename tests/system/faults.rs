@@ -58,10 +58,15 @@ fn temp_dir(prefix: &str) -> PathBuf {
 
 impl RunningSystem {
     fn start(tag: &str, modules: &str) -> RunningSystem {
+        RunningSystem::start_with(tag, |_| modules.to_owned())
+    }
+
+    /// Starts a system whose `[[module]]` tables `modules` writes, given the test's folder.
+    fn start_with(tag: &str, modules: impl FnOnce(&std::path::Path) -> String) -> RunningSystem {
         let prefix = shm::unique_prefix(tag);
         let dir = temp_dir(&prefix);
         let file = dir.join("launch.toml");
-        std::fs::write(&file, launch_file(modules)).expect("write launch file");
+        std::fs::write(&file, launch_file(&modules(&dir))).expect("write launch file");
         // Subscribe before anything starts, so no event is missed.
         let node = Node::new(NodeOptions::new("fault-test").prefix(&prefix)).expect("node");
         let events = node
@@ -201,6 +206,30 @@ impl RunningSystem {
                 return (g, saved);
             }
         }
+    }
+
+    /// The counts process `pid` wrote to the fixture's count log, in order.
+    fn logged_counts(&self, pid: u32) -> Vec<u32> {
+        std::fs::read_to_string(self.dir.join("counts"))
+            .unwrap_or_default()
+            .lines()
+            .filter_map(|line| line.split_once(' '))
+            .filter(|(p, _)| p.parse() == Ok(pid))
+            .filter_map(|(_, count)| count.parse().ok())
+            .collect()
+    }
+
+    /// The highest count process `pid` logged (0 if none).
+    fn last_logged_count(&self, pid: u32) -> u32 {
+        self.logged_counts(pid).into_iter().max().unwrap_or(0)
+    }
+
+    /// The first count process `pid` logged; it has published one, so it logged one.
+    fn first_logged_count(&self, pid: u32) -> u32 {
+        let counts = self.logged_counts(pid);
+        *counts
+            .first()
+            .unwrap_or_else(|| panic!("process {pid} published a count but logged none"))
     }
 
     /// Drops every message already received (from a process that is dead now).
@@ -349,7 +378,14 @@ fn crash_and_recover(
     inject: Option<&str>,
     expect_exit: impl Fn(&Value) -> bool,
 ) {
-    let mut sys = RunningSystem::start(tag, &module(20, extra, config));
+    let mut sys = RunningSystem::start_with(tag, |dir| {
+        let log = dir.join("counts");
+        module(
+            20,
+            extra,
+            &format!("{config}\ncount_log = {:?}", log.display().to_string()),
+        )
+    });
     let first = sys.wait_event("counter", EventKind::Started);
     let (before, saved_seen) = sys.count_until(15);
     assert!(before.id >= 15);
@@ -367,19 +403,22 @@ fn crash_and_recover(
     // the state that must come back.
     let (last, saved) = sys.drain_counts();
     let saved = saved.max(saved_seen);
-    let last = last.max(before.id);
+    // The first process's own record of what it counted: samples it published just before
+    // dying can be gone with its shared memory before this test reads them.
+    let last = last.max(before.id).max(sys.last_logged_count(first.pid));
     let second = sys.wait_event("counter", EventKind::Started);
     assert_ne!(second.pid, first.pid, "a new process");
-    let g = sys.next_count();
+    // The new process counts on: its first count (from its own record, since a slow reader
+    // can lose the oldest samples) tells the state it restored.
+    sys.next_count();
+    let restored = sys.first_logged_count(second.pid) - 1;
     assert!(
-        g.id > saved,
-        "restored count {} is below the last checkpoint {saved} (last published {last})",
-        g.id - 1
+        restored >= saved,
+        "restored count {restored} is below the last checkpoint {saved} (last counted {last})"
     );
     assert!(
-        g.id <= last + 1,
-        "restored count {} is above the last count published {last}",
-        g.id - 1
+        restored <= last,
+        "restored count {restored} is above the last count counted {last}"
     );
     let doc = sys.status_where("the counter running again", |d| {
         let m = module_row(d, "counter");

@@ -364,7 +364,10 @@ fn browser_missing(js: &Path) -> Option<String> {
 fn a_real_browser_sees_the_robot_sends_it_to_a_goal_and_stops_it() {
     let js = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/system/js");
     if let Some(why) = browser_missing(&js) {
-        eprintln!("SKIPPED a_real_browser_sees_the_robot_sends_it_to_a_goal_and_stops_it: {why}");
+        crate::common::skip(
+            "a_real_browser_sees_the_robot_sends_it_to_a_goal_and_stops_it",
+            &why,
+        );
         return;
     }
     let _heavy = crate::common::heavy();

@@ -172,11 +172,13 @@ fn an_independent_python_reader_agrees_with_hng_info() {
         .output()
         .is_ok_and(|o| o.status.success());
     if !ready {
-        eprintln!(
-            "SKIPPED an_independent_python_reader_agrees_with_hng_info: {} cannot import mcap \
-             and mcap_protobuf (.ci/run creates the venv with python3 -m venv and pip-installs \
-             mcap mcap-protobuf-support)",
-            python.display()
+        crate::common::skip(
+            "an_independent_python_reader_agrees_with_hng_info",
+            &format!(
+                "{} cannot import mcap and mcap_protobuf (.ci/run creates the venv with python3 \
+                 -m venv and pip-installs mcap mcap-protobuf-support)",
+                python.display()
+            ),
         );
         return;
     }
@@ -370,14 +372,17 @@ fn the_live_view_serves_scans_to_the_foxglove_npm_client_while_hng_record_writes
         .output()
         .is_ok_and(|o| o.status.success());
     if !node_ok || !js.join("node_modules/@foxglove/ws-protocol").exists() {
-        eprintln!(
-            "SKIPPED the_live_view_serves_scans_to_the_foxglove_npm_client: {} (.ci/run installs \
-             @foxglove/ws-protocol, ws and protobufjs with npm into tests/system/js)",
-            if node_ok {
-                "no tests/system/js/node_modules"
-            } else {
-                "no node"
-            }
+        crate::common::skip(
+            "the_live_view_serves_scans_to_the_foxglove_npm_client",
+            &format!(
+                "{} (.ci/run installs @foxglove/ws-protocol, ws and protobufjs with npm into \
+                 tests/system/js)",
+                if node_ok {
+                    "no tests/system/js/node_modules"
+                } else {
+                    "no node"
+                }
+            ),
         );
         return;
     }

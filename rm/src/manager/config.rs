@@ -95,8 +95,8 @@ pub struct RmConfig {
     pub cpu_own_share_min: f64,
     /// Memory is scarce under this free fraction (default 0.10).
     pub memory_free_threshold: f64,
-    /// Communication is scarce when a report took longer than this, ms (default 20).
-    pub comm_delay_threshold_ms: f64,
+    /// Communication is scarce when a report took longer than this, s (default 0.02).
+    pub comm_delay_threshold_s: f64,
     /// Lowest cost (default 0.1; see [`CostConfig`] for the scale).
     pub cost_min: f64,
     /// Highest cost (default 1.6).
@@ -113,20 +113,20 @@ pub struct RmConfig {
     pub degraded_recover_after: u32,
     /// Whether the most important work may be stopped too (default false).
     pub allow_full_stop: bool,
-    /// Time constant of the CPU average the software CPU limit is checked on, ms
-    /// (default 2000).
-    pub cpu_window_ms: u64,
+    /// Time constant of the CPU average the software CPU limit is checked on, s
+    /// (default 2).
+    pub cpu_window_s: f64,
     /// Message rate (in + out, per s) that counts as one whole "communication
     /// resource" in R (default 10000).
     pub comm_budget_msgs_per_s: f64,
     /// A module whose process is gone and that has not reported for this long is
-    /// forgotten, ms (default 5000).
-    pub forget_after_ms: u64,
-    /// A contract table older than this is ignored, ms (default 3000).
-    pub table_timeout_ms: u64,
+    /// forgotten, s (default 5).
+    pub forget_after_s: f64,
+    /// A contract table older than this is ignored, s (default 3).
+    pub table_timeout_s: f64,
     /// An over-limit command for the same process is repeated after this long if the
-    /// module keeps running (no supervisor acted), ms (default 2000).
-    pub over_limit_repeat_ms: u64,
+    /// module keeps running (no supervisor acted), s (default 2).
+    pub over_limit_repeat_s: f64,
     /// Attach to the run's cgroups named by `HNG_CGROUP_RUN` (default true): CPU from
     /// the cgroup counters, caps read back from the kernel.
     pub cgroups: bool,
@@ -145,7 +145,7 @@ impl Default for RmConfig {
             cpu_free_threshold: c.cpu_free_threshold,
             cpu_own_share_min: c.cpu_own_share_min,
             memory_free_threshold: c.memory_free_threshold,
-            comm_delay_threshold_ms: c.comm_delay_threshold.as_secs_f64() * 1e3,
+            comm_delay_threshold_s: c.comm_delay_threshold.as_secs_f64(),
             cost_min: c.min,
             cost_max: c.max,
             cost_raise_factor: c.raise_factor,
@@ -154,11 +154,11 @@ impl Default for RmConfig {
             degraded_step_after: d.step_after,
             degraded_recover_after: d.recover_after,
             allow_full_stop: d.allow_full_stop,
-            cpu_window_ms: 2000,
+            cpu_window_s: 2.0,
             comm_budget_msgs_per_s: 10_000.0,
-            forget_after_ms: 5000,
-            table_timeout_ms: 3000,
-            over_limit_repeat_ms: 2000,
+            forget_after_s: 5.0,
+            table_timeout_s: 3.0,
+            over_limit_repeat_s: 2.0,
             cgroups: true,
             limits: BTreeMap::new(),
         }
@@ -166,12 +166,23 @@ impl Default for RmConfig {
 }
 
 impl RmConfig {
+    /// The cost configuration; also checks every duration of the configuration (seconds, as
+    /// every duration in hng's module configurations).
     pub(super) fn cost_config(&self) -> Result<CostConfig> {
-        if !(self.comm_delay_threshold_ms.is_finite() && self.comm_delay_threshold_ms >= 0.0) {
-            return Err(RmError::Config(format!(
-                "comm_delay_threshold_ms must be >= 0, got {}",
-                self.comm_delay_threshold_ms
-            )));
+        for (name, v, zero_ok) in [
+            ("comm_delay_threshold_s", self.comm_delay_threshold_s, true),
+            ("cpu_window_s", self.cpu_window_s, false),
+            ("forget_after_s", self.forget_after_s, false),
+            ("table_timeout_s", self.table_timeout_s, false),
+            ("over_limit_repeat_s", self.over_limit_repeat_s, false),
+        ] {
+            let ok = v.is_finite() && (v > 0.0 || (zero_ok && v == 0.0)) && v < 1e9;
+            if !ok {
+                let bound = if zero_ok { ">= 0" } else { "> 0" };
+                return Err(RmError::Config(format!(
+                    "{name} must be a number of seconds {bound}, got {v}"
+                )));
+            }
         }
         Ok(CostConfig {
             min: self.cost_min,
@@ -181,7 +192,7 @@ impl RmConfig {
             cpu_free_threshold: self.cpu_free_threshold,
             cpu_own_share_min: self.cpu_own_share_min,
             memory_free_threshold: self.memory_free_threshold,
-            comm_delay_threshold: Duration::from_secs_f64(self.comm_delay_threshold_ms / 1e3),
+            comm_delay_threshold: Duration::from_secs_f64(self.comm_delay_threshold_s),
         })
     }
 
