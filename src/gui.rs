@@ -201,8 +201,9 @@ pub fn start_for_run(prefix: &str, args: &RunGuiArgs) -> Option<GuiChild> {
             cmd.env(TOKEN_ENV, t);
         }
         let fd = listener.as_raw_fd();
+        let parent = nix::unistd::getpid();
         // SAFETY: between fork and exec only async-signal-safe calls: dup2 (which leaves the
-        // new descriptor open across exec) and prctl.
+        // new descriptor open across exec), prctl and getppid.
         unsafe {
             use std::os::unix::process::CommandExt as _;
             cmd.pre_exec(move || {
@@ -210,6 +211,10 @@ pub fn start_for_run(prefix: &str, args: &RunGuiArgs) -> Option<GuiChild> {
                     return Err(std::io::Error::last_os_error());
                 }
                 nix::sys::prctl::set_pdeathsig(Signal::SIGTERM).map_err(std::io::Error::from)?;
+                // The supervisor died before the prctl: no signal will come, so do not start.
+                if nix::unistd::getppid() != parent {
+                    return Err(std::io::Error::from_raw_os_error(nix::libc::ESRCH));
+                }
                 Ok(())
             });
         }

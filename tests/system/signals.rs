@@ -49,9 +49,11 @@ impl Run {
         std::fs::create_dir_all(&dir).expect("test dir");
         let n = std::fs::read_dir(&dir).map_or(0, Iterator::count);
         let log = std::fs::File::create(dir.join(format!("run{n}.log"))).expect("log file");
+        // No operator page unless the test asks for one (`--gui ADDR`).
+        let page = args.contains(&"--gui");
         let mut child = Command::new(HNG)
             .arg("run")
-            .arg("--no-gui")
+            .args(if page { None } else { Some("--no-gui") })
             .arg("--run-dir")
             .arg(dir.join("run"))
             .args(args)
@@ -560,6 +562,70 @@ fn a_sigkilled_supervisor_leaves_no_module_and_the_next_start_cleans_up() {
         log.contains("ended without an orderly stop"),
         "the second start says it cleaned up; log:\n{log}"
     );
+    drop(run);
+}
+
+/// The operator page's process (`hng gui --listen-fd`, a child of `hng run`) goes with a
+/// SIGKILLed supervisor (parent-death signal) and frees its port; the next start cleans up.
+#[test]
+fn a_sigkilled_supervisor_takes_its_operator_page_with_it() {
+    let prefix = shm::unique_prefix("sigkillpage");
+    let dir = test_dir(&prefix);
+    let file = launch_file(
+        &dir.join("launch"),
+        "system = \"page\"\n\n[[module]]\nname = \"sleeper\"\ncommand = [\"/bin/sleep\", \"1000\"]\n",
+    );
+    let path = file.to_str().expect("path").to_owned();
+    let mut events = Events::new(&prefix);
+    let mut run = Run::start_on(&prefix, &["--gui", "127.0.0.1:0", "--no-rm", &path]);
+    let log = || run_log(&dir);
+    let line = run.wait_line("the page's address", |l| {
+        l.starts_with("operator page: http://")
+    });
+    let addr: std::net::SocketAddr = line
+        .trim_start_matches("operator page: http://")
+        .split('/')
+        .next()
+        .and_then(|a| a.parse().ok())
+        .unwrap_or_else(|| panic!("no address in {line:?}"));
+    let sleeper = events.wait("sleeper", EventKind::Started, &log);
+    drop(events);
+    let page = processes_of(&prefix)
+        .into_iter()
+        .find(|pid| {
+            std::fs::read(format!("/proc/{pid}/cmdline"))
+                .is_ok_and(|c| c.split(|b| *b == 0).any(|arg| arg == b"--listen-fd"))
+        })
+        .unwrap_or_else(|| panic!("no page process among {:?}", processes_of(&prefix)));
+    assert!(
+        std::net::TcpStream::connect(addr).is_ok(),
+        "the page serves on {addr}"
+    );
+    run.signal(Signal::SIGKILL);
+    assert_eq!(run.wait().code(), None, "hng run died of SIGKILL");
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while is_alive(page) || is_alive(sleeper.pid as i32) {
+        assert!(
+            Instant::now() < deadline,
+            "the page ({page}) or the module ({}) outlived the SIGKILLed supervisor",
+            sleeper.pid
+        );
+        // Waiting for the kernel's parent-death signal: poll at 10 ms intervals.
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    assert!(
+        std::net::TcpStream::connect(addr).is_err(),
+        "nothing listens on {addr} any more"
+    );
+    // The next start on the prefix removes what the dead system left and stops clean.
+    let mut events = Events::new(&prefix);
+    let mut again = Run::start_on(&prefix, &["--no-rm", &path]);
+    events.wait("sleeper", EventKind::Started, &log);
+    drop(events);
+    again.signal(Signal::SIGTERM);
+    let status = again.wait();
+    let log = again.assert_left_nothing();
+    assert_eq!(status.code(), Some(0), "log:\n{log}");
     drop(run);
 }
 
