@@ -297,7 +297,8 @@ mod tests {
     /// 2 % noise, heading drift as the simulator's defaults) and fixes at 5 Hz (σ 0.3 m).
     /// Returns the RMS and max position error over the last `tail` seconds, and the filter.
     fn drive(seconds: f64, fixes: bool, seed: u64) -> (f64, f64, Ekf) {
-        let mut noise = Gauss(0x9E37_79B9_7F4A_7C15 ^ (seed + 1).wrapping_mul(0xBF58_476D_1CE4_E5B9));
+        let mut noise =
+            Gauss(0x9E37_79B9_7F4A_7C15 ^ (seed + 1).wrapping_mul(0xBF58_476D_1CE4_E5B9));
         let mut ekf = Ekf::new(EkfParams::default());
         let mut truth = Pose2D {
             x: 2.0,
@@ -382,7 +383,10 @@ mod tests {
         let before = ekf.pose().expect("pose");
         let jump = Pose2D { x: 4.0, ..start };
         let out = ekf.update(jump, &gps_cov(SIGMA));
-        assert!(matches!(out, FixOutcome::Rejected(d) if d > 16.27), "{out:?}");
+        assert!(
+            matches!(out, FixOutcome::Rejected(d) if d > 16.27),
+            "{out:?}"
+        );
         assert_eq!(ekf.pose(), Some(before));
         // A fix that is merely noisy (1σ off) is fused.
         let near = Pose2D { x: 1.3, ..start };
@@ -434,7 +438,10 @@ mod tests {
             last = d;
         }
         let sigma = ekf.position_sigma();
-        assert!(sigma > SIGMA && sigma > 3.0 * fused, "{sigma} vs fused {fused}");
+        assert!(
+            sigma > SIGMA && sigma > 3.0 * fused,
+            "{sigma} vs fused {fused}"
+        );
         // At rest the covariance still grows with time.
         let at_rest = ekf.position_sigma();
         for _ in 0..500 {

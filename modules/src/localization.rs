@@ -28,9 +28,7 @@ use hng_runtime::msg::{FrameId, Header, Odometry, PoseWithCovariance};
 use hng_runtime::{Context, Module, ModuleResult, Publisher, Subscriber, TimerId};
 use serde::{Deserialize, Serialize};
 
-use crate::common::{
-    ContractedInput, decode_state, encode_state, field_error, positive, seconds,
-};
+use crate::common::{ContractedInput, decode_state, encode_state, field_error, positive, seconds};
 use crate::ekf::{Ekf, EkfParams, EkfState, FixOutcome};
 use crate::gps::gps_quality;
 

@@ -130,7 +130,11 @@ fn f64_of(v: &Value, k: &str) -> Option<f64> {
 
 /// Sends SIGTERM to `hng run` and waits for its orderly stop (at most 30 s, then SIGKILL).
 fn stop_child(child: &mut std::process::Child, sig: i32) -> Option<std::process::ExitStatus> {
-    tracing::info!(signal = sig, pid = child.id(), "stopping the current problem's run");
+    tracing::info!(
+        signal = sig,
+        pid = child.id(),
+        "stopping the current problem's run"
+    );
     if let Ok(pid) = i32::try_from(child.id()) {
         let _ = nix::sys::signal::kill(
             nix::unistd::Pid::from_raw(pid),

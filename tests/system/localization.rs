@@ -80,7 +80,10 @@ fn the_fused_localization_serves_and_every_goal_ends_within_0_3_m_of_the_truth()
     );
     let serving = fused_serves_both_clients(&m, &mut run);
     let (text, status) = run.finish();
-    assert!(serving, "the fused localization never served Servo and Planning\n{text}");
+    assert!(
+        serving,
+        "the fused localization never served Servo and Planning\n{text}"
+    );
     assert!(status.success(), "{text}");
     check_goals(&m.summary(&text), &text);
     // Never replaced by the GPS or SLAM: no Localization switch at all.

@@ -215,6 +215,17 @@ fn eval_run_child(parent: u32) -> Option<(u32, String)> {
     None
 }
 
+/// True when a problem's `hng run` under `runs` has printed its start lines.
+fn run_has_started(runs: &Path) -> bool {
+    std::fs::read_dir(runs)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .any(|d| {
+            std::fs::read_to_string(d.path().join("stdout.txt")).is_ok_and(|t| t.contains("logs:"))
+        })
+}
+
 fn alive(pid: u32) -> bool {
     // A zombie has exited: only its parent's wait is missing.
     std::fs::read_to_string(format!("/proc/{pid}/stat"))
@@ -245,13 +256,13 @@ fn an_eval_stopped_by_sigterm_or_killed_leaves_no_run_and_no_files() {
             .stderr(std::process::Stdio::null())
             .spawn()
             .expect("hng eval nav");
-        // Wait until the first problem's system is up (its simulator's status exists).
+        // Wait until the first problem's system is up.
         let deadline = Instant::now() + Duration::from_secs(180);
         let (run_pid, prefix) = loop {
+            // Up: its shared-memory files exist and it has printed where its logs go.
             if let Some((pid, prefix)) = eval_run_child(eval.id())
-                && hng_runtime::shm::prefix_files(&prefix)
-                    .iter()
-                    .any(|p| p.to_string_lossy().contains("sim"))
+                && !hng_runtime::shm::prefix_files(&prefix).is_empty()
+                && run_has_started(&r.dir.join("eval/runs"))
             {
                 break (pid, prefix);
             }
