@@ -242,7 +242,8 @@ impl Ekf {
             return FixOutcome::Invalid;
         };
         let d2 = (y.transpose() * s_inv * y)[(0, 0)];
-        if !(d2 <= self.params.gate) {
+        // A NaN distance (degenerate S) counts as an outlier.
+        if d2.is_nan() || d2 > self.params.gate {
             self.rejected_in_a_row += 1;
             if self.rejected_in_a_row >= self.params.max_rejections {
                 self.x = Some(zv);
