@@ -22,6 +22,7 @@ pub const BUILTIN: &[&str] = &[
     "servo",
     "slam",
     "gps",
+    "localization",
     "maps",
     "walls",
     "wall_follower",
@@ -48,6 +49,9 @@ pub fn run(name: &str) -> ExitCode {
         "servo" => hng_runtime::run_module::<hng_modules::servo::ServoModule>(),
         "slam" => hng_runtime::run_module::<hng_modules::slam_module::SlamModule>(),
         "gps" => hng_runtime::run_module::<hng_modules::gps::GpsModule>(),
+        "localization" => {
+            hng_runtime::run_module::<hng_modules::localization::LocalizationModule>()
+        }
         "maps" => hng_runtime::run_module::<hng_modules::maps::MapsModule>(),
         "walls" => hng_runtime::run_module::<hng_modules::walls_module::WallsModule>(),
         "wall_follower" => {

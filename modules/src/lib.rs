@@ -12,12 +12,14 @@
 pub mod attention;
 pub mod camera;
 pub mod common;
+pub mod ekf;
 pub mod feedback;
 pub mod footprint;
 pub mod gps;
 pub mod heartbeat;
 pub mod interface;
 pub mod laser;
+pub mod localization;
 pub mod manager;
 pub mod maps;
 pub mod msgs;

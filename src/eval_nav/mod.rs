@@ -9,6 +9,7 @@
 
 mod problems;
 mod runner;
+mod stop;
 
 use std::collections::BTreeMap;
 use std::io::Write as _;
@@ -260,9 +261,23 @@ pub fn run(a: &EvalNavArgs) -> Result<()> {
         ),
         None => None,
     };
+    if let Err(e) = stop::install() {
+        eprintln!("hng eval nav: warning: termination signals not handled ({e})");
+    }
     let mut results = Vec::new();
+    let mut stopped = None;
     for p in &list {
         let r = runner::run(p, &opts)?;
+        if let Some(sig) = stop::requested() {
+            // Stopped by a signal: the interrupted problem is not a result.
+            eprintln!(
+                "hng eval nav: stopped by signal {sig} during problem {}; {} problem(s) done",
+                p.id,
+                results.len()
+            );
+            stopped = Some(sig);
+            break;
+        }
         let line = serde_json::to_string(&r)?;
         if a.json {
             println!("{line}");
@@ -293,6 +308,10 @@ pub fn run(a: &EvalNavArgs) -> Result<()> {
     }
     if let Some(f) = &mut out {
         writeln!(f, "{s}")?;
+    }
+    if let Some(sig) = stopped {
+        eprintln!("worlds and runs kept in {}", dir.display());
+        std::process::exit(128 + sig);
     }
     let failed = results.iter().any(|r| !r.success);
     if temp && !failed && !a.keep {

@@ -128,6 +128,30 @@ fn f64_of(v: &Value, k: &str) -> Option<f64> {
     v.get(k).and_then(Value::as_f64)
 }
 
+/// Sends SIGTERM to `hng run` and waits for its orderly stop (at most 30 s, then SIGKILL).
+fn stop_child(child: &mut std::process::Child, sig: i32) -> Option<std::process::ExitStatus> {
+    tracing::info!(
+        signal = sig,
+        pid = child.id(),
+        "stopping the current problem's run"
+    );
+    if let Ok(pid) = i32::try_from(child.id()) {
+        let _ = nix::sys::signal::kill(
+            nix::unistd::Pid::from_raw(pid),
+            nix::sys::signal::Signal::SIGTERM,
+        );
+    }
+    let asked = Instant::now();
+    while asked.elapsed() < Duration::from_secs(30) {
+        if let Ok(Some(st)) = child.try_wait() {
+            return Some(st);
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let _ = child.kill();
+    child.wait().ok()
+}
+
 /// Runs one problem.
 pub fn run(p: &Problem, o: &RunOptions) -> Result<ProblemResult> {
     let prefix = hng_runtime::shm::unique_prefix("evalnav");
@@ -164,6 +188,8 @@ pub fn run(p: &Problem, o: &RunOptions) -> Result<ProblemResult> {
     if let Some(s) = o.seed {
         cmd.arg("--seed").arg(s.to_string());
     }
+    // An eval killed outright still stops this run in order (SIGTERM to it when we die).
+    super::stop::terminate_with_parent(&mut cmd);
     let started = Instant::now();
     let mut child = cmd
         .spawn()
@@ -181,6 +207,11 @@ pub fn run(p: &Problem, o: &RunOptions) -> Result<ProblemResult> {
         sample_children(pid, &mut seen);
         if let Some((_, t)) = proc_stat(pid) {
             own_ticks = own_ticks.max(t);
+        }
+        if let Some(sig) = super::stop::requested() {
+            // The eval is asked to stop: this run stops in order too (its modules in
+            // reverse order, its prefix files removed), SIGKILL only if it hangs.
+            break stop_child(&mut child, sig);
         }
         if started.elapsed() > wall_limit {
             let _ = child.kill();

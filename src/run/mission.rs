@@ -32,11 +32,25 @@ const MISSION_MODULES: [&str; 11] = [
     "manager",
 ];
 
+/// The fused localization module (odometry and GPS, docs/navigation.md), in the mission unless
+/// `--no-fusion`.
+const FUSION_MODULE: &str = "localization";
+
+/// The mission's modules besides the simulator, in start order.
+fn mission_modules(fusion: bool) -> Vec<&'static str> {
+    let mut m = MISSION_MODULES.to_vec();
+    if fusion && let Some(i) = m.iter().position(|n| *n == "gps") {
+        m.insert(i + 1, FUSION_MODULE);
+    }
+    m
+}
+
 /// Position tolerance of the mission's goals, m. A goal counts as reached only when the
-/// simulator's true pose is within it; the robot localizes by GPS (σ 0.3 m per axis in the
-/// default world) and stops when its own estimate is within 0.15 m, so its true error at a goal
-/// is its localization error: 0.2-0.4 m measured, hence a tolerance above that.
-pub const GOAL_TOLERANCE_M: f64 = 1.0;
+/// simulator's true pose is within it; the robot localizes by odometry fused with GPS (the
+/// `localization` module, σ about 0.05-0.1 m against the GPS's 0.3 m per axis) and stops when
+/// its own estimate is within 0.15 m, so its true error at a goal is that estimate's error
+/// plus up to 0.15 m.
+pub const GOAL_TOLERANCE_M: f64 = 0.3;
 
 /// Default limit of simulated time for a mission, s.
 pub const DEFAULT_DURATION_S: f64 = 240.0;
@@ -61,6 +75,8 @@ pub struct MissionOptions {
     pub duration_s: f64,
     /// Position tolerance of every goal, m.
     pub tolerance_m: f64,
+    /// Run the fused localization module (false: GPS and SLAM only, `--no-fusion`).
+    pub fusion: bool,
 }
 
 impl Default for MissionOptions {
@@ -73,6 +89,7 @@ impl Default for MissionOptions {
             seed: None,
             duration_s: DEFAULT_DURATION_S,
             tolerance_m: GOAL_TOLERANCE_M,
+            fusion: true,
         }
     }
 }
@@ -276,11 +293,12 @@ give_up_window = "60s"
     if let Some(seed) = opts.seed {
         let _ = writeln!(s, "seed = {seed}");
     }
+    let modules = mission_modules(opts.fusion);
     // Paused start: simulated time waits until every module is up.
     let _ = writeln!(
         s,
         "wait_for = [{}]",
-        MISSION_MODULES
+        modules
             .iter()
             .map(|m| quoted(m))
             .collect::<Vec<_>>()
@@ -291,7 +309,7 @@ give_up_window = "60s"
     let _ = writeln!(
         s,
         "lockstep = [{}]",
-        MISSION_MODULES
+        modules
             .iter()
             .map(|m| quoted(m))
             .collect::<Vec<_>>()
@@ -307,6 +325,10 @@ give_up_window = "60s"
         ("gps", "gps"),
     ] {
         module(&mut s, name, cmd);
+        let _ = writeln!(s);
+    }
+    if opts.fusion {
+        module(&mut s, FUSION_MODULE, FUSION_MODULE);
         let _ = writeln!(s);
     }
     module(&mut s, "maps", "maps");
@@ -362,7 +384,7 @@ mod tests {
         let plan = hng_watchdog::launch::parse(&m.plan, Path::new("<mission>"), &opts);
         let plan = plan.unwrap_or_else(|e| panic!("{e}\n{}", m.plan));
         assert!(plan.sim_clock);
-        assert_eq!(plan.modules.len(), 12);
+        assert_eq!(plan.modules.len(), 13);
         // The simulator's paused start waits for every other module of the plan.
         let mut others: Vec<&str> = plan
             .modules
@@ -371,7 +393,8 @@ mod tests {
             .filter(|n| *n != "simulator")
             .collect();
         others.sort_unstable();
-        let mut waited = MISSION_MODULES.to_vec();
+        let mut waited = mission_modules(true);
+        assert!(waited.contains(&"localization"));
         waited.sort_unstable();
         assert_eq!(others, waited);
         assert!(m.plan.contains("wait_for = [\"laser\""), "{}", m.plan);

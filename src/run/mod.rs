@@ -105,6 +105,10 @@ pub struct RunArgs {
     /// within it).
     #[arg(long, conflicts_with = "file", default_value_t = mission::GOAL_TOLERANCE_M)]
     pub tolerance: f64,
+    /// Built-in mission: without the fused localization module (odometry + GPS): Servo and
+    /// Planning localize by the raw GPS and SLAM only.
+    #[arg(long, conflicts_with = "file")]
+    pub no_fusion: bool,
     /// Built-in mission: also write the summary as JSON to this file.
     #[arg(long, conflicts_with = "file")]
     pub summary: Option<PathBuf>,
@@ -129,6 +133,7 @@ impl RunArgs {
             seed: self.seed,
             duration_s: self.duration,
             tolerance_m: self.tolerance,
+            fusion: !self.no_fusion,
         }
     }
 }

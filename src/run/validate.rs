@@ -45,6 +45,7 @@ fn check_config(name: &str, text: &str) -> Option<Result<(), ModuleProblem>> {
         "servo" => config_of::<m::servo::ServoModule>(text),
         "slam" => config_of::<m::slam_module::SlamModule>(text),
         "gps" => config_of::<m::gps::GpsModule>(text),
+        "localization" => config_of::<m::localization::LocalizationModule>(text),
         "maps" => config_of::<m::maps::MapsModule>(text),
         "walls" => config_of::<m::walls_module::WallsModule>(text),
         "wall_follower" => config_of::<m::wall_follower::WallFollowerModule>(text),

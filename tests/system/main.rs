@@ -10,6 +10,7 @@ mod eval;
 mod fault_matrix;
 mod faults;
 mod gui;
+mod localization;
 mod lockstep;
 mod logs;
 mod long_compute;

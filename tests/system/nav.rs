@@ -179,3 +179,121 @@ fn a_sample_of_generated_worlds_is_navigated_and_every_failure_has_a_reason() {
     let ok = summary["successes"].as_u64().expect("successes");
     assert!(ok >= 4, "{ok} of 5 generated problems: {text}");
 }
+
+/// The `hng run` child of process `parent` and its `--prefix`, from /proc.
+fn eval_run_child(parent: u32) -> Option<(u32, String)> {
+    for e in std::fs::read_dir("/proc").ok()?.flatten() {
+        let Some(pid) = e.file_name().to_str().and_then(|s| s.parse::<u32>().ok()) else {
+            continue;
+        };
+        let Ok(stat) = std::fs::read_to_string(format!("/proc/{pid}/stat")) else {
+            continue;
+        };
+        // Fields after the command's closing parenthesis: state, ppid, ...
+        let ppid = stat
+            .rsplit_once(')')
+            .and_then(|(_, rest)| rest.split_whitespace().nth(1))
+            .and_then(|p| p.parse::<u32>().ok());
+        if ppid != Some(parent) {
+            continue;
+        }
+        let cmdline = std::fs::read(format!("/proc/{pid}/cmdline")).unwrap_or_default();
+        let args: Vec<String> = cmdline
+            .split(|b| *b == 0)
+            .map(|a| String::from_utf8_lossy(a).into_owned())
+            .collect();
+        if !args.iter().any(|a| a == "run") {
+            continue;
+        }
+        let prefix = args
+            .iter()
+            .position(|a| a == "--prefix")
+            .and_then(|i| args.get(i + 1))
+            .cloned()?;
+        return Some((pid, prefix));
+    }
+    None
+}
+
+/// True when a problem's `hng run` under `runs` has printed its start lines.
+fn run_has_started(runs: &Path) -> bool {
+    std::fs::read_dir(runs)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .any(|d| {
+            std::fs::read_to_string(d.path().join("stdout.txt")).is_ok_and(|t| t.contains("logs:"))
+        })
+}
+
+fn alive(pid: u32) -> bool {
+    // A zombie has exited: only its parent's wait is missing.
+    std::fs::read_to_string(format!("/proc/{pid}/stat"))
+        .ok()
+        .and_then(|s| {
+            s.rsplit_once(')')
+                .and_then(|(_, r)| r.split_whitespace().next().map(|st| st != "Z"))
+        })
+        .unwrap_or(false)
+}
+
+/// `hng eval nav` stopped by SIGTERM stops its current problem's `hng run` in order and exits
+/// 128 + 15; killed by SIGKILL, the run gets its parent-death signal (SIGTERM) and stops in
+/// order all the same. Either way no process and no file of the run's prefix is left.
+#[test]
+fn an_eval_stopped_by_sigterm_or_killed_leaves_no_run_and_no_files() {
+    use nix::sys::signal::{Signal, kill};
+    use nix::unistd::Pid;
+    use std::time::{Duration, Instant};
+    let _heavy = crate::common::heavy();
+    for sig in [Signal::SIGTERM, Signal::SIGKILL] {
+        let r = Run::new("nav_eval_stop");
+        let mut eval = hng()
+            .args(["eval", "nav", "--generate", "3", "--seed", "3", "--json"])
+            .args(["--speed", "1", "--dir"])
+            .arg(r.dir.join("eval"))
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .expect("hng eval nav");
+        // Wait until the first problem's system is up.
+        let deadline = Instant::now() + Duration::from_secs(180);
+        let (run_pid, prefix) = loop {
+            // Up: its shared-memory files exist and it has printed where its logs go.
+            if let Some((pid, prefix)) = eval_run_child(eval.id())
+                && !hng_runtime::shm::prefix_files(&prefix).is_empty()
+                && run_has_started(&r.dir.join("eval/runs"))
+            {
+                break (pid, prefix);
+            }
+            assert!(
+                eval.try_wait().expect("try_wait").is_none(),
+                "eval ended early"
+            );
+            assert!(Instant::now() < deadline, "no run started");
+            std::thread::sleep(Duration::from_millis(200));
+        };
+        kill(Pid::from_raw(eval.id() as i32), sig).expect("signal");
+        let status = eval.wait().expect("wait");
+        if sig == Signal::SIGTERM {
+            assert_eq!(
+                std::os::unix::process::ExitStatusExt::signal(&status),
+                None,
+                "{status}"
+            );
+            assert_eq!(status.code(), Some(128 + 15), "{status}");
+        }
+        // The run stops in order (a clean stop takes seconds on a loaded machine); after a
+        // SIGKILL of the eval nobody but the run itself removes its files.
+        let deadline = Instant::now() + Duration::from_secs(60);
+        while alive(run_pid) || !hng_runtime::shm::prefix_files(&prefix).is_empty() {
+            assert!(
+                Instant::now() < deadline,
+                "after {sig}: run {run_pid} alive {}, files left {:?}",
+                alive(run_pid),
+                hng_runtime::shm::prefix_files(&prefix)
+            );
+            std::thread::sleep(Duration::from_millis(200));
+        }
+    }
+}

@@ -1,0 +1,457 @@
+//! An extended Kalman filter on the planar pose (x, y, θ): wheel odometry is the motion model,
+//! absolute pose fixes (GPS/IMU: x, y and heading, each with its covariance) are the
+//! measurements, gated by their Mahalanobis distance. Pure logic, used by the
+//! [`crate::localization`] module.
+//!
+//! Prediction with the odometry increment `u = (dx, dy, dθ)` (robot frame, from one odometry
+//! pose to the next): `x' = x ⊕ u`, `P' = F P Fᵀ + G Q Gᵀ`, with `F` the Jacobian of `⊕` in the
+//! state and `Q` a diagonal noise in the robot frame that grows with the distance and the
+//! rotation of the increment (systematic odometry errors included, as noise) and with time.
+//!
+//! Update with a fix `z` of covariance `R`: the innovation `y = z − x` (heading wrapped),
+//! `S = P + R`; the fix is rejected when `yᵀ S⁻¹ y` exceeds the gate (χ² with 3 degrees of
+//! freedom), otherwise `K = P S⁻¹`, `x += K y`, `P = (I − K) P (I − K)ᵀ + K R Kᵀ` (Joseph form,
+//! symmetric and positive). After `max_rejections` fixes rejected in a row the filter is taken
+//! to be lost and re-initialised at the fix (a filter that has diverged would otherwise reject
+//! every fix for ever).
+
+use hng_runtime::msg::Pose2D;
+use nalgebra::{Matrix3, Vector3};
+use serde::{Deserialize, Serialize};
+
+use crate::common::{compose, relative, wrap_angle};
+
+/// Noise and gate of the filter.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct EkfParams {
+    /// Standard deviation of the travelled distance per metre, along and across the
+    /// heading (default 0.05: covers the simulator's 2 % random and 1 % scale errors).
+    pub linear_per_m: f64,
+    /// Standard deviation of the rotation per radian turned (default 0.05).
+    pub angular_per_rad: f64,
+    /// Standard deviation of the heading per metre driven, rad/m (default 0.01: drift).
+    pub angular_per_m: f64,
+    /// Position random walk, m/√s, applied with time even at rest (default 0.01).
+    pub position_per_sqrt_s: f64,
+    /// Heading random walk, rad/√s (default 0.002).
+    pub heading_per_sqrt_s: f64,
+    /// Mahalanobis gate: fixes with `yᵀ S⁻¹ y` above it are rejected (default 16.27, the
+    /// 99.9 % quantile of χ² with 3 degrees of freedom).
+    pub gate: f64,
+    /// Fixes rejected in a row after which the filter re-initialises at the fix (default 10).
+    pub max_rejections: u32,
+}
+
+impl Default for EkfParams {
+    fn default() -> Self {
+        EkfParams {
+            linear_per_m: 0.05,
+            angular_per_rad: 0.05,
+            angular_per_m: 0.01,
+            position_per_sqrt_s: 0.01,
+            heading_per_sqrt_s: 0.002,
+            gate: 16.27,
+            max_rejections: 10,
+        }
+    }
+}
+
+/// What a fix did to the filter.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum FixOutcome {
+    /// The filter started at this fix.
+    Initialised,
+    /// The fix was fused; its squared Mahalanobis distance.
+    Fused(f64),
+    /// The fix was gated out; its squared Mahalanobis distance.
+    Rejected(f64),
+    /// Too many fixes were rejected in a row: the filter restarted at this one.
+    Reset(f64),
+    /// The fix's pose or covariance is not usable (not finite, not positive definite).
+    Invalid,
+}
+
+/// The filter's state, as a checkpoint keeps it.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct EkfState {
+    /// Mean pose, map frame; `None` before the first fix.
+    pub pose: Option<Pose2D>,
+    /// Row-major covariance of (x, y, θ).
+    pub covariance: [f64; 9],
+    /// The odometry pose the mean goes with (the last one predicted from).
+    pub odom: Option<Pose2D>,
+    /// Fixes rejected in a row.
+    pub rejected_in_a_row: u32,
+}
+
+/// The EKF.
+#[derive(Debug, Clone)]
+pub struct Ekf {
+    params: EkfParams,
+    x: Option<Vector3<f64>>,
+    p: Matrix3<f64>,
+    odom: Option<Pose2D>,
+    rejected_in_a_row: u32,
+}
+
+fn to_matrix(c: &[f64; 9]) -> Matrix3<f64> {
+    Matrix3::from_row_slice(c)
+}
+
+fn to_array(m: &Matrix3<f64>) -> [f64; 9] {
+    let mut a = [0.0; 9];
+    for r in 0..3 {
+        for c in 0..3 {
+            a[3 * r + c] = m[(r, c)];
+        }
+    }
+    a
+}
+
+impl Ekf {
+    /// A filter with no estimate yet: it starts at the first fix.
+    pub fn new(params: EkfParams) -> Ekf {
+        Ekf {
+            params,
+            x: None,
+            p: Matrix3::zeros(),
+            odom: None,
+            rejected_in_a_row: 0,
+        }
+    }
+
+    /// A filter resuming from `state` (a checkpoint).
+    pub fn resume(params: EkfParams, state: &EkfState) -> Ekf {
+        let p = to_matrix(&state.covariance);
+        let usable = p.iter().all(|v| v.is_finite());
+        Ekf {
+            params,
+            x: state
+                .pose
+                .filter(|_| usable)
+                .map(|p| Vector3::new(p.x, p.y, p.theta)),
+            p: if usable { p } else { Matrix3::zeros() },
+            odom: state.odom,
+            rejected_in_a_row: state.rejected_in_a_row,
+        }
+    }
+
+    /// What a checkpoint keeps.
+    pub fn state(&self) -> EkfState {
+        EkfState {
+            pose: self.pose(),
+            covariance: to_array(&self.p),
+            odom: self.odom,
+            rejected_in_a_row: self.rejected_in_a_row,
+        }
+    }
+
+    /// The mean pose (`None` before the first fix).
+    pub fn pose(&self) -> Option<Pose2D> {
+        self.x.map(|x| Pose2D {
+            x: x[0],
+            y: x[1],
+            theta: x[2],
+        })
+    }
+
+    /// Row-major covariance of (x, y, θ).
+    pub fn covariance(&self) -> [f64; 9] {
+        to_array(&self.p)
+    }
+
+    /// Position standard deviation: the square root of the larger eigenvalue of the
+    /// position block (the semi-major axis of the 1σ ellipse); infinite before the first fix.
+    pub fn position_sigma(&self) -> f64 {
+        if self.x.is_none() {
+            return f64::INFINITY;
+        }
+        let (a, b, c) = (self.p[(0, 0)], self.p[(1, 1)], self.p[(0, 1)]);
+        let mean = 0.5 * (a + b);
+        let d = (0.25 * (a - b) * (a - b) + c * c).sqrt();
+        (mean + d).max(0.0).sqrt()
+    }
+
+    /// Odometry reading `odom` (odom frame), `dt` seconds after the previous one: predicts
+    /// with the motion since the previous reading.
+    pub fn predict(&mut self, odom: Pose2D, dt: f64) {
+        let Some(prev) = self.odom.replace(odom) else {
+            return;
+        };
+        let Some(x) = self.x.as_mut() else {
+            return;
+        };
+        let u = relative(&prev, &odom);
+        if !(u.x.is_finite() && u.y.is_finite() && u.theta.is_finite()) {
+            return;
+        }
+        let dt = if dt.is_finite() { dt.max(0.0) } else { 0.0 };
+        let (s, c) = x[2].sin_cos();
+        let next = compose(
+            &Pose2D {
+                x: x[0],
+                y: x[1],
+                theta: x[2],
+            },
+            &u,
+        );
+        *x = Vector3::new(next.x, next.y, next.theta);
+        // Jacobian of x ⊕ u in x.
+        let f = Matrix3::new(
+            1.0,
+            0.0,
+            -s * u.x - c * u.y,
+            0.0,
+            1.0,
+            c * u.x - s * u.y,
+            0.0,
+            0.0,
+            1.0,
+        );
+        // Noise in the robot frame, rotated into the map frame.
+        let pr = &self.params;
+        let d = u.x.hypot(u.y);
+        let lin = (pr.linear_per_m * d).powi(2) + pr.position_per_sqrt_s.powi(2) * dt;
+        let ang = (pr.angular_per_rad * u.theta.abs() + pr.angular_per_m * d).powi(2)
+            + pr.heading_per_sqrt_s.powi(2) * dt;
+        let g = Matrix3::new(c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0);
+        let q = Matrix3::from_diagonal(&Vector3::new(lin, lin, ang));
+        self.p = f * self.p * f.transpose() + g * q * g.transpose();
+        self.p = 0.5 * (self.p + self.p.transpose());
+    }
+
+    /// A pose fix `z` with row-major covariance `r` (map frame).
+    pub fn update(&mut self, z: Pose2D, r: &[f64; 9]) -> FixOutcome {
+        let r = to_matrix(r);
+        let finite = z.x.is_finite() && z.y.is_finite() && z.theta.is_finite();
+        if !finite || r.iter().any(|v| !v.is_finite()) || r.cholesky().is_none() {
+            return FixOutcome::Invalid;
+        }
+        let zv = Vector3::new(z.x, z.y, wrap_angle(z.theta));
+        let Some(x) = self.x else {
+            self.x = Some(zv);
+            self.p = r;
+            self.rejected_in_a_row = 0;
+            return FixOutcome::Initialised;
+        };
+        let mut y = zv - x;
+        y[2] = wrap_angle(y[2]);
+        let s = self.p + r;
+        let Some(s_inv) = s.try_inverse() else {
+            return FixOutcome::Invalid;
+        };
+        let d2 = (y.transpose() * s_inv * y)[(0, 0)];
+        // A NaN distance (degenerate S) counts as an outlier.
+        if d2.is_nan() || d2 > self.params.gate {
+            self.rejected_in_a_row += 1;
+            if self.rejected_in_a_row >= self.params.max_rejections {
+                self.x = Some(zv);
+                self.p = r;
+                self.rejected_in_a_row = 0;
+                return FixOutcome::Reset(d2);
+            }
+            return FixOutcome::Rejected(d2);
+        }
+        self.rejected_in_a_row = 0;
+        let k = self.p * s_inv;
+        let mut nx = x + k * y;
+        nx[2] = wrap_angle(nx[2]);
+        self.x = Some(nx);
+        let ik = Matrix3::identity() - k;
+        self.p = ik * self.p * ik.transpose() + k * r * k.transpose();
+        self.p = 0.5 * (self.p + self.p.transpose());
+        FixOutcome::Fused(d2)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Standard normal samples (xorshift64* and Box-Muller): deterministic, no dependency.
+    struct Gauss(u64);
+
+    impl Gauss {
+        fn uniform(&mut self) -> f64 {
+            self.0 ^= self.0 >> 12;
+            self.0 ^= self.0 << 25;
+            self.0 ^= self.0 >> 27;
+            let v = self.0.wrapping_mul(0x2545_F491_4F6C_DD1D);
+            ((v >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+        }
+
+        fn sample(&mut self) -> f64 {
+            let (u, v) = (self.uniform(), self.uniform());
+            (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
+        }
+    }
+
+    const SIGMA: f64 = 0.3;
+
+    fn gps_cov(sigma: f64) -> [f64; 9] {
+        let v = sigma * sigma;
+        [v, 0.0, 0.0, 0.0, v, 0.0, 0.0, 0.0, 0.03 * 0.03]
+    }
+
+    /// A robot driving a square-ish loop at 0.5 m/s with odometry at 50 Hz (1 % scale error,
+    /// 2 % noise, heading drift as the simulator's defaults) and fixes at 5 Hz (σ 0.3 m).
+    /// Returns the RMS and max position error over the last `tail` seconds, and the filter.
+    fn drive(seconds: f64, fixes: bool, seed: u64) -> (f64, f64, Ekf) {
+        let mut noise =
+            Gauss(0x9E37_79B9_7F4A_7C15 ^ (seed + 1).wrapping_mul(0xBF58_476D_1CE4_E5B9));
+        let mut ekf = Ekf::new(EkfParams::default());
+        let mut truth = Pose2D {
+            x: 2.0,
+            y: 2.0,
+            theta: 0.3,
+        };
+        let mut odom = Pose2D::default();
+        let dt = 0.02;
+        ekf.predict(odom, dt);
+        ekf.update(truth, &gps_cov(SIGMA));
+        let (mut sum2, mut max, mut n) = (0.0, 0.0_f64, 0);
+        let steps = (seconds / dt) as usize;
+        for k in 0..steps {
+            let turn = if (k / 250) % 2 == 0 { 0.0 } else { 0.4 };
+            let (d, dth) = (0.5 * dt, turn * dt);
+            truth = compose(
+                &truth,
+                &Pose2D {
+                    x: d,
+                    y: 0.0,
+                    theta: dth,
+                },
+            );
+            let dm = d * 1.01 + 0.02 * d * noise.sample();
+            let dthm = dth * 1.02 + 0.005 * d + 0.02 * dth.abs() * noise.sample();
+            odom = compose(
+                &odom,
+                &Pose2D {
+                    x: dm,
+                    y: 0.0,
+                    theta: dthm,
+                },
+            );
+            ekf.predict(odom, dt);
+            if fixes && k % 10 == 0 {
+                let z = Pose2D {
+                    x: truth.x + SIGMA * noise.sample(),
+                    y: truth.y + SIGMA * noise.sample(),
+                    theta: truth.theta + 0.03 * noise.sample(),
+                };
+                ekf.update(z, &gps_cov(SIGMA));
+            }
+            if k > steps / 2 {
+                let p = ekf.pose().expect("initialised");
+                let e = (p.x - truth.x).hypot(p.y - truth.y);
+                sum2 += e * e;
+                max = max.max(e);
+                n += 1;
+            }
+        }
+        ((sum2 / n as f64).sqrt(), max, ekf)
+    }
+
+    #[test]
+    fn fusion_converges_well_below_the_gps_noise() {
+        for seed in 0..4 {
+            let (rms, max, ekf) = drive(120.0, true, seed);
+            // Raw fixes have an RMS position error of 0.3·√2 = 0.42 m.
+            assert!(rms < 0.12, "seed {seed}: rms {rms}");
+            assert!(max < 0.3, "seed {seed}: max {max}");
+            let sigma = ekf.position_sigma();
+            assert!(sigma > 0.02 && sigma < 0.15, "seed {seed}: σ {sigma}");
+        }
+    }
+
+    #[test]
+    fn an_outlier_fix_is_rejected_and_does_not_move_the_estimate() {
+        let mut ekf = Ekf::new(EkfParams::default());
+        let start = Pose2D {
+            x: 1.0,
+            y: 1.0,
+            theta: 0.0,
+        };
+        ekf.predict(Pose2D::default(), 0.0);
+        assert_eq!(ekf.update(start, &gps_cov(SIGMA)), FixOutcome::Initialised);
+        for _ in 0..20 {
+            assert!(matches!(
+                ekf.update(start, &gps_cov(SIGMA)),
+                FixOutcome::Fused(_)
+            ));
+        }
+        let before = ekf.pose().expect("pose");
+        let jump = Pose2D { x: 4.0, ..start };
+        let out = ekf.update(jump, &gps_cov(SIGMA));
+        assert!(
+            matches!(out, FixOutcome::Rejected(d) if d > 16.27),
+            "{out:?}"
+        );
+        assert_eq!(ekf.pose(), Some(before));
+        // A fix that is merely noisy (1σ off) is fused.
+        let near = Pose2D { x: 1.3, ..start };
+        assert!(matches!(
+            ekf.update(near, &gps_cov(SIGMA)),
+            FixOutcome::Fused(_)
+        ));
+        // Invalid fixes are refused without touching the filter.
+        let nan = Pose2D {
+            x: f64::NAN,
+            ..start
+        };
+        assert_eq!(ekf.update(nan, &gps_cov(SIGMA)), FixOutcome::Invalid);
+        assert_eq!(ekf.update(start, &[-1.0; 9]), FixOutcome::Invalid);
+        // A filter that is truly elsewhere (every fix far off) resets after the limit.
+        let mut last = FixOutcome::Invalid;
+        for _ in 0..EkfParams::default().max_rejections {
+            last = ekf.update(jump, &gps_cov(SIGMA));
+        }
+        assert!(matches!(last, FixOutcome::Reset(_)), "{last:?}");
+        assert_eq!(ekf.pose().map(|p| p.x), Some(4.0));
+    }
+
+    #[test]
+    fn covariance_grows_without_fixes_in_motion_and_with_time() {
+        let (_, _, with) = drive(60.0, true, 7);
+        let fused = with.position_sigma();
+        // The same drive, fixes only for the first second, then odometry alone.
+        let mut ekf = Ekf::new(EkfParams::default());
+        ekf.predict(Pose2D::default(), 0.0);
+        ekf.update(Pose2D::default(), &gps_cov(SIGMA));
+        let mut odom = Pose2D::default();
+        // det(F) = 1, so the prediction never shrinks the uncertainty volume det P (σ alone
+        // may dip slightly as the ellipse turns with the heading).
+        let det = |e: &Ekf| to_matrix(&e.covariance()).determinant();
+        let mut last = det(&ekf);
+        for k in 0..3000 {
+            odom = compose(
+                &odom,
+                &Pose2D {
+                    x: 0.01,
+                    y: 0.0,
+                    theta: 0.002,
+                },
+            );
+            ekf.predict(odom, 0.02);
+            let d = det(&ekf);
+            assert!(d >= last, "step {k}: {d} < {last}");
+            last = d;
+        }
+        let sigma = ekf.position_sigma();
+        assert!(
+            sigma > SIGMA && sigma > 3.0 * fused,
+            "{sigma} vs fused {fused}"
+        );
+        // At rest the covariance still grows with time.
+        let at_rest = ekf.position_sigma();
+        for _ in 0..500 {
+            ekf.predict(odom, 0.02);
+        }
+        assert!(ekf.position_sigma() > at_rest);
+        // A checkpointed filter resumes where it was.
+        let resumed = Ekf::resume(EkfParams::default(), &ekf.state());
+        assert_eq!(resumed.pose(), ekf.pose());
+        assert_eq!(resumed.covariance(), ekf.covariance());
+    }
+}

@@ -1,0 +1,276 @@
+//! Localization: wheel odometry fused with GPS/IMU fixes by an extended Kalman filter
+//! ([`crate::ekf`]). Provides "Localization" (`PoseWithCovariance` in `map` on `pose_out`);
+//! needs "Odometry" (rank 1, from the Robot), followed on its provider's channel like SLAM's
+//! (the configured `odom` channel while it has no provider). The fixes are read from `fix_in`
+//! (default `gps/pose`, the GPS/IMU module's output: when that module dies, no fix arrives).
+//!
+//! The pose is published at the odometry rate (every odometry batch) and after every fix,
+//! once the filter has started at its first fix.
+//!
+//! Quality Q: from the filter's own position σ (the 1σ ellipse's semi-major axis) with the
+//! GPS module's formula ([`crate::gps::gps_quality`]: 1 at or below `sigma_good_m`, -1 at or
+//! above `sigma_bad_m`, linear between), so a fused estimate (σ about 0.05-0.1 m) is worth more
+//! than a raw fix (σ 0.3 m, Q about 0.56) and wins the contract. The inputs dying loses it:
+//! without odometry for `odom_timeout_s`, aptitude 0 and Q -1 (clients reconfigure to the
+//! GPS or SLAM); without fixes the covariance grows with distance and time, so Q falls, and
+//! after `fix_timeout_s` without a fused fix aptitude is 0 as well (dead reckoning is not
+//! trusted for longer).
+//!
+//! Checkpoint: the filter's mean, covariance and the odometry reading it goes with, so a
+//! restarted module goes on from where it was plus the odometry since.
+
+use std::time::Duration;
+
+use hng_runtime::channel::InputId;
+use hng_runtime::contract::{NeedSpec, ServiceOffer};
+use hng_runtime::control::ProviderInfo;
+use hng_runtime::msg::{FrameId, Header, Odometry, PoseWithCovariance};
+use hng_runtime::{Context, Module, ModuleResult, Publisher, Subscriber, TimerId};
+use serde::{Deserialize, Serialize};
+
+use crate::common::{ContractedInput, decode_state, encode_state, field_error, positive, seconds};
+use crate::ekf::{Ekf, EkfParams, EkfState, FixOutcome};
+use crate::gps::gps_quality;
+
+/// Configuration of `hng module localization`.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct LocalizationConfig {
+    /// Odometry while no provider is contracted (default `robot/odom`).
+    pub odom: String,
+    /// Pose fixes (default `gps/pose`).
+    pub fix_in: String,
+    /// Fused pose published (default `localization/pose`).
+    pub pose_out: String,
+    /// No odometry for this long: aptitude 0, s (default 0.5).
+    pub odom_timeout_s: f64,
+    /// No fused fix for this long: aptitude 0, s (default 20).
+    pub fix_timeout_s: f64,
+    /// σ at or below which Q is 1, m (default 0.1).
+    pub sigma_good_m: f64,
+    /// σ at or above which Q is -1, m (default 1.0).
+    pub sigma_bad_m: f64,
+    /// Noise and gate of the filter.
+    pub filter: EkfParams,
+}
+
+impl Default for LocalizationConfig {
+    fn default() -> Self {
+        LocalizationConfig {
+            odom: "robot/odom".into(),
+            fix_in: "gps/pose".into(),
+            pose_out: "localization/pose".into(),
+            odom_timeout_s: 0.5,
+            fix_timeout_s: 20.0,
+            sigma_good_m: 0.1,
+            sigma_bad_m: 1.0,
+            filter: EkfParams::default(),
+        }
+    }
+}
+
+/// Rank of the "Odometry" need.
+pub const ODOMETRY_NEED: u16 = 1;
+
+#[derive(Debug, Clone, Copy, Default, Serialize, Deserialize, PartialEq)]
+struct LocState {
+    filter: EkfState,
+    fused: u64,
+    rejected: u64,
+}
+
+/// The localization module.
+#[derive(Debug)]
+pub struct LocalizationModule {
+    ekf: Ekf,
+    params: EkfParams,
+    odom: ContractedInput<Odometry>,
+    fix_in: Subscriber<PoseWithCovariance>,
+    pose_out: Publisher<PoseWithCovariance>,
+    good: f64,
+    bad: f64,
+    fix_timeout_ns: u64,
+    odom_ok: bool,
+    /// Stamp of the last odometry message, ns.
+    last_odom_ns: Option<u64>,
+    /// Stamp (odometry time) of the last fused fix, ns.
+    last_fix_ns: Option<u64>,
+    state: LocState,
+}
+
+impl LocalizationModule {
+    fn now_ns(&self) -> Option<u64> {
+        self.last_odom_ns
+    }
+
+    /// Sets aptitude and Q from the filter's σ and the inputs' health.
+    fn rate(&self, ctx: &mut Context) {
+        let fix_fresh = match (self.now_ns(), self.last_fix_ns) {
+            (Some(now), Some(fix)) => now.saturating_sub(fix) <= self.fix_timeout_ns,
+            (None, Some(_)) => true,
+            _ => false,
+        };
+        let apt = self.odom_ok && fix_fresh && self.ekf.pose().is_some();
+        let q = if apt {
+            gps_quality(self.ekf.position_sigma(), self.good, self.bad)
+        } else {
+            -1.0
+        };
+        ctx.set_quality(apt, q);
+    }
+
+    fn publish(&mut self) -> ModuleResult {
+        if let Some(pose) = self.ekf.pose() {
+            self.pose_out.publish(PoseWithCovariance {
+                header: Header {
+                    frame_id: FrameId::MAP,
+                    ..Header::default()
+                },
+                pose,
+                covariance: self.ekf.covariance(),
+            })?;
+        }
+        Ok(())
+    }
+}
+
+impl Module for LocalizationModule {
+    type Config = LocalizationConfig;
+
+    fn configure(ctx: &mut Context, cfg: LocalizationConfig) -> ModuleResult<Self> {
+        let odom_timeout = seconds("odom_timeout_s", cfg.odom_timeout_s)?;
+        let fix_timeout = seconds("fix_timeout_s", cfg.fix_timeout_s)?;
+        positive("sigma_good_m", cfg.sigma_good_m)?;
+        if !(cfg.sigma_bad_m.is_finite() && cfg.sigma_bad_m > cfg.sigma_good_m) {
+            return Err(field_error("sigma_bad_m", "must be finite and > sigma_good_m").into());
+        }
+        let f = &cfg.filter;
+        for (name, v) in [
+            ("filter.linear_per_m", f.linear_per_m),
+            ("filter.angular_per_rad", f.angular_per_rad),
+            ("filter.angular_per_m", f.angular_per_m),
+            ("filter.position_per_sqrt_s", f.position_per_sqrt_s),
+            ("filter.heading_per_sqrt_s", f.heading_per_sqrt_s),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(field_error(name, "must be finite and >= 0").into());
+            }
+        }
+        positive("filter.gate", f.gate)?;
+        if f.max_rejections == 0 {
+            return Err(field_error("filter.max_rejections", "must be at least 1").into());
+        }
+        let mut offer = ServiceOffer::new("Localization", "hng/PoseWithCovariance/v1");
+        offer.channel = cfg.pose_out.clone();
+        ctx.provide(offer);
+        ctx.need(NeedSpec::required("Odometry", ODOMETRY_NEED));
+        ctx.set_quality(false, -1.0);
+        // A slow check of the fix timeout while fixes are missing (odometry drives `rate`).
+        let _ = ctx.add_timer(Duration::from_millis(500));
+        Ok(LocalizationModule {
+            ekf: Ekf::new(cfg.filter),
+            params: cfg.filter,
+            odom: ContractedInput::new(ctx, &cfg.odom, Some(odom_timeout))?,
+            fix_in: ctx.subscribe(&cfg.fix_in, None)?,
+            pose_out: ctx.publisher(&cfg.pose_out)?,
+            good: cfg.sigma_good_m,
+            bad: cfg.sigma_bad_m,
+            fix_timeout_ns: u64::try_from(fix_timeout.as_nanos()).unwrap_or(u64::MAX),
+            odom_ok: false,
+            last_odom_ns: None,
+            last_fix_ns: None,
+            state: LocState::default(),
+        })
+    }
+
+    fn on_input(&mut self, ctx: &mut Context, input: InputId) -> ModuleResult {
+        if self.odom.is(input) {
+            let mut got = false;
+            while let Some(o) = self.odom.receive()? {
+                let stamp = o.header.stamp_ns;
+                let dt = self
+                    .last_odom_ns
+                    .map_or(0.0, |t| stamp.saturating_sub(t) as f64 * 1e-9);
+                self.ekf.predict(o.pose, dt);
+                self.last_odom_ns = Some(stamp);
+                got = true;
+            }
+            if got {
+                self.odom_ok = true;
+                self.rate(ctx);
+                self.publish()?;
+            }
+        } else if input == self.fix_in.id() {
+            let mut got = false;
+            while let Some(fix) = self.fix_in.receive()? {
+                match self.ekf.update(fix.pose, &fix.covariance) {
+                    FixOutcome::Initialised | FixOutcome::Fused(_) => {
+                        self.state.fused += 1;
+                        self.last_fix_ns = self.last_odom_ns.or(Some(0));
+                        got = true;
+                    }
+                    FixOutcome::Reset(d2) => {
+                        tracing::warn!(
+                            module = ctx.name(),
+                            d2,
+                            "every recent fix gated out: filter restarted at the fix"
+                        );
+                        self.state.rejected += 1;
+                        self.last_fix_ns = self.last_odom_ns.or(Some(0));
+                        got = true;
+                    }
+                    FixOutcome::Rejected(d2) => {
+                        self.state.rejected += 1;
+                        tracing::debug!(module = ctx.name(), d2, "fix gated out");
+                    }
+                    FixOutcome::Invalid => {
+                        tracing::debug!(module = ctx.name(), "unusable fix ignored");
+                    }
+                }
+            }
+            self.rate(ctx);
+            if got {
+                self.publish()?;
+            }
+        }
+        Ok(())
+    }
+
+    fn on_tick(&mut self, ctx: &mut Context, _timer: TimerId) -> ModuleResult {
+        self.rate(ctx);
+        Ok(())
+    }
+
+    fn on_deadline_missed(&mut self, ctx: &mut Context, _input: InputId) -> ModuleResult {
+        tracing::warn!(module = ctx.name(), "no odometry: cannot localize");
+        self.odom_ok = false;
+        ctx.set_quality(false, -1.0);
+        Ok(())
+    }
+
+    fn on_provider_changed(
+        &mut self,
+        ctx: &mut Context,
+        need: u16,
+        provider: Option<&ProviderInfo>,
+    ) -> ModuleResult {
+        if need == ODOMETRY_NEED {
+            self.odom.follow(ctx, provider)?;
+        }
+        Ok(())
+    }
+
+    fn checkpoint(&self) -> Option<Vec<u8>> {
+        encode_state(&LocState {
+            filter: self.ekf.state(),
+            ..self.state
+        })
+    }
+
+    fn restore(&mut self, state: &[u8]) -> ModuleResult {
+        let s: LocState = decode_state(state)?;
+        self.ekf = Ekf::resume(self.params, &s.filter);
+        self.state = s;
+        Ok(())
+    }
+}
