@@ -234,7 +234,11 @@ impl Module for Probe {
         if cfg.tau_ms > 0 {
             ctx.feedback_tau(Duration::from_millis(cfg.tau_ms));
         }
-        ctx.add_timer(Duration::from_millis(cfg.period_ms.max(1)));
+        // Only a module with something to publish ticks: an empty configuration is the idle
+        // module of `hng bench idle`.
+        if outputs.iter().any(|o| o.data.is_some()) || needs.iter().any(|n| n.sends_commands) {
+            ctx.add_timer(Duration::from_millis(cfg.period_ms.max(1)));
+        }
         ctx.set_quality(true, cfg.quality as f32);
         let q_input = if cfg.q_channel.is_empty() {
             None

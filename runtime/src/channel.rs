@@ -45,8 +45,24 @@ use crate::qos::{ChannelKind, Qos};
 use crate::wait::Waiter;
 use crate::wake::WakeFlag;
 
+mod hanging;
+
+use iceoryx2::service::messaging_pattern::MessagingPattern;
+
 /// The iceoryx2 service flavour hng uses (inter-process, single-threaded ports).
 pub type Service = ipc::Service;
+
+const PUBSUB: MessagingPattern = MessagingPattern::PublishSubscribe;
+
+/// A publish-subscribe service that hangs in creation (see [`hanging`]).
+fn pubsub_hangs(e: &PublishSubscribeOpenOrCreateError) -> bool {
+    matches!(
+        e,
+        PublishSubscribeOpenOrCreateError::PublishSubscribeOpenError(
+            PublishSubscribeOpenError::HangsInCreation
+        )
+    )
+}
 
 type FixedService<T> = PsFactory<Service, T, ()>;
 type SliceService<H> = PsFactory<Service, [<H as SliceMessage>::Elem], H>;
@@ -306,14 +322,20 @@ impl Node {
         name: &ServiceName,
         kind: ChannelKind,
     ) -> Result<iceoryx2::service::port_factory::event::PortFactory<Service>, Error> {
+        use iceoryx2::service::builder::event::{EventOpenError as O, EventOpenOrCreateError as E};
         let qos = kind.qos();
-        self.inner
-            .service_builder(name)
-            .event()
-            .max_notifiers(qos.max_publishers)
-            .max_listeners(qos.max_subscribers)
-            .max_nodes(qos.max_publishers + qos.max_subscribers)
-            .open_or_create()
+        let open = || {
+            self.inner
+                .service_builder(name)
+                .event()
+                .max_notifiers(qos.max_publishers)
+                .max_listeners(qos.max_subscribers)
+                .max_nodes(qos.max_publishers + qos.max_subscribers)
+                .open_or_create()
+        };
+        let hanging = |e: &E| matches!(e, E::EventOpenError(O::HangsInCreation));
+        let pattern = MessagingPattern::Event;
+        hanging::retry_if_hanging(&self.config, name, pattern, hanging, open)
             .map_err(|e| self.port_error(channel, name, kind, "open event service", e))
     }
 
@@ -383,12 +405,15 @@ impl Node {
         channel: &str,
     ) -> Result<(FixedService<T>, ServiceName), Error> {
         let name = Self::service_name(channel)?;
-        let service = with_qos(
-            self.inner.service_builder(&name).publish_subscribe::<T>(),
-            T::KIND.qos(),
-        )
-        .open_or_create()
-        .map_err(|e| self.open_error(channel, &name, T::KIND, type_name::<T>(), e))?;
+        let open = || {
+            with_qos(
+                self.inner.service_builder(&name).publish_subscribe::<T>(),
+                T::KIND.qos(),
+            )
+            .open_or_create()
+        };
+        let service = hanging::retry_if_hanging(&self.config, &name, PUBSUB, pubsub_hangs, open)
+            .map_err(|e| self.open_error(channel, &name, T::KIND, type_name::<T>(), e))?;
         Ok((service, name))
     }
 
@@ -397,15 +422,18 @@ impl Node {
         channel: &str,
     ) -> Result<(SliceService<H>, ServiceName), Error> {
         let name = Self::service_name(channel)?;
-        let service = with_qos(
-            self.inner
-                .service_builder(&name)
-                .publish_subscribe::<[H::Elem]>()
-                .user_header::<H>(),
-            H::KIND.qos(),
-        )
-        .open_or_create()
-        .map_err(|e| self.open_error(channel, &name, H::KIND, slice_type_name::<H>(), e))?;
+        let open = || {
+            with_qos(
+                self.inner
+                    .service_builder(&name)
+                    .publish_subscribe::<[H::Elem]>()
+                    .user_header::<H>(),
+                H::KIND.qos(),
+            )
+            .open_or_create()
+        };
+        let service = hanging::retry_if_hanging(&self.config, &name, PUBSUB, pubsub_hangs, open)
+            .map_err(|e| self.open_error(channel, &name, H::KIND, slice_type_name::<H>(), e))?;
         Ok((service, name))
     }
 

@@ -35,13 +35,17 @@ use crate::contract::{
     Timing, Verdict,
 };
 use crate::error::Error;
-use crate::msg::{Header, Message, SliceMessage};
+use crate::msg::{Header, SliceMessage};
 use crate::qos::ChannelKind;
 use crate::system::{
     CONTRACTS, ContractEntry, ContractRole, ContractTable, EffectiveCosts, EventKind, ModuleEvent,
     RM_COSTS, RM_EFFECTIVE_COSTS, ResourceCosts, SUPERVISOR_EVENTS,
 };
 use crate::wait::Waiter;
+
+mod provider_input;
+
+pub use provider_input::{PROVIDER_INPUT_CACHE, ProviderInput};
 
 /// Root of the control channels.
 pub const CONTROL_ROOT: &str = "hng/ctl";
@@ -123,12 +127,17 @@ pub(crate) enum PlaneEvent {
     ContractsChanged,
 }
 
-/// How often the executor ticks the agent: a fifth of the reply window, within 1..=10 ms.
-fn tick_period(t: &Timing) -> Duration {
-    (t.reply_window / 5).clamp(Duration::from_millis(1), Duration::from_millis(10))
+/// While a need waits for a provider to appear, how often the plane looks at the number of
+/// providers listening on the service's query channel (a provider that starts is then called
+/// at once rather than at the next retry): the reply window, within 10..=100 ms.
+fn provider_poll_period(t: &Timing) -> Duration {
+    t.reply_window
+        .clamp(Duration::from_millis(10), Duration::from_millis(100))
 }
 
-/// Period of the [`ContractTable`] publication (also published on every change).
+/// Period of the [`ContractTable`] publication. The table is also published on every change;
+/// the periodic one goes out with the module's first wake-up after the period (its heartbeat
+/// report at the latest): it never wakes the module by itself.
 pub const TABLE_PERIOD: Duration = Duration::from_millis(200);
 
 /// Freshness of a driver's commands when [`crate::Context::drive`] was not called.
@@ -171,8 +180,13 @@ pub(crate) struct ControlPlane {
     arbiters: Vec<(String, CommandArbiter)>,
     commands_accepted: u64,
     inputs: Vec<InputId>,
-    tick: Duration,
+    /// See [`provider_poll_period`].
+    provider_poll: Duration,
+    /// The agent's next deadline (see [`ContractAgent::next_deadline`]).
     next_tick: Duration,
+    next_provider_poll: Duration,
+    /// Aptitude and quality last given to the agent (a change ticks it).
+    self_eval: Option<(bool, f64)>,
     next_table: Duration,
     r_eff: ResourceVec,
     cost: ResourceVec,
@@ -219,7 +233,7 @@ impl ControlPlane {
         if let Some(tau) = spec.tau {
             cfg.tau = tau;
         }
-        let tick = tick_period(&cfg.timing);
+        let provider_poll = provider_poll_period(&cfg.timing);
         let cfg_reply_window = cfg.timing.reply_window;
         let mut agent = ContractAgent::new(cfg).map_err(|e| Error::Config(e.to_string()))?;
         for &need in &spec.disabled {
@@ -274,8 +288,10 @@ impl ControlPlane {
             arbiters,
             commands_accepted: 0,
             inputs,
-            tick,
+            provider_poll,
             next_tick: Duration::ZERO,
+            next_provider_poll: Duration::ZERO,
+            self_eval: None,
             next_table: Duration::ZERO,
             r_eff: ResourceVec::default(),
             cost: ResourceVec::default(),
@@ -302,9 +318,15 @@ impl ControlPlane {
         self.inputs.contains(&input)
     }
 
-    /// When the plane wants to run next (clock time).
+    /// When the plane wants to run next (clock time): the agent's next deadline, the end of
+    /// a hold of provider changes, and, while a need waits for a provider, the next look at
+    /// the number of providers. Messages wake the module anyway; nothing else is scheduled,
+    /// so a module whose contracts are settled wakes only for heartbeats and refreshes.
     pub(crate) fn next_wake(&self) -> Duration {
-        let mut at = self.next_tick.min(self.next_table);
+        let mut at = self.next_tick;
+        if self.agent.waiting_for_providers() {
+            at = at.min(self.next_provider_poll);
+        }
         if let Some(since) = self.held_since {
             at = at.min(since + self.hold_limit);
         }
@@ -342,24 +364,33 @@ impl ControlPlane {
         out
     }
 
-    /// Reads every control input, feeds the agent, ticks it when due, sends what it says and
-    /// publishes the contract table when due or changed.
+    /// Reads every control input, feeds the agent, ticks it when due (its next deadline, or a
+    /// change of aptitude or quality), sends what it says and publishes the contract table
+    /// when due or changed.
     pub(crate) fn poll(&mut self, node: &Node, aptitude: bool, quality: f64, now: Duration) {
+        let inputs_changed = self.self_eval != Some((aptitude, quality));
+        self.self_eval = Some((aptitude, quality));
         self.agent.set_aptitude(aptitude);
         self.agent.set_quality(quality);
         let mut out = Vec::new();
-        self.read_system(now, &mut out);
-        self.read_control(now, &mut out);
-        if now >= self.next_tick {
-            self.next_tick = now + self.tick;
+        let system_changed = self.read_system(now, &mut out);
+        // Handling messages also does what is due (ContractAgent::handle_all).
+        let ticked = self.read_control(now, &mut out);
+        let mut due = now >= self.next_tick || inputs_changed || system_changed;
+        if self.agent.waiting_for_providers() && now >= self.next_provider_poll {
+            self.next_provider_poll = now + self.provider_poll;
             // A provider that started since the last call is called at once.
             for (service, s) in &self.to_services {
                 let n = provider_count(&self.agent, service, s);
                 self.agent.set_provider_count(service, n);
             }
+            due = true;
+        }
+        if due && !ticked {
             out.extend(self.agent.tick(now));
         }
         self.dispatch(node, out, now);
+        self.next_tick = self.agent.next_deadline().unwrap_or(Duration::MAX);
         if self.changed || now >= self.next_table {
             self.changed = false;
             self.next_table = now + TABLE_PERIOD;
@@ -367,7 +398,10 @@ impl ControlPlane {
         }
     }
 
-    fn read_system(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
+    /// Reads the supervisor's events and the RM's costs; true when the agent's inputs changed
+    /// (it must be ticked).
+    fn read_system(&mut self, now: Duration, out: &mut Vec<Outgoing>) -> bool {
+        let mut changed = false;
         loop {
             match self.events.receive() {
                 Ok(Some(e)) => {
@@ -377,6 +411,7 @@ impl ControlPlane {
                     ) && e.module_id != self.agent.id().0
                     {
                         out.extend(self.agent.module_died(ModuleId(e.module_id), now));
+                        changed = true;
                     }
                 }
                 Ok(None) => break,
@@ -391,6 +426,7 @@ impl ControlPlane {
             costs = Some(c);
         }
         if let Some(c) = costs {
+            changed = true;
             self.cost = ResourceVec::new(c.cpu, c.mem, c.comm);
             self.agent.set_resources(self.r_eff, self.cost);
             let min = if c.degraded != 0 {
@@ -408,12 +444,16 @@ impl ControlPlane {
         if let Some(c) = eff
             && let Some(m) = c.of(self.agent.id().0)
         {
+            changed = true;
             self.r_eff = ResourceVec::new(m.effective[0], m.effective[1], m.effective[2]);
             self.agent.set_resources(self.r_eff, self.cost);
         }
+        changed
     }
 
-    fn read_control(&mut self, now: Duration, out: &mut Vec<Outgoing>) {
+    /// Reads the control messages and hands them to the agent; true if there were any (the
+    /// agent then also did what was due).
+    fn read_control(&mut self, now: Duration, out: &mut Vec<Outgoing>) -> bool {
         let mut batch = Vec::new();
         let subs = std::iter::once(&self.inbox).chain(self.queries.iter());
         for sub in subs {
@@ -441,9 +481,11 @@ impl ControlPlane {
                 }
             }
         }
-        if !batch.is_empty() {
-            out.extend(self.agent.handle_all(&batch, now));
+        if batch.is_empty() {
+            return false;
         }
+        out.extend(self.agent.handle_all(&batch, now));
+        true
     }
 
     /// Opens publishers to the inboxes of the modules already running when this one starts,
@@ -729,137 +771,6 @@ fn open_service_out(node: &Node, service: &str) -> Result<ServiceOut, Error> {
     Ok(ServiceOut { publisher, factory })
 }
 
-/// Subscriptions a [`ProviderInput`] keeps after leaving a provider, so that coming back to it
-/// (a re-established tree, localization switching back and forth between two providers) opens
-/// no channel: opening a subscriber costs milliseconds (much more on a loaded machine) and
-/// would block the module's contract protocol meanwhile.
-pub const PROVIDER_INPUT_CACHE: usize = 4;
-
-/// A consumer's input from whichever provider currently serves one of its needs.
-///
-/// Call [`ProviderInput::follow`] from [`crate::Module::on_provider_changed`]: it stops
-/// listening to the old provider's channel and subscribes to the new one's. [`ProviderInput::receive`]
-/// returns only samples published by the selected provider (by `header.source`), so two
-/// providers sharing a channel never mix. The last [`PROVIDER_INPUT_CACHE`] channels left are
-/// kept open (detached from the executor, so they never wake the module); following one of
-/// them again discards what it buffered meanwhile and reuses it.
-#[derive(Debug)]
-pub struct ProviderInput<T: Message> {
-    sub: Option<(String, Subscriber<T>)>,
-    cache: Vec<(String, Subscriber<T>)>,
-    provider: Option<ProviderInfo>,
-    deadline: Option<Duration>,
-    foreign: u64,
-    reused: u64,
-}
-
-impl<T: Message> Default for ProviderInput<T> {
-    fn default() -> Self {
-        Self::new()
-    }
-}
-
-impl<T: Message> ProviderInput<T> {
-    /// An input following no provider yet.
-    pub fn new() -> Self {
-        ProviderInput {
-            sub: None,
-            cache: Vec::new(),
-            provider: None,
-            deadline: None,
-            foreign: 0,
-            reused: 0,
-        }
-    }
-
-    /// Watches the input with a deadline ([`crate::Module::on_deadline_missed`]).
-    #[must_use]
-    pub fn with_deadline(mut self, deadline: Duration) -> Self {
-        self.deadline = Some(deadline);
-        self
-    }
-
-    /// Follows `provider` (or none): (re)subscribes to its data channel when it changed.
-    ///
-    /// # Errors
-    /// The channel cannot be opened (e.g. its type is not `T`: [`Error::TypeMismatch`]).
-    pub fn follow(
-        &mut self,
-        ctx: &mut crate::Context,
-        provider: Option<&ProviderInfo>,
-    ) -> Result<(), Error> {
-        let same_channel = match (&self.sub, provider) {
-            (Some((c, _)), Some(p)) => *c == p.channel,
-            _ => false,
-        };
-        self.provider = provider.cloned();
-        if same_channel {
-            return Ok(());
-        }
-        if let Some((channel, old)) = self.sub.take() {
-            ctx.unsubscribe(old.id())?;
-            if self.cache.len() >= PROVIDER_INPUT_CACHE {
-                self.cache.remove(0);
-            }
-            self.cache.push((channel, old));
-        }
-        let Some(p) = provider.filter(|p| !p.channel.is_empty()) else {
-            return Ok(());
-        };
-        if let Some(pos) = self.cache.iter().position(|(c, _)| *c == p.channel) {
-            let (channel, sub) = self.cache.remove(pos);
-            // What arrived while nobody listened belongs to a former contract.
-            while sub.receive()?.is_some() {}
-            ctx.resubscribe(&sub, self.deadline)?;
-            self.reused += 1;
-            self.sub = Some((channel, sub));
-        } else {
-            let sub = ctx.subscribe::<T>(&p.channel, self.deadline)?;
-            self.sub = Some((p.channel.clone(), sub));
-        }
-        Ok(())
-    }
-
-    /// How many times [`ProviderInput::follow`] reused a kept subscription instead of opening
-    /// the channel.
-    pub fn reused(&self) -> u64 {
-        self.reused
-    }
-
-    /// The provider followed.
-    pub fn provider(&self) -> Option<&ProviderInfo> {
-        self.provider.as_ref()
-    }
-
-    /// True when `input` is this input's subscriber.
-    pub fn is(&self, input: InputId) -> bool {
-        self.sub.as_ref().is_some_and(|(_, s)| s.id() == input)
-    }
-
-    /// The next sample from the selected provider; samples of other publishers on the same
-    /// channel are skipped (and counted, [`ProviderInput::foreign`]).
-    ///
-    /// # Errors
-    /// The channel failed.
-    pub fn receive(&mut self) -> Result<Option<Sample<T>>, Error> {
-        let (Some((_, sub)), Some(p)) = (&self.sub, &self.provider) else {
-            return Ok(None);
-        };
-        while let Some(s) = sub.receive()? {
-            if s.header().source == p.module.0 {
-                return Ok(Some(s));
-            }
-            self.foreign += 1;
-        }
-        Ok(None)
-    }
-
-    /// Samples skipped because another module published them.
-    pub fn foreign(&self) -> u64 {
-        self.foreign
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -879,10 +790,12 @@ mod tests {
     }
 
     #[test]
-    fn control_tick_period_is_bounded() {
+    fn control_provider_poll_period_is_bounded() {
         let mut t = Timing::default();
-        assert_eq!(tick_period(&t), Duration::from_millis(10));
+        assert_eq!(provider_poll_period(&t), Duration::from_millis(50));
         t.reply_window = Duration::from_millis(2);
-        assert_eq!(tick_period(&t), Duration::from_millis(1));
+        assert_eq!(provider_poll_period(&t), Duration::from_millis(10));
+        t.reply_window = Duration::from_secs(2);
+        assert_eq!(provider_poll_period(&t), Duration::from_millis(100));
     }
 }

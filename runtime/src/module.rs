@@ -38,6 +38,7 @@ use crate::msg::{self, Message, ModuleReport, ModuleState, SliceMessage};
 use crate::wait::{WaitMode, Waiter, Wake};
 
 mod checkpoints;
+mod due;
 mod logging;
 mod options;
 
@@ -647,17 +648,8 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
             wake_at = wake_at.min(next_checkpoint);
         }
         if !clock.is_sim() {
-            for t in &ctx.timers {
-                wake_at = wake_at.min(t.next_ns);
-            }
-            for d in ctx.deadlines.iter().filter(|d| !d.missed) {
-                wake_at = wake_at.min(d.last_ns.saturating_add(d.deadline_ns));
-            }
-            if let Some(p) = &ctx.plane {
-                let plane_ns = u64::try_from(p.next_wake().as_nanos()).unwrap_or(u64::MAX);
-                let in_ns = plane_ns.saturating_sub(clock.now_ns());
-                wake_at = wake_at.min(wall_now.saturating_add(in_ns));
-            }
+            let in_ns = ctx.next_due_ns().saturating_sub(clock.now_ns());
+            wake_at = wake_at.min(wall_now.saturating_add(in_ns));
         }
         let timeout = Duration::from_nanos(wake_at.saturating_sub(wall_now));
         let held = acker.as_ref().is_some_and(|a| a.holds(round));
@@ -681,9 +673,7 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
             round = c.round;
         }
         let now = clock.now_ns();
-        let mut busy = false;
         if !acker.as_ref().is_some_and(|a| a.holds(round)) {
-            busy = ctx.waiter.ready().any(|id| Some(id) != clock_id);
             let ready: Vec<InputId> = ctx
                 .waiter
                 .ready()
@@ -711,7 +701,6 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
                     // Skip missed periods rather than firing a burst.
                     let behind = (now - t.next_ns) / t.period_ns;
                     t.next_ns = t.next_ns.saturating_add((behind + 1) * t.period_ns);
-                    busy = true;
                     if let Err(e) = module.on_tick(&mut ctx, TimerId(i)) {
                         tracing::warn!(module = %opts.name, "on_tick: {e}");
                     }
@@ -725,7 +714,6 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
                 }
             }
             for id in missed {
-                busy = true;
                 ctx.deadline_misses += 1;
                 if let Err(e) = module.on_deadline_missed(&mut ctx, id) {
                     tracing::warn!(module = %opts.name, "on_deadline_missed: {e}");
@@ -747,11 +735,10 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
                 Err(e) => tracing::warn!(module = %opts.name, "report: {e}"),
             }
         }
+        // Lockstep: the round's answer. Only what the module published can give another one
+        // work; handling an input or a timer without publishing leaves nothing in flight.
         if let Some(a) = acker.as_mut() {
-            if busy {
-                a.note_busy();
-            }
-            a.after_iteration(&ctx.node, round, reported)?;
+            a.after_iteration(&ctx.node, round, reported, ctx.next_due_ns())?;
         }
     }
 

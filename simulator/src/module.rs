@@ -33,7 +33,6 @@ use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
 use hng_runtime::channel::InputId;
-use hng_runtime::clock::lockstep::Verdict;
 use hng_runtime::clock::{CLOCK_CHANNEL, Clock, ClockMode};
 use hng_runtime::module::REPORT_CHANNEL;
 use hng_runtime::msg::{
@@ -341,17 +340,7 @@ impl Module for SimulatorModule {
             }
             return Ok(());
         }
-        let mut rejected = false;
-        while let Some(t) = self.cmd.receive()? {
-            match self.sim.set_cmd_vel(t.linear_x, t.angular_z) {
-                Ok(()) => self.accepted += 1,
-                Err(_) => rejected = true, // logged and counted by the simulator
-            }
-        }
-        if rejected {
-            self.publish_status(ctx)?;
-        }
-        Ok(())
+        self.read_commands(ctx)
     }
 
     fn on_tick(&mut self, ctx: &mut Context, _timer: TimerId) -> ModuleResult {
@@ -432,6 +421,8 @@ impl Module for SimulatorModule {
             realtime_factor = self.pacer.achieved_factor(self.sim.now_ns()),
             lockstep_rounds = self.lockstep.as_ref().map_or(0, |l| l.rounds),
             lockstep_extra_rounds = self.lockstep.as_ref().map_or(0, |l| l.extra_rounds),
+            lockstep_steps_without_round =
+                self.lockstep.as_ref().map_or(0, |l| l.steps_without_round),
             "simulator stopped"
         );
     }
@@ -505,34 +496,19 @@ impl SimulatorModule {
         Ok(())
     }
 
-    /// Lockstep: looks at the open round; opens another one at the same time when someone
-    /// was busy, and takes the next step (if it is due) when everyone was quiet.
-    fn lockstep_advance(&mut self, ctx: &mut Context) -> ModuleResult {
-        if self.waiting.is_some() {
-            return Ok(());
-        }
-        let Some(l) = self.lockstep.as_mut() else {
-            return Ok(());
-        };
-        match l.poll(ctx) {
-            Verdict::Waiting => Ok(()),
-            Verdict::Busy => {
-                l.open(true);
-                self.publish_clock()
-            }
-            Verdict::Quiet => {
-                if self.end_ns.is_some_and(|end| self.sim.now_ns() >= end) {
-                    tracing::info!(module = ctx.name(), "duration reached: stopping");
-                    ctx.request_stop();
-                    return Ok(());
-                }
-                let next = self.sim.now_ns().saturating_add(self.sim.dt_ns());
-                if self.pacer.delay_until(next).is_zero() {
-                    self.step_and_publish()?;
-                }
-                Ok(())
+    /// Applies the wheel commands received (a rejected one is published in the status).
+    fn read_commands(&mut self, ctx: &mut Context) -> ModuleResult {
+        let mut rejected = false;
+        while let Some(t) = self.cmd.receive()? {
+            match self.sim.set_cmd_vel(t.linear_x, t.angular_z) {
+                Ok(()) => self.accepted += 1,
+                Err(_) => rejected = true, // logged and counted by the simulator
             }
         }
+        if rejected {
+            self.publish_status(ctx)?;
+        }
+        Ok(())
     }
 
     /// The simulator (tests drive the module by hand).
@@ -565,15 +541,28 @@ impl SimulatorModule {
         let result = if self.lockstep.is_some() {
             // Lockstep: the step's data first, then the clock sample that opens the round.
             // Modules hold their inputs until they see the round, so they handle the whole
-            // step together, at its time.
+            // step together, at its time. A step that sends nothing the modules read (ground
+            // truth is for evaluation) and reaches no module's deadline needs no round.
+            let image_due = self.outputs.image.as_ref().map(|c| c.next_ns());
             let sent = out
                 .iter()
                 .try_for_each(|o| self.publish(o))
                 .and_then(|()| self.publish_image());
-            if let Some(l) = self.lockstep.as_mut() {
-                l.open(false);
+            let image_sent = image_due != self.outputs.image.as_ref().map(|c| c.next_ns());
+            let data = out
+                .iter()
+                .any(|o| !matches!(o, SensorOutput::GroundTruth(_)));
+            match self.lockstep.as_mut() {
+                Some(l) if data || image_sent || self.sim.now_ns() >= l.next_due_ns() => {
+                    l.open(false);
+                    sent.and_then(|()| self.publish_clock())
+                }
+                Some(l) => {
+                    l.steps_without_round += 1;
+                    sent
+                }
+                None => sent,
             }
-            sent.and_then(|()| self.publish_clock())
         } else if self.steps_since_clock >= self.clock_every || !out.is_empty() {
             // The clock goes first, so a module woken by sensor data already has the new time.
             self.publish_clock()

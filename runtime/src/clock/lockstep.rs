@@ -10,18 +10,27 @@
 //!    (then the step's sensor data).
 //! 2. Every module on the simulation clock handles its inputs, timers and deadlines at that
 //!    time (the executor does this, [`Acker`]) and then acknowledges the round with a
-//!    [`ClockAck`] on [`ACK_CHANNEL`]: its name, the round, and whether it did anything since
-//!    its previous acknowledgement (handled an input, fired a timer, published a message).
+//!    [`ClockAck`] on [`ACK_CHANNEL`]: its name, the round, whether it was busy since its
+//!    previous acknowledgement (published a message other than its report), and its next
+//!    deadline in simulated time (its next timer, input deadline or contract
+//!    deadline; none: `u64::MAX`).
 //! 3. The simulator ([`Barrier`]) waits for the acknowledgement of every live participant.
 //!    If one of them was busy, its output may be another module's input: the simulator opens
 //!    another round at the same time, and so on until a round in which nobody did anything
 //!    (the system is quiet). Only then does it take the next step.
+//! 4. Steps that publish no data a participant reads and reach no participant's deadline
+//!    ([`Barrier::next_due_ns`]) need no round: the simulator takes them one after the other
+//!    and opens the next round at the first step that does. A module that acknowledged a
+//!    round holds its inputs until the next one, so nothing it could do in between is lost.
 //!
 //! Why a quiet round proves that nothing is in flight: a message published before round `r`
 //! was opened is already in its subscriber's queue when the subscriber reads round `r`, so the
-//! subscriber handles it before acknowledging `r` and reports itself busy; a message published
-//! after round `r` was opened comes from a module that reports itself busy in round `r`. A
-//! round with every participant idle therefore leaves no message behind.
+//! subscriber handles it before acknowledging `r`; a message published after round `r` was
+//! opened comes from a module that reports itself busy in round `r`. A round with every
+//! participant idle therefore leaves no message unhandled behind it. Handling a message
+//! without publishing anything gives nobody work, so only publishing makes a module busy
+//! (until this version, handling an input or firing a timer did too: one more round per
+//! link of every chain of modules).
 //!
 //! Dead modules never freeze the world: the simulator drops a participant when the supervisor
 //! reports it died or was deactivated, takes it back when it is started again (the world then
@@ -45,7 +54,7 @@ pub const ACK_CHANNEL: &str = "hng/clock_ack";
 /// A module has handled everything up to a lockstep round (published on [`ACK_CHANNEL`]).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize)]
-#[type_name("hng/ClockAck/v1")]
+#[type_name("hng/ClockAck/v2")]
 pub struct ClockAck {
     /// Header (stamped with the module's simulated clock).
     pub header: Header,
@@ -58,6 +67,9 @@ pub struct ClockAck {
     pub sim_time_ns: u64,
     /// 1 if the module did anything since its previous acknowledgement.
     pub busy: u8,
+    /// The module's next deadline in simulated time, ns (`u64::MAX`: none): the simulator
+    /// opens a round at the first step at or after it even if no data goes out.
+    pub next_due_ns: u64,
 }
 
 crate::impl_message!(ClockAck, ChannelKind::Report);
@@ -120,7 +132,8 @@ impl Acker {
 
     /// The end of an executor iteration: `round` is the latest clock sample's round (0: no
     /// lockstep), `ignored_out` the messages published in this iteration that are nobody's
-    /// input in simulated time (the module's report). Acknowledges a round not acknowledged
+    /// input in simulated time (the module's report), `next_due_ns` the module's next
+    /// deadline (simulated ns, `u64::MAX`: none). Acknowledges a round not acknowledged
     /// yet; a round that differs counts as new, so a restarted simulator (counting from 1
     /// again) is answered.
     pub fn after_iteration(
@@ -128,6 +141,7 @@ impl Acker {
         node: &Node,
         round: u64,
         ignored_out: u64,
+        next_due_ns: u64,
     ) -> Result<(), Error> {
         let out = node.counters().msgs_out.get();
         if out.saturating_sub(self.out_seen) > ignored_out {
@@ -141,6 +155,7 @@ impl Acker {
             round,
             sim_time_ns: node.clock().now_ns(),
             busy: u8::from(self.busy),
+            next_due_ns,
             ..Default::default()
         };
         ack.set_name(&self.name);
@@ -177,6 +192,8 @@ struct Participant {
     /// Round of the last acknowledgement.
     acked: u64,
     busy: bool,
+    /// Its next deadline (simulated ns) as of its last acknowledgement; 0 until it answered.
+    next_due_ns: u64,
 }
 
 /// The simulator side: which participants answered the open round. Transport-free; times are
@@ -206,6 +223,7 @@ impl Barrier {
                             membership: Membership::Live,
                             acked: 0,
                             busy: false,
+                            next_due_ns: 0,
                         },
                     )
                 })
@@ -252,6 +270,7 @@ impl Barrier {
         }
         p.acked = a.round;
         p.busy = a.busy != 0;
+        p.next_due_ns = a.next_due_ns;
         let back = p.membership == Membership::Out;
         p.membership = Membership::Live;
         back
@@ -273,10 +292,23 @@ impl Barrier {
         match self.participants.get_mut(name) {
             Some(p) if p.membership == Membership::Out => {
                 p.membership = Membership::Live;
+                p.next_due_ns = 0;
                 true
             }
             _ => false,
         }
+    }
+
+    /// The earliest next deadline (simulated ns) of the participants waited for, as of their
+    /// last acknowledgements: the latest simulated time the world may reach without a round
+    /// (0 while one has not answered yet; `u64::MAX` when none has anything scheduled).
+    pub fn next_due_ns(&self) -> u64 {
+        self.participants
+            .values()
+            .filter(|p| p.membership == Membership::Live)
+            .map(|p| p.next_due_ns)
+            .min()
+            .unwrap_or(u64::MAX)
     }
 
     /// The participants not waited for.
@@ -335,6 +367,7 @@ mod tests {
             round,
             busy: u8::from(busy),
             sim_time_ns: round * 10,
+            next_due_ns: u64::MAX,
             ..Default::default()
         };
         a.set_name(name);
@@ -407,5 +440,37 @@ mod tests {
         assert!(b.ack(&ack("slam", r, true)), "back");
         b.ack(&ack("laser", r, false));
         assert_eq!(b.poll(201).0, Verdict::Busy);
+    }
+
+    #[test]
+    fn the_world_may_run_without_a_round_until_the_earliest_deadline_of_the_live() {
+        let mut b = Barrier::new(&["laser", "slam"], T);
+        assert_eq!(
+            b.next_due_ns(),
+            0,
+            "nobody answered yet: a round at every step"
+        );
+        let r = b.open(0);
+        let mut a = ack("laser", r, false);
+        a.next_due_ns = 300;
+        b.ack(&a);
+        assert_eq!(b.next_due_ns(), 0, "slam has not answered");
+        let mut a = ack("slam", r, false);
+        a.next_due_ns = 200;
+        b.ack(&a);
+        assert_eq!(b.poll(1).0, Verdict::Quiet);
+        assert_eq!(b.next_due_ns(), 200);
+        assert!(b.left("slam"));
+        assert_eq!(b.next_due_ns(), 300, "the dead are not waited for");
+        assert!(b.joined("slam"));
+        assert_eq!(
+            b.next_due_ns(),
+            0,
+            "started again: unknown until it answers"
+        );
+        let r = b.open(2);
+        b.ack(&ack("laser", r, false));
+        b.ack(&ack("slam", r, false));
+        assert_eq!(b.next_due_ns(), u64::MAX, "nothing scheduled");
     }
 }

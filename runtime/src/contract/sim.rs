@@ -4,7 +4,9 @@
 //! Every message goes through [`encode`] and [`decode`], so the harness also
 //! exercises the wire format and its size limit. Delivery is FIFO per
 //! destination with a fixed latency; all agents are ticked every `tick`, in
-//! module-id order. Identical inputs give identical runs.
+//! module-id order, or (with `tick` zero) each agent only at its own
+//! [`ContractAgent::next_deadline`], as the module executor does. Identical
+//! inputs give identical runs.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::time::Duration;
@@ -18,7 +20,8 @@ use super::{ModuleId, Priority};
 pub struct SimConfig {
     /// Delay of every message.
     pub latency: Duration,
-    /// Period at which every agent is ticked.
+    /// Period at which every agent is ticked; zero: each agent is ticked only at
+    /// its [`ContractAgent::next_deadline`] (and handles messages as they come).
     pub tick: Duration,
 }
 
@@ -56,6 +59,8 @@ pub struct Sim {
     seq: u64,
     drops: DropCounters,
     delivered: u64,
+    ticks: u64,
+    stuck: u64,
 }
 
 impl Sim {
@@ -71,6 +76,8 @@ impl Sim {
             seq: 0,
             drops: DropCounters::default(),
             delivered: 0,
+            ticks: 0,
+            stuck: 0,
         }
     }
 
@@ -127,6 +134,17 @@ impl Sim {
         &self.drops
     }
 
+    /// Agent ticks so far (one per agent ticked).
+    pub fn ticks(&self) -> u64 {
+        self.ticks
+    }
+
+    /// Deadline-driven mode: times an agent, just ticked, still said it had something
+    /// due at once (it would spin; the harness moved it on by a millisecond).
+    pub fn stuck(&self) -> u64 {
+        self.stuck
+    }
+
     /// Messages delivered so far.
     pub fn delivered(&self) -> u64 {
         self.delivered
@@ -169,6 +187,10 @@ impl Sim {
 
     /// Runs until `until` (inclusive), delivering messages and ticking agents.
     pub fn run_until(&mut self, until: Duration) {
+        if self.cfg.tick.is_zero() {
+            self.run_by_deadlines(until);
+            return;
+        }
         loop {
             let next_msg = self.queue.keys().next().map(|&(t, _)| t);
             let msg_first = next_msg.is_some_and(|t| t <= self.next_tick);
@@ -189,9 +211,58 @@ impl Sim {
             } else {
                 let ids: Vec<ModuleId> = self.agents.keys().copied().collect();
                 for id in ids {
+                    self.ticks += 1;
                     self.with(id, |a, now| a.tick(now));
                 }
                 self.next_tick += self.cfg.tick;
+            }
+        }
+        self.now = self.now.max(until);
+    }
+
+    /// Deadline-driven: every agent runs when a message comes and at its next deadline.
+    fn run_by_deadlines(&mut self, until: Duration) {
+        // When each agent is due (never earlier than now).
+        let due = |a: &ContractAgent, now: Duration| a.next_deadline().map(|d| d.max(now));
+        loop {
+            let next_msg = self.queue.keys().next().map(|&(t, _)| t);
+            let next_agent = self
+                .agents
+                .values()
+                .filter_map(|a| due(a, self.now).map(|d| (d, a.id())))
+                .min();
+            let msg_first = match (next_msg, next_agent) {
+                (Some(m), Some((d, _))) => m <= d,
+                (Some(_), None) => true,
+                _ => false,
+            };
+            let at = match (msg_first, next_msg, next_agent) {
+                (true, Some(m), _) => m,
+                (false, _, Some((d, _))) => d,
+                _ => break,
+            };
+            if at > until {
+                break;
+            }
+            self.now = self.now.max(at);
+            if msg_first {
+                let Some((_, (to, bytes))) = self.queue.pop_first() else {
+                    break;
+                };
+                self.deliver(to, &bytes);
+            } else if let Some((_, id)) = next_agent {
+                self.ticks += 1;
+                self.with(id, |a, now| a.tick(now));
+                if self
+                    .agents
+                    .get(&id)
+                    .and_then(|a| a.next_deadline())
+                    .is_some_and(|d| d <= self.now)
+                {
+                    // It would be ticked again at once, for nothing: move on.
+                    self.stuck += 1;
+                    self.now += Duration::from_millis(1);
+                }
             }
         }
         self.now = self.now.max(until);

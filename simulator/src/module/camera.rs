@@ -102,6 +102,11 @@ impl ImageCamera {
     /// Renders and publishes an image of `pose` if one is due at simulated time `now_ns`,
     /// with the world script's lighting (`script_lighting`, zones included) times the
     /// lighting set on the channel, and the boxes the script added.
+    /// When the next image is due (simulated ns).
+    pub(super) fn next_ns(&self) -> u64 {
+        self.next_ns
+    }
+
     pub(super) fn step<'a>(
         &mut self,
         now_ns: u64,

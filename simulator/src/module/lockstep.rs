@@ -2,13 +2,15 @@
 //! acknowledgements of the participants, and the supervisor's events that take dead modules
 //! out of it and started ones back in.
 
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use hng_runtime::channel::InputId;
 use hng_runtime::clock::lockstep::{ACK_CHANNEL, Barrier, ClockAck, Verdict};
 use hng_runtime::clock::monotonic_ns;
 use hng_runtime::system::{EventKind, ModuleEvent, SUPERVISOR_EVENTS};
 use hng_runtime::{Context, ModuleResult, Subscriber};
+
+use super::{SimulatorModule, TICK_BUDGET};
 
 /// The barrier with its inputs.
 pub(super) struct Lockstep {
@@ -18,6 +20,8 @@ pub(super) struct Lockstep {
     /// Rounds opened, and of them those opened again at the same time (someone was busy).
     pub(super) rounds: u64,
     pub(super) extra_rounds: u64,
+    /// Steps taken without a round (nothing a participant reads, no deadline reached).
+    pub(super) steps_without_round: u64,
     /// Rounds opened at the current simulated time.
     same_time: u32,
     warned: bool,
@@ -41,6 +45,7 @@ impl Lockstep {
             events: ctx.subscribe(SUPERVISOR_EVENTS, None)?,
             rounds: 0,
             extra_rounds: 0,
+            steps_without_round: 0,
             same_time: 0,
             warned: false,
         })
@@ -71,6 +76,12 @@ impl Lockstep {
         } else {
             0
         }
+    }
+
+    /// The latest simulated time the world may reach without a round (the earliest next
+    /// deadline of the participants waited for).
+    pub(super) fn next_due_ns(&self) -> u64 {
+        self.barrier.next_due_ns()
     }
 
     /// Reads the acknowledgements and the supervisor's events.
@@ -132,5 +143,51 @@ impl Lockstep {
             );
         }
         verdict
+    }
+}
+
+impl SimulatorModule {
+    /// Lockstep: looks at the open round; opens another one at the same time when someone
+    /// was busy, and takes the next step (if it is due) when everyone was quiet.
+    pub(super) fn lockstep_advance(&mut self, ctx: &mut Context) -> ModuleResult {
+        if self.waiting.is_some() {
+            return Ok(());
+        }
+        let Some(l) = self.lockstep.as_mut() else {
+            return Ok(());
+        };
+        match l.poll(ctx) {
+            Verdict::Waiting => Ok(()),
+            Verdict::Busy => {
+                l.open(true);
+                self.publish_clock()
+            }
+            Verdict::Quiet => {
+                // Every command of the quiet round applies from the next step on, whatever
+                // order the executor handed us the inputs in.
+                self.read_commands(ctx)?;
+                // Steps that need no round follow each other at once (within the pace, at
+                // most `max_steps_per_tick` and the tick budget; the timer brings us back).
+                let started = Instant::now();
+                for _ in 0..self.max_steps.max(1) {
+                    if self.end_ns.is_some_and(|end| self.sim.now_ns() >= end) {
+                        tracing::info!(module = ctx.name(), "duration reached: stopping");
+                        ctx.request_stop();
+                        return Ok(());
+                    }
+                    let next = self.sim.now_ns().saturating_add(self.sim.dt_ns());
+                    if !self.pacer.delay_until(next).is_zero() {
+                        break;
+                    }
+                    self.step_and_publish()?;
+                    if self.lockstep.as_ref().is_some_and(|l| l.round() != 0)
+                        || started.elapsed() >= TICK_BUDGET
+                    {
+                        break;
+                    }
+                }
+                Ok(())
+            }
+        }
     }
 }

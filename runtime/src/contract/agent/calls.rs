@@ -362,6 +362,72 @@ impl ContractAgent {
         }
     }
 
+    /// The earliest time at which [`ContractAgent::tick`] has something to do: a call to
+    /// close or to start, a retry, a refresh or heartbeat to send, a silent peer to time out,
+    /// a probe round to start or end. `None`: nothing is scheduled. A transport wakes the
+    /// agent then (or on input, or after changing its inputs with a setter), instead of
+    /// ticking it on a fixed period; ticking more often changes nothing.
+    ///
+    /// Time-weighted feedback fades continuously; a value that crosses 0 by fading alone is
+    /// noticed at the next scheduled time (at most a refresh period while clients exist).
+    pub fn next_deadline(&self) -> Option<Duration> {
+        let t = self.cfg.timing;
+        let timeout = |last: Duration| last + t.peer_timeout + Duration::from_nanos(1);
+        let mut at: Option<Duration> = None;
+        let mut due = |d: Duration| at = Some(at.map_or(d, |a| a.min(d)));
+        if !self.clients.is_empty() {
+            due(self.next_report);
+            for c in self.clients.values() {
+                due(timeout(c.last_heard));
+            }
+        }
+        if self.priority.is_some() {
+            for (i, slot) in self.needs.iter().enumerate() {
+                match &slot.state {
+                    NeedState::Idle if slot.enabled => due(Duration::ZERO),
+                    NeedState::Idle => {}
+                    _ if !slot.enabled => due(Duration::ZERO),
+                    NeedState::Calling {
+                        deadline, replied, ..
+                    } => {
+                        if self.all_replied(i, replied.len()) {
+                            due(Duration::ZERO);
+                        } else {
+                            due(*deadline);
+                        }
+                    }
+                    NeedState::Waiting { retry_at } => due(*retry_at),
+                    NeedState::Contracted {
+                        last_heard,
+                        next_refresh,
+                        ..
+                    } => {
+                        due(timeout(*last_heard));
+                        due(*next_refresh);
+                    }
+                }
+            }
+        }
+        if self.known_unmet && !self.is_active() {
+            match &self.probe {
+                Some(round) => due(round.deadline),
+                None => due(self.next_probe),
+            }
+        }
+        at
+    }
+
+    /// True while a need waits for a provider to appear (a retry is scheduled) or a probe
+    /// looks for the providers of a failed required need: a transport that learns of new
+    /// providers ([`ContractAgent::set_provider_count`]) should tell the agent then.
+    pub fn waiting_for_providers(&self) -> bool {
+        (self.known_unmet && !self.is_active())
+            || self
+                .needs
+                .iter()
+                .any(|n| n.enabled && matches!(n.state, NeedState::Waiting { .. }))
+    }
+
     pub(super) fn send_refresh(
         &mut self,
         i: usize,

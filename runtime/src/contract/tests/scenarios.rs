@@ -481,3 +481,51 @@ fn contract_scenario_new_provider_is_called_at_once() {
         "a provider appeared: called at once"
     );
 }
+
+/// The navigation tree built by agents woken only at their own deadlines (and on messages),
+/// as the module executor runs them, instead of every 10 ms.
+fn navigation_by_deadlines() -> Sim {
+    let ticked = navigation();
+    let mut s = Sim::new(crate::contract::sim::SimConfig {
+        tick: Duration::ZERO,
+        ..Default::default()
+    });
+    for a in ticked.agents() {
+        s.add(a.clone());
+    }
+    s
+}
+
+#[test]
+fn contract_scenario_agents_woken_at_their_deadlines_build_the_same_tree_with_few_wakeups() {
+    let mut ticked = navigation();
+    let mut woken = navigation_by_deadlines();
+    ticked.run_for(ms(2000));
+    woken.run_for(ms(2000));
+    assert_eq!(woken.edges(), ticked.edges());
+    assert_eq!(woken.edges(), woken.agreed_edges());
+    assert_eq!(woken.edges().len(), 12);
+    assert_eq!(
+        woken.stuck(),
+        0,
+        "no agent asked to be ticked again at once"
+    );
+
+    // A quiet stretch: heartbeats and refreshes only (every 200 ms by default).
+    let (t0, w0) = (ticked.ticks(), woken.ticks());
+    ticked.run_for(ms(10_000));
+    woken.run_for(ms(10_000));
+    let (t, w) = (ticked.ticks() - t0, woken.ticks() - w0);
+    assert_eq!(t, 10 * 1000, "10 agents, every 10 ms");
+    assert!(w < t / 5, "deadline wake-ups {w} vs ticks {t}");
+    assert_eq!(woken.edges(), ticked.edges());
+
+    // The tree re-forms the same way when SLAM dies (found by timeout, no watchdog).
+    ticked.kill(SLAM, false);
+    woken.kill(SLAM, false);
+    ticked.run_for(ms(3000));
+    woken.run_for(ms(3000));
+    assert!(woken.provider_of(SERVO, 2).is_some_and(|p| p != SLAM));
+    assert_eq!(woken.edges(), ticked.edges());
+    assert_eq!(woken.stuck(), 0);
+}
