@@ -7,6 +7,7 @@
 //!   JSON with a JSON Schema otherwise) and read back.
 //! - [`record`]: the recorder (`hng record`, `hng run --record`, `hng foxglove`).
 //! - [`live`]: the Foxglove WebSocket server.
+//! - [`lockstep`]: the recorder as a lockstep participant (nothing dropped in simulated runs).
 //! - [`read`]: reading a file, damaged or not, with offsets in the errors.
 //! - [`info`]: what a file holds (`hng info`).
 //! - [`replay`]: republishing a file (`hng replay`).
@@ -19,10 +20,12 @@ pub mod codec;
 pub mod compare;
 pub mod info;
 pub mod live;
+pub mod lockstep;
 pub mod read;
 pub mod record;
 pub mod registry;
 pub mod replay;
+mod replay_lockstep;
 
 use std::path::Path;
 use std::sync::atomic::{AtomicU64, Ordering};
