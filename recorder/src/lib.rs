@@ -79,10 +79,19 @@ pub enum Error {
 }
 
 impl Error {
-    pub(crate) fn mcap(path: &Path, e: impl std::fmt::Display) -> Error {
+    /// An error of the `mcap` crate, with its causes (the OS error of a failed write: a full
+    /// disk, a file too large).
+    pub(crate) fn mcap(path: &Path, e: impl std::error::Error) -> Error {
+        let mut detail = e.to_string();
+        let mut cause = e.source();
+        while let Some(c) = cause {
+            detail.push_str(": ");
+            detail.push_str(&c.to_string());
+            cause = c.source();
+        }
         Error::Mcap {
             path: path.display().to_string(),
-            detail: e.to_string(),
+            detail,
         }
     }
 }
