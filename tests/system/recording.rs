@@ -16,8 +16,8 @@ use serde_json::Value;
 /// SLAM replayed alone against the recording, m. The recorder is a lockstep participant (it
 /// loses nothing) and the replay drives a lockstep barrier of its own, so the replayed SLAM
 /// gets every scan and odometry message at its recorded simulated time: measured on this
-/// project's loaded machine (load average 24 on 2 cores), 3120 of 3120 poses paired with no
-/// stamp gap, p95 0.011 m, max 0.041 m, 203 bit-identical. Not bit-identical throughout:
+/// project's loaded machine (load average 10-24 on 2 cores), every pose paired with no stamp
+/// gap, p95 0.011-0.017 m, max 0.054 m, 93-203 poses bit-identical, in three runs in a row. Not bit-identical throughout:
 /// which messages SLAM takes together in one wake-up within a round still depends on the
 /// scheduling.
 const SLAM_TOLERANCE_M: f64 = 0.05;
@@ -248,8 +248,6 @@ fn an_independent_python_reader_agrees_with_hng_info() {
 }
 
 #[test]
-#[ignore = "passed once (p95 0.011 m) but not yet run 3 times in a row on this project's \
-            loaded machine (one recorded mission takes ~13 min there); see docs/recording.md"]
 fn slam_replayed_alone_against_the_recorded_mission_finds_the_recorded_poses() {
     let r = recorded_mission();
     let _heavy = crate::common::heavy();
