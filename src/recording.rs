@@ -308,7 +308,7 @@ pub fn eval_replay(args: &EvalReplayArgs) -> Result<()> {
 pub fn start_for_run(
     prefix: &str,
     args: &RunRecordArgs,
-    plan: &hng_watchdog::LaunchPlan,
+    plan: &mut hng_watchdog::LaunchPlan,
 ) -> Result<Option<RecorderThread>> {
     if args.record.is_none() && args.foxglove.is_none() {
         return Ok(None);
@@ -328,8 +328,37 @@ pub fn start_for_run(
         .map(|m| (m.name.clone(), m.config.clone()))
         .collect();
     opts.metadata.push(("hng.modules".to_string(), modules));
+    if args.record.is_some() && plan.sim_clock && join_lockstep(plan)? {
+        opts.lockstep = Some(hng_recorder::lockstep::PARTICIPANT.to_string());
+    }
     let r = RecorderThread::spawn(opts).context("starting the recorder")?;
     Ok(Some(r))
+}
+
+/// Adds the recorder to the `lockstep` list of every module that has one (the simulator), so
+/// the simulated world waits each round until the recorder has read it: a simulated run is
+/// recorded without a drop however busy the machine. Returns whether some module had one.
+fn join_lockstep(plan: &mut hng_watchdog::LaunchPlan) -> Result<bool> {
+    let mut joined = false;
+    for m in plan.modules.iter_mut() {
+        let Ok(mut table) = m.config.parse::<toml::Table>() else {
+            continue;
+        };
+        let Some(toml::Value::Array(list)) = table.get_mut("lockstep") else {
+            continue;
+        };
+        if list.is_empty() {
+            continue;
+        }
+        let me = toml::Value::String(hng_recorder::lockstep::PARTICIPANT.to_string());
+        if !list.contains(&me) {
+            list.push(me);
+        }
+        m.config = toml::to_string(&table)
+            .with_context(|| format!("module {}: writing its configuration", m.name))?;
+        joined = true;
+    }
+    Ok(joined)
 }
 
 /// Stops the recorder of `hng run` and prints what it recorded.

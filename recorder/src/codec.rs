@@ -382,6 +382,17 @@ pub(crate) fn json_encode_fixed<T: Message>(v: &T, out: &mut Vec<u8>) -> Result<
     serde_json::to_writer(out, &o).map_err(|e| e.to_string())
 }
 
+/// JSON encoding of a fixed-size type without a serde form: its header and its bytes.
+pub(crate) fn json_encode_raw<T: Message>(v: &T, out: &mut Vec<u8>) -> Result<(), String> {
+    let mut o = Map::new();
+    o.insert(
+        "header".into(),
+        serde_json::to_value(v.header()).map_err(|e| e.to_string())?,
+    );
+    o.insert("hng_raw".into(), B64.encode(raw_of(v)).into());
+    serde_json::to_writer(out, &o).map_err(|e| e.to_string())
+}
+
 /// A fixed-size type back from its JSON encoding.
 pub(crate) fn json_decode_fixed<T: Message>(data: &[u8]) -> Result<T, String> {
     let v: Value = serde_json::from_slice(data).map_err(|e| format!("JSON: {e}"))?;

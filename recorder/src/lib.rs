@@ -7,6 +7,7 @@
 //!   JSON with a JSON Schema otherwise) and read back.
 //! - [`record`]: the recorder (`hng record`, `hng run --record`, `hng foxglove`).
 //! - [`live`]: the Foxglove WebSocket server.
+//! - [`lockstep`]: the recorder as a lockstep participant (nothing dropped in simulated runs).
 //! - [`read`]: reading a file, damaged or not, with offsets in the errors.
 //! - [`info`]: what a file holds (`hng info`).
 //! - [`replay`]: republishing a file (`hng replay`).
@@ -19,10 +20,12 @@ pub mod codec;
 pub mod compare;
 pub mod info;
 pub mod live;
+pub mod lockstep;
 pub mod read;
 pub mod record;
 pub mod registry;
 pub mod replay;
+mod replay_lockstep;
 
 use std::path::Path;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -76,10 +79,19 @@ pub enum Error {
 }
 
 impl Error {
-    pub(crate) fn mcap(path: &Path, e: impl std::fmt::Display) -> Error {
+    /// An error of the `mcap` crate, with its causes (the OS error of a failed write: a full
+    /// disk, a file too large).
+    pub(crate) fn mcap(path: &Path, e: impl std::error::Error) -> Error {
+        let mut detail = e.to_string();
+        let mut cause = e.source();
+        while let Some(c) = cause {
+            detail.push_str(": ");
+            detail.push_str(&c.to_string());
+            cause = c.source();
+        }
         Error::Mcap {
             path: path.display().to_string(),
-            detail: e.to_string(),
+            detail,
         }
     }
 }

@@ -85,6 +85,8 @@ pub fn scan(path: &Path, buf: &[u8], on_message: &mut OnMessage<'_>) -> Result<C
         return Ok(st.contents);
     }
     let mut o = mcap::MAGIC.len();
+    // The records of the last chunk, uncompressed: its message indexes point into them.
+    let mut last_chunk: Vec<u8> = Vec::new();
     loop {
         if o == buf.len() {
             st.contents.damage = Some(damaged(
@@ -129,9 +131,12 @@ pub fn scan(path: &Path, buf: &[u8], on_message: &mut OnMessage<'_>) -> Result<C
         };
         match record {
             Record::Chunk { header, data } => {
-                if let Err(detail) = check_chunk_crc(&header, &data) {
-                    st.contents.damage = Some(damaged(o, detail));
-                    break;
+                match chunk_records(&header, &data) {
+                    Ok(raw) => last_chunk = raw,
+                    Err(detail) => {
+                        st.contents.damage = Some(damaged(o, detail));
+                        break;
+                    }
                 }
                 let reader = match mcap::read::ChunkReader::new(header, &data) {
                     Ok(r) => r,
@@ -155,6 +160,14 @@ pub fn scan(path: &Path, buf: &[u8], on_message: &mut OnMessage<'_>) -> Result<C
                     break;
                 }
             }
+            Record::MessageIndex(index) => {
+                // MCAP gives a message index no CRC: bytes overwritten in one are caught by
+                // checking each entry against the message it points to.
+                if let Err(detail) = check_message_index(&index, &last_chunk) {
+                    st.contents.damage = Some(damaged(o, detail));
+                    break;
+                }
+            }
             Record::DataEnd(_) | Record::Footer(_) => break,
             rec => st.record(rec, on_message)?,
         }
@@ -163,27 +176,58 @@ pub fn scan(path: &Path, buf: &[u8], on_message: &mut OnMessage<'_>) -> Result<C
     Ok(st.contents)
 }
 
-/// Checks a chunk's CRC of its uncompressed records (when the writer set one): corruption
-/// that still decompresses is caught here.
-fn check_chunk_crc(header: &mcap::records::ChunkHeader, data: &[u8]) -> Result<(), String> {
-    if header.uncompressed_crc == 0 {
-        return Ok(());
-    }
+/// A chunk's records, uncompressed, checked against the chunk's CRC (when the writer set
+/// one): corruption that still decompresses is caught here. Empty for a compression this
+/// reader does not decompress itself (the `mcap` crate's reader checks what it can).
+fn chunk_records(header: &mcap::records::ChunkHeader, data: &[u8]) -> Result<Vec<u8>, String> {
     let raw = match header.compression.as_str() {
-        "" => std::borrow::Cow::Borrowed(data),
-        "zstd" => std::borrow::Cow::Owned(
-            zstd::bulk::decompress(data, header.uncompressed_size as usize)
-                .map_err(|e| format!("chunk: zstd: {e}"))?,
-        ),
-        // Other compressions: the mcap crate's reader checks what it can.
-        _ => return Ok(()),
+        "" => data.to_vec(),
+        "zstd" => zstd::bulk::decompress(data, header.uncompressed_size as usize)
+            .map_err(|e| format!("chunk: zstd: {e}"))?,
+        _ => return Ok(Vec::new()),
     };
+    if header.uncompressed_crc == 0 {
+        return Ok(raw);
+    }
     let crc = crc32fast::hash(&raw);
     if crc != header.uncompressed_crc {
         return Err(format!(
             "chunk CRC {crc:08x} differs from the recorded {:08x}: corrupted",
             header.uncompressed_crc
         ));
+    }
+    Ok(raw)
+}
+
+/// Checks every entry of a message index against the chunk before it: the entry must point
+/// at a message record of the index's channel with the entry's log time.
+fn check_message_index(index: &mcap::records::MessageIndex, chunk: &[u8]) -> Result<(), String> {
+    if chunk.is_empty() {
+        return Ok(()); // a compression not decompressed here: nothing to check against
+    }
+    for (i, e) in index.records.iter().enumerate() {
+        let bad = |what: &str| {
+            Err(format!(
+                "message index of channel {}: entry {i} (offset {} in the chunk, log time {}) {what}: corrupted",
+                index.channel_id, e.offset, e.log_time
+            ))
+        };
+        // Message record: opcode, length (8), channel id (2), sequence (4), log time (8), ...
+        let Some(at) = usize::try_from(e.offset)
+            .ok()
+            .filter(|o| o + 23 <= chunk.len())
+        else {
+            return bad("points past the end of the chunk");
+        };
+        if chunk[at] != 0x05 {
+            return bad("does not point at a message record");
+        }
+        let channel = u16::from_le_bytes([chunk[at + 9], chunk[at + 10]]);
+        let mut t = [0u8; 8];
+        t.copy_from_slice(&chunk[at + 15..at + 23]);
+        if channel != index.channel_id || u64::from_le_bytes(t) != e.log_time {
+            return bad("does not match the message it points at");
+        }
     }
     Ok(())
 }

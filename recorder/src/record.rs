@@ -25,6 +25,7 @@ use serde::Serialize;
 use crate::Error;
 use crate::codec::SchemaDesc;
 use crate::live::Live;
+use crate::lockstep::Participant;
 use crate::registry::{Tap, TypeEntry, lookup, registry};
 
 /// What to record and where.
@@ -51,6 +52,10 @@ pub struct RecordOptions {
     pub catch_signals: bool,
     /// zstd level of the chunks (1 fastest; 0: zstd's default).
     pub compression_level: u32,
+    /// Take part in the simulator's lockstep under this name (one of its `lockstep` list):
+    /// the world then waits every round until the recorder has read it, so nothing is
+    /// dropped in a simulated run ([`crate::lockstep`]).
+    pub lockstep: Option<String>,
 }
 
 impl RecordOptions {
@@ -67,6 +72,7 @@ impl RecordOptions {
             poll: Duration::from_millis(1),
             catch_signals: false,
             compression_level: 1,
+            lockstep: None,
         }
     }
 }
@@ -385,6 +391,10 @@ fn record_impl(
         Some(addr) => Some(Live::start(addr)?),
         None => None,
     };
+    let mut lockstep = match &opts.lockstep {
+        Some(name) => Some(Participant::new(&opts.prefix, name)?),
+        None => None,
+    };
 
     let started = Instant::now();
     let mut chans: Vec<Chan> = Vec::new();
@@ -435,12 +445,21 @@ fn record_impl(
         if stopping {
             break;
         }
+        if let Some(p) = lockstep.as_mut() {
+            // Everything the round brought was read: the world may step on.
+            p.ack()?;
+        }
         if stop.load(Ordering::Acquire) || opts.duration.is_some_and(|d| started.elapsed() >= d) {
             // One more pass to take what arrived meanwhile.
             stopping = true;
             continue;
         }
         match waiter.as_mut() {
+            _ if lockstep.is_some() => {
+                if let Some(p) = lockstep.as_mut() {
+                    p.wait(opts.poll)?;
+                }
+            }
             Some(w) => {
                 if let Wake::Signal(_) = w.wait(Some(opts.poll))? {
                     stop_flag_signal(stop);
@@ -469,6 +488,8 @@ fn record_impl(
         bytes: chans.iter().map(|c| c.bytes).sum(),
         error,
     };
+    // Out of the barrier before closing the file (the world does not wait for the close).
+    drop(lockstep);
     if let Some(mut m) = mcap {
         let drops: BTreeMap<String, String> = summary
             .channels

@@ -225,7 +225,32 @@ json_fixed!(
     hng_simulator::module::SimLighting,
 );
 
-json_slice!(system::JsonInfo => true, msg::BytesInfo => false);
+/// JSON-encoded fixed-size types without a serde form: the header and the bytes only.
+macro_rules! raw_fixed {
+    ($($t:ty),* $(,)?) => {$(
+        impl FixedCodec for $t {
+            fn schema() -> SchemaDesc {
+                let sample = serde_json::json!({ "header": msg::Header::default() });
+                codec::json_schema(&type_name::<$t>(), sample, false)
+            }
+            fn encode(&self, out: &mut Vec<u8>) -> Result<(), String> {
+                codec::json_encode_raw(self, out)
+            }
+            fn decode(data: &[u8]) -> Result<Self, String> {
+                codec::json_decode_fixed(data)
+            }
+        }
+    )*};
+}
+
+json_fixed!(
+    msg::FollowWallRequest,
+    hng_modules::planning::progress::NavProgress,
+);
+
+raw_fixed!(msg::Walls, msg::Behaviours, msg::Order, msg::OrderStatus);
+
+json_slice!(system::JsonInfo => true, msg::BytesInfo => false, msg::PathInfo => false);
 
 /// Every type the recorder knows.
 pub fn registry() -> Vec<TypeEntry> {
@@ -254,6 +279,13 @@ pub fn registry() -> Vec<TypeEntry> {
         fixed::<msg::Designation>(),
         fixed::<hng_modules::reacher_module::ReachStatus>(),
         fixed::<hng_simulator::module::SimLighting>(),
+        fixed::<msg::FollowWallRequest>(),
+        fixed::<hng_modules::planning::progress::NavProgress>(),
+        fixed::<msg::Walls>(),
+        fixed::<msg::Behaviours>(),
+        fixed::<msg::Order>(),
+        fixed::<msg::OrderStatus>(),
+        slice::<msg::PathInfo>(),
         slice::<msg::GridInfo>(),
         slice::<msg::ImageInfo>(),
         slice::<msg::BytesInfo>(),

@@ -23,6 +23,10 @@ use crate::Error;
 use crate::read::{load, scan};
 use crate::record::{RecordOptions, RecordSummary, RecorderThread};
 use crate::registry::{Outlet, lookup, registry};
+use crate::replay_lockstep::Driver;
+
+/// A participant of a replay's lockstep silent this long is not waited for (it died).
+const LOCKSTEP_TIMEOUT: Duration = Duration::from_secs(5);
 
 /// How fast to replay.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -156,6 +160,9 @@ pub fn replay(
         });
         Ok(())
     })?;
+    // A recorder in lockstep reads a round's clock sample with the messages published before
+    // it, in one pass (one log time): the clock goes out after them, as it did.
+    items.sort_by_key(|it| (it.log_time, chans[it.chan].topic == CLOCK_CHANNEL));
     let damage = contents.damage.as_ref().map(|e| e.to_string());
     if let Some(d) = &damage {
         tracing::warn!("{d}; replaying the {} message(s) before it", items.len());
@@ -234,6 +241,7 @@ fn run(
 
     let mut sut = None;
     let mut recorder = None;
+    let mut driver: Option<Driver> = None;
     if let Some(m) = &opts.module {
         let config = match &m.config {
             Some(c) => c.clone(),
@@ -250,8 +258,19 @@ fn run(
             .filter(|c| c.source == Some(own))
             .map(|c| c.topic.clone())
             .collect();
+        // In simulated time the replay drives a lockstep barrier of its own.
+        let lockstep = sim
+            && selected
+                .iter()
+                .zip(chans)
+                .any(|(s, c)| *s && c.topic == CLOCK_CHANNEL);
+        let mut participants = vec![m.name.clone()];
         if let Some(out) = &m.output {
             let mut ro = RecordOptions::new(prefix);
+            if lockstep {
+                ro.lockstep = Some(crate::lockstep::PARTICIPANT.to_string());
+                participants.push(crate::lockstep::PARTICIPANT.to_string());
+            }
             ro.output = Some(out.clone());
             ro.only_source = Some(own);
             ro.channels = outputs.clone();
@@ -271,6 +290,9 @@ fn run(
             return Err(e);
         }
         sut = Some(child);
+        if lockstep {
+            driver = Some(Driver::new(&node, &participants, LOCKSTEP_TIMEOUT)?);
+        }
         if let Some(r) = &recorder {
             let t0 = Instant::now();
             while !outputs.iter().all(|o| r.progress().has(o)) {
@@ -307,10 +329,15 @@ fn run(
                         std::thread::sleep(due - now);
                     }
                 }
-                out.publish(&it.data).map_err(|detail| Error::Codec {
-                    channel: chans[it.chan].topic.clone(),
-                    detail,
-                })?;
+                match driver.as_mut() {
+                    Some(d) if chans[it.chan].topic == CLOCK_CHANNEL => d.step(&it.data)?,
+                    _ => {
+                        out.publish(&it.data).map_err(|detail| Error::Codec {
+                            channel: chans[it.chan].topic.clone(),
+                            detail,
+                        })?;
+                    }
+                }
                 *published.entry(chans[it.chan].topic.clone()).or_insert(0) += 1;
             }
             if !opts.looped || stop.load(Ordering::Acquire) {

@@ -44,6 +44,11 @@ pub struct LoopArgs {
     /// Wait mode of all three processes: `blocking`, `blocking:<µs spin>` or `spin`.
     #[arg(long, default_value = "blocking")]
     pub wait: String,
+    /// Also run the flight recorder (as `hng run --record` does: a thread of this process,
+    /// every channel to an MCAP file in the temporary directory); the cases are named
+    /// `..._recorded`.
+    #[arg(long)]
+    pub record: bool,
     /// One JSON object per case.
     #[arg(long)]
     pub json: bool,
@@ -204,6 +209,23 @@ pub fn lidar_to_command(a: &LoopArgs) -> Result<Vec<BenchRow>> {
             break;
         }
     }
+    let record_file =
+        std::env::temp_dir().join(format!("hng-bench-loop-{}.mcap", std::process::id()));
+    let mut recorder = if a.record {
+        let mut opts = hng_recorder::RecordOptions::new(&prefix);
+        opts.output = Some(record_file.clone());
+        let r = hng_recorder::RecorderThread::spawn(opts)?;
+        let t0 = Instant::now();
+        while ![SCAN, OUT].iter().all(|c| r.progress().has(c)) {
+            if t0.elapsed() > Duration::from_secs(10) {
+                bail!("the recorder did not subscribe to {SCAN} and {OUT} within 10 s");
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        Some(r)
+    } else {
+        None
+    };
     // Let the start-up traffic settle, then drain it.
     let settle = Instant::now();
     while settle.elapsed() < Duration::from_millis(200) {
@@ -258,10 +280,24 @@ pub fn lidar_to_command(a: &LoopArgs) -> Result<Vec<BenchRow>> {
         to_robot.push(stamp - t0_ns);
         samples.push(back_ns - t0_ns);
     }
+    let recorded = match recorder.as_mut() {
+        Some(r) => {
+            let summary = r.finish()?;
+            let _ = std::fs::remove_file(&record_file);
+            Some(summary)
+        }
+        None => None,
+    };
+    let suffix = if a.record { "_recorded" } else { "" };
     let row = |case: &str, samples: &mut Vec<u64>, hops: u64| {
         let mean_ns = samples.iter().sum::<u64>() / (samples.len() as u64).max(1);
-        BenchRow::new("loop", case, Percentiles::of(samples))
-            .with("mean_ns", mean_ns)
+        let mut r = BenchRow::new("loop", &format!("{case}{suffix}"), Percentiles::of(samples));
+        if let Some(s) = &recorded {
+            r = r
+                .with("recorded_messages", s.messages)
+                .with("recorded_dropped", s.dropped);
+        }
+        r.with("mean_ns", mean_ns)
             .with("wait", a.wait.clone())
             .with("rate_hz", a.rate)
             .with("processes", 3)

@@ -438,7 +438,7 @@ fn supervise(
 fn supervise_inner(
     prefix: &str,
     args: &RunArgs,
-    plan: LaunchPlan,
+    mut plan: LaunchPlan,
     monitor: &mut Option<Monitor>,
 ) -> Result<(Result<()>, Option<Result<Outcome>>)> {
     // Termination signals are read by the receiver thread (signalfd); `main` blocked them
@@ -523,7 +523,7 @@ fn supervise_inner(
     };
     // The operator page first: its address is among the first lines printed.
     let gui = crate::gui::start_for_run(prefix, &args.gui);
-    let recorder = crate::recording::start_for_run(prefix, &args.recording, &plan)?;
+    let recorder = crate::recording::start_for_run(prefix, &args.recording, &mut plan)?;
     let logs = logs::RUN_LOG
         .get()
         .map(|l| l.open(&logs::log_dir(&run_dir)));

@@ -3,7 +3,11 @@
 names (protobuf for Foxglove's well-known schemas, JSON otherwise) and prints, as one JSON
 object, each channel's schema, encoding and message count, and what it checked while decoding.
 
-Usage: python read_mcap.py FILE.mcap
+Usage: python read_mcap.py [--partial] FILE.mcap
+
+--partial: the file may be cut short (a full disk): read it front to back without its summary
+(mcap's StreamReader) and stop at the first record that cannot be read, counting the
+messages before it.
 """
 
 import json
@@ -11,6 +15,8 @@ import sys
 
 from mcap.decoder import DecoderFactory
 from mcap.reader import make_reader
+from mcap.records import Channel, Message, Schema
+from mcap.stream_reader import StreamReader
 from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoderFactory
 
 
@@ -47,5 +53,37 @@ def main(path):
     print(json.dumps(out))
 
 
+def partial(path):
+    out = {"channels": {}, "decoded": 0, "error": None}
+    factories = [ProtobufDecoderFactory(), JsonDecoderFactory()]
+    schemas, channels, decoders = {}, {}, {}
+    with open(path, "rb") as f:
+        try:
+            for r in StreamReader(f, emit_chunks=False).records:
+                if isinstance(r, Schema):
+                    schemas[r.id] = r
+                elif isinstance(r, Channel):
+                    channels[r.id] = r
+                elif isinstance(r, Message):
+                    ch = channels[r.channel_id]
+                    if ch.id not in decoders:
+                        schema = schemas.get(ch.schema_id)
+                        decoders[ch.id] = next(
+                            d
+                            for d in (fa.decoder_for(ch.message_encoding, schema) for fa in factories)
+                            if d is not None
+                        )
+                    decoders[ch.id](r.data)
+                    c = out["channels"].setdefault(ch.topic, {"messages": 0})
+                    c["messages"] += 1
+                    out["decoded"] += 1
+        except Exception as e:  # the damaged end: what precedes it was read
+            out["error"] = f"{type(e).__name__}: {e}"
+    print(json.dumps(out))
+
+
 if __name__ == "__main__":
-    main(sys.argv[1])
+    if sys.argv[1] == "--partial":
+        partial(sys.argv[2])
+    else:
+        main(sys.argv[1])
