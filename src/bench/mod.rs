@@ -11,6 +11,7 @@ pub mod contracts;
 pub mod gui;
 pub mod idle;
 pub mod ipc;
+pub mod browsers;
 pub mod loop_;
 pub mod record;
 pub mod recovery;

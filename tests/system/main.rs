@@ -21,6 +21,7 @@ mod orders;
 mod recording;
 mod rm;
 mod sdk;
+mod showcase;
 mod signals;
 mod sim;
 mod slam_loop;
