@@ -63,20 +63,22 @@ try {
   await page.waitForFunction(() => window.hng.state.answers.length > 0, null, { timeout: 10000 });
   const answer = await page.evaluate(() => window.hng.state.answers[0]);
   say({ event: "goal_clicked", at: [cx, cy], answer, answer_text: await page.textContent("#answer") });
-  // Planning's whole path to it (planning/path) drawn on the map.
-  await page.waitForFunction((g) => {
+  // Planning's whole path to it (planning/path) drawn on the map, watched while the robot
+  // goes (the arrival is caught the moment it happens).
+  const pathDrawn = page.waitForFunction((g) => {
     const p = window.hng.state.path, pts = p && p.points;
     if (!pts || pts.length < 2 || window.hng.drawn.path !== pts.length) return false;
     const l = pts[pts.length - 1];
     return Math.hypot(l[0] - g.x, l[1] - g.y) < 0.3;
-  }, goal, { timeout: 30000, polling: 50 });
-  say({ event: "path_drawn", drawn: await page.evaluate(() => window.hng.drawn.path), path: await page.evaluate(() => window.hng.state.path) });
-
+  }, goal, { timeout: 60000, polling: 50 }).then(async () => {
+    say({ event: "path_drawn", drawn: await page.evaluate(() => window.hng.drawn.path), path: await page.evaluate(() => window.hng.state.path) });
+  });
   await page.waitForFunction((g) => {
     const p = window.hng.state.pose && window.hng.state.pose.pose;
     return p && Math.hypot(p.x - g.x, p.y - g.y) < 0.5;
   }, goal, { timeout, polling: 50 });
   say({ event: "goal_reached_on_page", pose: await page.evaluate(() => window.hng.state.pose.pose) });
+  await pathDrawn;
   await page.screenshot({ path: path.join(dir, "gui-goal.png") });
 
   // The mission resumes once the operator's goal is done: wait for motion, then STOP.
