@@ -58,7 +58,7 @@ pub struct Watchers {
 
 impl Watchers {
     /// Serves the page for `prefix` (the scan shown read from `scan`) and opens it in
-    /// `browsers` headless Chromium instances; returns once every page draws live scans.
+    /// `browsers` headless Chromium instances; returns once every page is connected to the live stream.
     pub fn start(prefix: &str, scan: &str, browsers: usize) -> Result<Watchers> {
         let listener = TcpListener::bind("127.0.0.1:0")?;
         let server = Server::start(

@@ -1,6 +1,7 @@
 // Browsers that watch the operator page (hng bench loop --browsers N): N headless Chromium
 // instances (each its own browser process and profile), each with the page open, driven by
-// playwright-core. Prints {"event":"watching", ...} once every page has drawn live scans,
+// playwright-core. Prints {"event":"watching", ...} once every page is connected to the live
+// stream (the bench then publishes its scans; the scan frames each page received are counted),
 // then keeps them open until a line arrives on stdin (or stdin closes), prints
 // {"event":"done", "scans": [frames each page received]} and closes them.
 //
@@ -32,7 +33,7 @@ try {
     pages.push(page);
   }
   for (const p of pages) {
-    await p.waitForFunction(() => (window.hng.state.counts.scan || 0) >= 3, null, { timeout: 60000 });
+    await p.waitForFunction(() => (window.hng.state.counts.hello || 0) >= 1, null, { timeout: 60000 });
   }
   const counts = async () => Promise.all(pages.map((p) => p.evaluate(() => window.hng.state.counts.scan || 0)));
   say({ event: "watching", scans: await counts() });
