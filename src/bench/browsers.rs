@@ -22,12 +22,13 @@ fn js_dir() -> PathBuf {
 
 /// Why browsers cannot watch on this machine, if they cannot.
 pub fn missing() -> Option<String> {
-    let chromium = std::env::var_os("CHROMIUM").map_or_else(
-        || PathBuf::from("/usr/bin/chromium"),
-        PathBuf::from,
-    );
+    let chromium = std::env::var_os("CHROMIUM")
+        .map_or_else(|| PathBuf::from("/usr/bin/chromium"), PathBuf::from);
     if !chromium.exists() {
-        return Some(format!("no {} (CHROMIUM names another)", chromium.display()));
+        return Some(format!(
+            "no {} (CHROMIUM names another)",
+            chromium.display()
+        ));
     }
     let node_ok = Command::new("node")
         .arg("--version")

@@ -296,10 +296,7 @@ fn lidar_to_command_watched(a: &LoopArgs, browsers: usize) -> Result<Vec<BenchRo
             .with("hops", hops)
             .with("limited_commands", limited)
             .with("browsers", browsers as u64)
-            .with(
-                "page_scan_frames",
-                serde_json::Value::from(frames.clone()),
-            )
+            .with("page_scan_frames", serde_json::Value::from(frames.clone()))
     };
     Ok(vec![
         row("lidar_to_command", &mut to_robot, 2),

@@ -7,11 +7,11 @@ use anyhow::Result;
 use clap::Subcommand;
 use hng_runtime::stats::{BenchRow, table};
 
+pub mod browsers;
 pub mod contracts;
 pub mod gui;
 pub mod idle;
 pub mod ipc;
-pub mod browsers;
 pub mod loop_;
 pub mod record;
 pub mod recovery;

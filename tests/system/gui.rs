@@ -482,10 +482,7 @@ fn a_real_browser_sees_the_robot_sends_it_to_a_goal_and_stops_it() {
         .expect("path drawn");
     let points = drawn["path"]["points"].as_array().expect("points");
     let last = points.last().expect("a point");
-    let (lx, ly) = (
-        last[0].as_f64().expect("x"),
-        last[1].as_f64().expect("y"),
-    );
+    let (lx, ly) = (last[0].as_f64().expect("x"), last[1].as_f64().expect("y"));
     assert!(
         points.len() >= 2 && ((lx - goal.0).powi(2) + (ly - goal.1).powi(2)).sqrt() < 0.3,
         "the drawn path ends at the goal: {drawn}"

@@ -35,12 +35,15 @@ fn the_showcase_offers_a_wall_then_a_beacon_and_hng_order_reaches_the_beacon() {
     let prefix = shm::unique_prefix("showcase");
     let mut watch = Watch::new(&prefix);
     let mut run = Run::start_on(&prefix, &[LAUNCH]);
-    watch.until("simulated time running, Planning contracted, behaviours", |w| {
-        w.sim_s() > 1.0
-            && w.pose.is_some()
-            && w.behaviours.is_some()
-            && w.provider_of("interface", 2).as_deref() == Some("planning")
-    });
+    watch.until(
+        "simulated time running, Planning contracted, behaviours",
+        |w| {
+            w.sim_s() > 1.0
+                && w.pose.is_some()
+                && w.behaviours.is_some()
+                && w.provider_of("interface", 2).as_deref() == Some("planning")
+        },
+    );
     // At the start, 2.5 m from every wall and facing none of the beacons: neither offered.
     let first = watch.behaviours.expect("behaviours");
     assert!(
@@ -109,9 +112,7 @@ fn the_showcase_offers_a_wall_then_a_beacon_and_hng_order_reaches_the_beacon() {
     let wall = changes.iter().position(|c| c.0).expect("wall offered");
     let beacon = changes.iter().position(|c| c.1).expect("beacon offered");
     assert!(
-        changes[0] == (false, false)
-            && wall < beacon
-            && changes[wall..].iter().any(|c| !c.0),
+        changes[0] == (false, false) && wall < beacon && changes[wall..].iter().any(|c| !c.0),
         "{changes:?}"
     );
 

@@ -30,7 +30,12 @@ impl PathOut {
     }
 
     /// The path now (`points` in `map`, empty when none) of goal `goal_id` (0: none).
-    pub(crate) fn update(&mut self, goal_id: u32, points: &[[f64; 2]], length_m: f64) -> ModuleResult {
+    pub(crate) fn update(
+        &mut self,
+        goal_id: u32,
+        points: &[[f64; 2]],
+        length_m: f64,
+    ) -> ModuleResult {
         let key = (
             goal_id,
             points.len(),
