@@ -264,7 +264,10 @@ impl<D: Detector> Module for TrackerModule<D> {
             let target = self.target;
             let discover = target.is_none()
                 && !self.cfg.discover.is_empty()
-                && self.state.frames % u64::from(self.cfg.discover_every) == 0;
+                && self
+                    .state
+                    .frames
+                    .is_multiple_of(u64::from(self.cfg.discover_every));
             let ids = if discover {
                 self.cfg.discover.clone()
             } else {
@@ -339,7 +342,6 @@ fn discovered(image: &Header, d: &Detection) -> BeaconTrack {
         bearing: d.bearing,
         range: d.range,
         quality: d.quality as f32,
-        ..Default::default()
     }
 }
 

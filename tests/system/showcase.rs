@@ -5,10 +5,11 @@
 //! "follow wall right", and stops once the robot leaves the wall; a goal past the partition
 //! (and a turn under teleop if need be), until a tracker finds beacon 3 by itself (no
 //! designation) and attention offers "reach beacon 3"; then `hng order reach-beacon 3` (the CLI, a real
-//! process) and the reacher drives the robot to within 0.5 m of the beacon (true pose).
+//! process) and the reacher drives the robot to within 0.5 m of the beacon (true pose). On the
+//! way, Planning's whole path to the goal is read on `planning/path`, then an empty one.
 
-use hng_runtime::msg::{Behaviours, OrderKind, SIDE_RIGHT, Twist};
-use hng_runtime::shm;
+use hng_runtime::msg::{Behaviours, OrderKind, PLANNED_PATH_CHANNEL, PathInfo, SIDE_RIGHT, Twist};
+use hng_runtime::{Node, NodeOptions, shm};
 use nix::sys::signal::Signal;
 
 use crate::orders::{Watch, dist, goal};
@@ -34,6 +35,18 @@ fn the_showcase_offers_a_wall_then_a_beacon_and_hng_order_reaches_the_beacon() {
     let _heavy = crate::common::heavy();
     let prefix = shm::unique_prefix("showcase");
     let mut watch = Watch::new(&prefix);
+    let node = Node::new(NodeOptions::new("showcase-path").prefix(&prefix)).expect("node");
+    let paths = node
+        .slice_subscriber::<PathInfo>(PLANNED_PATH_CHANNEL)
+        .expect("planned path");
+    // The latest planned path: (goal id, number of poses, last pose).
+    let mut path: Option<(u32, usize, (f64, f64))> = None;
+    let read_path = |path: &mut Option<(u32, usize, (f64, f64))>| {
+        while let Some(p) = paths.receive().expect("path") {
+            let last = p.data().last().map_or((f64::NAN, f64::NAN), |q| (q.x, q.y));
+            *path = Some((p.header().goal_id, p.data().len(), last));
+        }
+    };
     let mut run = Run::start_on(&prefix, &[LAUNCH]);
     watch.until(
         "simulated time running, Planning contracted, behaviours",
@@ -74,10 +87,21 @@ fn the_showcase_offers_a_wall_then_a_beacon_and_hng_order_reaches_the_beacon() {
     let s = watch.order(goal(OrderKind::Goal, &[(17.0, 4.5)]));
     assert_eq!(s.accepted, 1, "{}", s.reason());
     let seq = s.seq;
+    // Planning's whole path to it on planning/path, ending at the goal.
+    watch.until("the planned path to the goal on planning/path", |_| {
+        read_path(&mut path);
+        path.is_some_and(|(id, n, last)| id != 0 && n >= 2 && dist(last, (17.0, 4.5)) < 0.3)
+    });
+    eprintln!("showcase: planned path to (17, 4.5): {path:?}");
     watch.until("the goal past the partition reached", |w| {
         w.statuses
             .iter()
             .any(|s| s.seq == seq && s.active == 0 && s.reason().contains("reached"))
+    });
+    // Once the order ends (back to autonomy, the Manager has no goal): an empty path.
+    watch.until("an empty planned path once the goal is reached", |_| {
+        read_path(&mut path);
+        path.is_some_and(|(id, n, _)| id == 0 && n == 0)
     });
     watch.until("follow wall right withdrawn away from the wall", |w| {
         !offers(w, OrderKind::FollowWall, SIDE_RIGHT)
