@@ -7,7 +7,7 @@
 const params = new URLSearchParams(location.search);
 const token = params.get("token");
 const state = { counts: {}, waypoints: [], answers: [], teleop: null };
-window.hng = { state };
+window.hng = { state, drawn: { path: 0 } };
 
 const $ = (id) => document.getElementById(id);
 const mapCanvas = $("map"), mctx = mapCanvas.getContext("2d");
@@ -58,6 +58,7 @@ function connect() {
     if (m.t === "map" || m.t === "slam_map") gridImage(m.t, m.v);
     if (m.t === "image") cameraImage(m.v);
     if (m.t === "hello") $("prefix").textContent = m.v.prefix;
+    if (m.t === "clock") pace.sample(m.v.sim_s);
     if (m.t === "error") { $("answer").textContent = "stream: " + m.v; $("answer").className = "bar bad"; }
     dirty = true;
   };
@@ -160,6 +161,14 @@ function drawMap() {
   state.waypoints.forEach((w, i) => { const [cx, cy] = view.toCanvas(w.x, w.y); i ? mctx.lineTo(cx, cy) : mctx.moveTo(cx, cy); });
   mctx.stroke();
   state.waypoints.forEach((w, i) => cross(w.x, w.y, "#5af", "w" + (i + 1)));
+  // Planning's whole planned path (planning/path; empty when there is none).
+  const path = state.path && state.path.points;
+  if (path && path.length > 1) {
+    mctx.strokeStyle = "#c6f"; mctx.lineWidth = 2; mctx.beginPath();
+    path.forEach(([x, y], i) => { const [cx, cy] = view.toCanvas(x, y); i ? mctx.lineTo(cx, cy) : mctx.moveTo(cx, cy); });
+    mctx.stroke(); mctx.lineWidth = 1;
+  }
+  window.hng.drawn.path = path && path.length > 1 ? path.length : 0;
   // Planning's carrot.
   if (state.waypoint && pose) {
     const w = state.waypoint.pose, [ax, ay] = view.toCanvas(pose.x, pose.y), [bx, by] = view.toCanvas(w.x, w.y);
@@ -216,6 +225,29 @@ $("show-slam").onchange = () => { dirty = true; };
 const keys = { ArrowUp: [0.4, 0], w: [0.4, 0], ArrowDown: [-0.3, 0], s: [-0.3, 0], ArrowLeft: [0, 1], a: [0, 1], ArrowRight: [0, -1], d: [0, -1] };
 const held = new Map();
 let teleopTimer = null;
+// The simulation's pace (simulated seconds per wall second, from the clock frames): teleop
+// commands are sent every 0.1 s of *simulated* time (every 40 ms of wall time at most, 10 ms
+// at least), so that the Interface's 0.5 s deadman, which runs on simulated time, never fires
+// between two commands of a held key when the simulation runs faster than real time (at 6x,
+// 40 ms of wall time would be 0.24 s simulated; at 20x, 0.8 s). Beyond 50x, commands are
+// 0.5 s apart in simulated time and the deadman may stop the robot between them.
+const pace = {
+  factor: 1, last: null,
+  sample(simS) {
+    const now = performance.now();
+    if (this.last && now - this.last.wall > 200) {
+      const f = (simS - this.last.sim) / ((now - this.last.wall) / 1000);
+      if (f > 0 && isFinite(f)) this.factor = 0.7 * this.factor + 0.3 * f;
+      this.last = { wall: now, sim: simS };
+    } else if (!this.last) this.last = { wall: now, sim: simS };
+  },
+  periodMs() { return Math.max(10, Math.min(40, 100 / Math.max(this.factor, 1e-3))); },
+};
+window.hng.pace = pace;
+function teleopTick() {
+  teleopSend();
+  if (held.size > 0) teleopTimer = setTimeout(teleopTick, pace.periodMs());
+}
 function teleopCommand() {
   let v = 0, w = 0;
   for (const [dv, dw] of held.values()) { v += dv; w += dw; }
@@ -232,7 +264,9 @@ function teleopPress(id, vw) {
   if (held.size === 0) {
     const inForce = state.order_status && state.order_status.in_force;
     if (inForce !== "teleop") order({ kind: "teleop" }, "teleop");
-    teleopTimer = setInterval(teleopSend, 40);
+    held.set(id, vw);
+    teleopTick();
+    return;
   }
   held.set(id, vw);
   teleopSend();
@@ -243,7 +277,7 @@ function teleopUp(id) {
 }
 function teleopRelease() {
   held.clear();
-  if (teleopTimer) { clearInterval(teleopTimer); teleopTimer = null; }
+  if (teleopTimer) { clearTimeout(teleopTimer); teleopTimer = null; }
   if (ws && ws.readyState === 1) ws.send(JSON.stringify({ teleop: { linear_x: 0, angular_z: 0 } }));
   state.teleop = null;
   $("teleop-state").textContent = "idle";
@@ -318,6 +352,39 @@ $("modules").addEventListener("click", (ev) => {
   post("/api/module", body).then((r) => showAnswer(`${body.op} ${body.module}`, r));
 });
 
+// Boxes of an SVG element's text or rect, in the SVG's coordinates.
+function box(el) { const b = el.getBBox(); return { x: b.x, y: b.y, w: b.width, h: b.height }; }
+function overlap(a, b) { return a.x < b.x + b.w && b.x < a.x + a.w && a.y < b.y + b.h && b.y < a.y + a.h; }
+// Moves the edge labels so that no two labels (edge or module) overlap: each label, in turn,
+// takes the nearest free place (left or right along its row, then rows above and below) from
+// its edge's midpoint; the graph grows taller if it must.
+function layoutLabels(svg) {
+  const W = svg.clientWidth || 560;
+  const placed = [...svg.querySelectorAll("text.node")].map(box);
+  placed.push(...[...svg.querySelectorAll("rect.node")].map(box));
+  let bottom = Math.max(0, ...placed.map((b) => b.y + b.h));
+  for (const t of svg.querySelectorAll("text.edge")) {
+    const b0 = box(t), x0 = Number(t.getAttribute("x")), y0 = Number(t.getAttribute("y"));
+    const step = b0.h + 1;
+    let best = null;
+    for (let r = 0; r < 40 && !best; r++) {
+      for (const dy of r === 0 ? [0] : [r * step, -r * step]) {
+        for (const dx of [0, -b0.w / 2, b0.w / 2, -b0.w, b0.w]) {
+          const b = { x: b0.x + dx, y: b0.y + dy, w: b0.w, h: b0.h };
+          if (b.x < 0 || b.x + b.w > W || b.y < 0) continue;
+          if (!placed.some((p) => overlap(p, b))) { best = [dx, dy, b]; break; }
+        }
+        if (best) break;
+      }
+    }
+    if (!best) { const b = { x: 2, y: bottom + 2, w: b0.w, h: b0.h }; best = [2 - b0.x, b.y - b0.y, b]; }
+    t.setAttribute("x", x0 + best[0]); t.setAttribute("y", y0 + best[1]);
+    placed.push(best[2]);
+    bottom = Math.max(bottom, best[2].y + best[2].h);
+  }
+  svg.setAttribute("height", Math.max(Number(svg.getAttribute("height")), bottom + 6));
+}
+
 function drawContracts() {
   const c = state.contracts; if (!c) return;
   const svg = $("contracts");
@@ -328,22 +395,28 @@ function drawContracts() {
   for (const m of c.modules) { const d = depth[m.name] ?? 5; (levels[d] = levels[d] || []).push(m.name); }
   const pos = {}, keys = Object.keys(levels).map(Number).sort((a, b) => a - b);
   const W = svg.clientWidth || 560, rowH = 46;
-  svg.setAttribute("height", keys.length * rowH + 10);
-  keys.forEach((d, row) => levels[d].sort().forEach((n, i, a) => { pos[n] = [((i + 0.5) * W) / a.length, 18 + row * rowH]; }));
+  svg.setAttribute("height", keys.length * rowH + 20);
+  // A row too crowded for its boxes (76 px each) staggers them on two lines.
+  keys.forEach((d, row) => levels[d].sort().forEach((n, i, a) => {
+    const stagger = a.length * 80 > W ? (i % 2 ? 10 : -10) : 0;
+    pos[n] = [((i + 0.5) * W) / a.length, 28 + row * rowH + stagger];
+  }));
   const vBy = Object.fromEntries(c.modules.map((m) => [m.name, m]));
   let out = "";
+  const edges = [];
   for (const k of c.contracts) {
     const a = pos[k.client], b = pos[k.provider]; if (!a || !b) continue;
-    const mx = (a[0] + b[0]) / 2, my = (a[1] + b[1]) / 2;
     out += `<line x1="${a[0]}" y1="${a[1]}" x2="${b[0]}" y2="${b[1]}" stroke="#6a7" />`;
-    out += `<text x="${mx + 3}" y="${my}">${k.service} ${k.priority} V ${k.value.toFixed(2)}</text>`;
+    edges.push([(a[0] + b[0]) / 2, (a[1] + b[1]) / 2, `${k.service} ${k.priority} V ${k.value.toFixed(2)}`]);
   }
+  edges.forEach(([x, y, t], i) => { out += `<text class="edge" data-i="${i}" x="${x + 3}" y="${y}">${t}</text>`; });
   for (const [n, [x, y]] of Object.entries(pos)) {
     const m = vBy[n];
-    out += `<rect x="${x - 38}" y="${y - 9}" width="76" height="16" rx="3" fill="${m.active ? "#2d5b8a" : "#444"}" />`;
-    out += `<text x="${x}" y="${y + 3}" text-anchor="middle">${n}${m.value != null ? " " + m.value.toFixed(2) : ""}</text>`;
+    out += `<rect class="node" x="${x - 38}" y="${y - 9}" width="76" height="16" rx="3" fill="${m.active ? "#2d5b8a" : "#444"}" />`;
+    out += `<text class="node" x="${x}" y="${y + 3}" text-anchor="middle">${n}${m.value != null ? " " + m.value.toFixed(2) : ""}</text>`;
   }
   svg.innerHTML = out;
+  layoutLabels(svg);
   // Who commands the wheels: the Robot's clients by priority.
   const holders = c.contracts.filter((k) => k.service === "Robot control").sort((a, b) => a.priority.localeCompare(b.priority, undefined, { numeric: true }));
   $("wheels").textContent = holders.length ? holders.map((k) => `${k.client} ${k.priority}`).join(" > ") : "-";

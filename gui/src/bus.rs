@@ -13,7 +13,7 @@ use hng_runtime::clock::CLOCK_CHANNEL;
 use hng_runtime::msg::{
     BEHAVIOURS_CHANNEL, BeaconObservation, BeaconTrack, Behaviours, Clock, DESIGNATION_CHANNEL,
     Designation, Goal, GridInfo, ImageInfo, LaserScan, Message, ORDER_STATUS_CHANNEL, Odometry,
-    OrderKind, OrderStatus, PoseWithCovariance, Waypoint,
+    OrderKind, OrderStatus, PLANNED_PATH_CHANNEL, PathInfo, PoseWithCovariance, Waypoint,
 };
 use hng_runtime::system::{
     CONTRACTS, ContractRole, ContractTable, EventKind, JsonInfo, ModuleEvent, RM_STATUS,
@@ -42,6 +42,8 @@ pub struct Channels {
     pub slam_map: String,
     /// Planning's carrot.
     pub waypoint: String,
+    /// Planning's whole planned path (`PathInfo`).
+    pub path: String,
     /// The Manager's current goal.
     pub goal: String,
     /// The Manager's mission (JSON).
@@ -64,6 +66,7 @@ impl Default for Channels {
             map: "maps/map".into(),
             slam_map: "slam/map".into(),
             waypoint: "planning/waypoint".into(),
+            path: PLANNED_PATH_CHANNEL.into(),
             goal: "manager/goal".into(),
             mission: "manager/mission".into(),
             beacons: "camera/beacons".into(),
@@ -78,7 +81,7 @@ pub fn min_interval(topic: &str) -> Duration {
     Duration::from_millis(match topic {
         "order_status" | "events" | "designation" => 0,
         "pose" | "truth" | "odom" | "scan" => 50,
-        "clock" | "waypoint" | "goal" | "beacons" | "track" | "behaviours" => 100,
+        "clock" | "waypoint" | "path" | "goal" | "beacons" | "track" | "behaviours" => 100,
         "image" => 200,
         "status" | "mission" => 250,
         "contracts" => 500,
@@ -185,6 +188,7 @@ struct Sources {
     map: Option<Sliced<GridInfo>>,
     slam_map: Option<Sliced<GridInfo>>,
     waypoint: Option<Fixed<Waypoint>>,
+    path: Option<Sliced<PathInfo>>,
     goal: Option<Fixed<Goal>>,
     mission: Option<Sliced<JsonInfo>>,
     beacons: Option<Fixed<BeaconObservation>>,
@@ -269,6 +273,7 @@ pub fn run(opts: &BusOptions, hub: &Arc<Hub>, stop: &AtomicBool) -> Result<(), c
         map: sliced(&node, &mut w, &c.map),
         slam_map: sliced(&node, &mut w, &c.slam_map),
         waypoint: fixed(&node, &mut w, &c.waypoint),
+        path: sliced(&node, &mut w, &c.path),
         goal: fixed(&node, &mut w, &c.goal),
         mission: sliced(&node, &mut w, &c.mission),
         beacons: fixed(&node, &mut w, &c.beacons),
@@ -355,6 +360,7 @@ fn poll_all(src: &mut Sources, st: &mut State) {
     take!(map, "map");
     take!(slam_map, "slam_map");
     take!(waypoint, "waypoint");
+    take!(path, "path");
     take!(goal, "goal");
     take!(mission, "mission");
     take!(beacons, "beacons");
@@ -628,6 +634,14 @@ fn encode(topic: &str, src: &Sources, st: &State) -> Option<(Value, u64)> {
         "map" => grid(&src.map),
         "slam_map" => grid(&src.slam_map),
         "waypoint" => plain(&src.waypoint),
+        "path" => {
+            let (info, poses) = src.path.as_ref()?.latest.as_ref()?;
+            let points: Vec<[f64; 2]> = poses.iter().map(|p| [p.x, p.y]).collect();
+            Some((
+                json!({ "goal_id": info.goal_id, "length_m": info.length_m, "points": points }),
+                info.header.stamp_ns,
+            ))
+        }
         "goal" => plain(&src.goal),
         "beacons" => plain(&src.beacons),
         "track" => plain(&src.track),

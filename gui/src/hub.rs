@@ -35,6 +35,7 @@ pub const TOPICS: &[&str] = &[
     "odom",
     "scan",
     "waypoint",
+    "path",
     "goal",
     "beacons",
     "track",

@@ -31,7 +31,7 @@ use crate::common::{decode_state, encode_state, positive};
 use crate::heartbeat::BusyHeartbeat;
 use crate::maps::grid_from_msg;
 use crate::msgs::{GoalState, GoalStatus, RefusalReason};
-use crate::planning::path::{PathState, nearest_cell};
+use crate::planning::path::{PathOut, PathState, nearest_cell};
 use crate::planning::progress::{
     Action, Event, NavProgress, ProgressMonitor, ProgressParams, progress_message,
     recovery_waypoint,
@@ -187,6 +187,16 @@ impl PlanningCore {
     /// True if the current goal was refused for good.
     pub fn is_refused(&self) -> bool {
         self.goal.is_some_and(|g| self.refused == Some(g.id)) && !self.provisional
+    }
+
+    /// The path being followed, in the map frame, start first (empty when none).
+    pub fn path_points(&self) -> &[[f64; 2]] {
+        self.path.as_ref().map_or(&[], |p| &p.points)
+    }
+
+    /// Length of the path being followed, m (0 when none).
+    pub fn path_length(&self) -> f64 {
+        self.path.as_ref().map_or(0.0, PathState::total)
     }
 
     /// True while a path is being followed.
@@ -481,43 +491,7 @@ impl PlanningCore {
     }
 }
 
-/// Configuration of `hng module planning`.
-#[derive(Debug, Clone, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct PlanningModuleConfig {
-    /// Map input until a "Mapping" provider is known (default `maps/map`).
-    pub map: String,
-    /// Position input (default `slam/pose`).
-    pub pose: String,
-    /// Goal input (default `manager/goal`).
-    pub goal: String,
-    /// Waypoints out (default `planning/waypoint`).
-    pub waypoint_out: String,
-    /// Goal status out (default `planning/status`).
-    pub status_out: String,
-    /// Stalls and recoveries out (default `planning/progress`).
-    pub progress_out: String,
-    /// Planner parameters.
-    pub params: PlanningParams,
-    /// Longest computation (map inflation, a search) during which heartbeats go on, s
-    /// (default 120); a longer one is a hang for the watchdog. See [`crate::heartbeat`].
-    pub max_compute_s: f64,
-}
-
-impl Default for PlanningModuleConfig {
-    fn default() -> Self {
-        PlanningModuleConfig {
-            map: "maps/map".into(),
-            pose: "slam/pose".into(),
-            goal: "manager/goal".into(),
-            waypoint_out: "planning/waypoint".into(),
-            status_out: "planning/status".into(),
-            progress_out: crate::planning::progress::PROGRESS_CHANNEL.into(),
-            params: PlanningParams::default(),
-            max_compute_s: 120.0,
-        }
-    }
-}
+pub use crate::planning::config::PlanningModuleConfig;
 
 #[derive(Debug, Clone, Copy, Default, Serialize, Deserialize, PartialEq)]
 struct PlanningState {
@@ -561,6 +535,7 @@ pub struct PlanningModule {
     waypoint_out: Publisher<Waypoint>,
     status_out: Publisher<GoalStatus>,
     progress_out: Publisher<NavProgress>,
+    path_out: PathOut,
     last_pose: Option<Pose2D>,
     state: PlanningState,
 }
@@ -639,6 +614,9 @@ impl PlanningModule {
         if let Some(s) = out.status {
             self.status_out.publish(s)?;
         }
+        let goal_id = self.core.goal().map_or(0, |g| g.id);
+        self.path_out
+            .update(goal_id, self.core.path_points(), self.core.path_length())?;
         let q = if self.core.is_refused() {
             -1.0
         } else if self.core.has_path() {
@@ -705,6 +683,7 @@ impl Module for PlanningModule {
             waypoint_out: ctx.publisher(&cfg.waypoint_out)?,
             status_out: ctx.publisher(&cfg.status_out)?,
             progress_out: ctx.publisher(&cfg.progress_out)?,
+            path_out: PathOut::new(ctx, &cfg.path_out)?,
             last_pose: None,
             state: PlanningState::default(),
         })

@@ -12,6 +12,11 @@
 //! range, quality) on its offer's data channel (`track_out`, default `<module>/track`); through
 //! an occlusion the track is predicted for `hold_s` with a quality falling to 0, then lost.
 //!
+//! While no beacon is designated it looks, in one image of `discover_every`, for each beacon
+//! id of `discover` and publishes a seen track for each one found (on the same channel; the
+//! reacher ignores tracks of beacons it was not told to reach), so that attention can offer
+//! "reach beacon N" for a beacon in view before anyone designated it.
+//!
 //! Quality Q (`ctx.set_quality`): the track's quality (the detector's fill x size x
 //! brightness; the histogram tracker's at most 0.75), half of it, falling to 0 over `hold_s`,
 //! while the beacon is only predicted; 0 when the beacon is lost, not
@@ -102,6 +107,12 @@ pub struct TrackerConfig<P> {
     pub lie: bool,
     /// The liar's bearing error, rad (default 0.5).
     pub lie_bearing_rad: f64,
+    /// Beacon ids looked for while none is designated, so attention can offer "reach beacon
+    /// N" for a beacon in view (default 1 to 9; empty: no discovery).
+    pub discover: Vec<u32>,
+    /// Look for them in one image of this many, while none is designated (default 5: 3 Hz
+    /// at 15 Hz; attention forgets a beacon after 1 s).
+    pub discover_every: u32,
     /// The algorithm's parameters.
     pub algorithm: P,
 }
@@ -119,6 +130,8 @@ impl<P: Default> Default for TrackerConfig<P> {
             frame_timeout_s: 1.0,
             lie: false,
             lie_bearing_rad: 0.5,
+            discover: (1..=9).collect(),
+            discover_every: 5,
             algorithm: P::default(),
         }
     }
@@ -176,6 +189,9 @@ impl<D: Detector> Module for TrackerModule<D> {
             ("beacon_radius", cfg.beacon_radius),
         ] {
             crate::common::positive(f, v)?;
+        }
+        if cfg.discover_every == 0 {
+            return Err(field_error("discover_every", "must be at least 1").into());
         }
         if !cfg.lie_bearing_rad.is_finite() {
             return Err(field_error("lie_bearing_rad", "must be finite").into());
@@ -246,14 +262,33 @@ impl<D: Detector> Module for TrackerModule<D> {
             self.last_frame = Some(ctx.now());
             let t = info.header.stamp_ns as f64 * 1e-9;
             let target = self.target;
+            let discover = target.is_none()
+                && !self.cfg.discover.is_empty()
+                && self
+                    .state
+                    .frames
+                    .is_multiple_of(u64::from(self.cfg.discover_every));
+            let ids = if discover {
+                self.cfg.discover.clone()
+            } else {
+                Vec::new()
+            };
             let detector = self.detector_for(info.width, info.height);
+            let mut found = Vec::new();
             let detection = match (target, detector) {
                 (Some(id), Some(d)) => d.detect(frame.data(), id),
+                (None, Some(d)) if discover => {
+                    found.extend(ids.iter().filter_map(|id| d.detect(frame.data(), *id)));
+                    None
+                }
                 _ => None,
             };
             drop(frame);
             let state = self.track.update(detection, t, self.cfg.hold_s);
             self.report(ctx, state)?;
+            for d in found {
+                self.out.publish(discovered(&info.header, &d))?;
+            }
         }
         Ok(())
     }
@@ -290,6 +325,23 @@ impl<D: Detector> Module for TrackerModule<D> {
     fn restore(&mut self, state: &[u8]) -> ModuleResult {
         self.state = decode_state(state)?;
         Ok(())
+    }
+}
+
+/// The track of a beacon found while none is designated: seen, with the detection's bearing,
+/// range and quality (the module's own Q stays 0: it tracks nothing for a client).
+fn discovered(image: &Header, d: &Detection) -> BeaconTrack {
+    BeaconTrack {
+        header: Header {
+            frame_id: FrameId::CAMERA,
+            stamp_ns: image.stamp_ns,
+            ..Header::default()
+        },
+        beacon_id: d.id,
+        state: TRACK_SEEN,
+        bearing: d.bearing,
+        range: d.range,
+        quality: d.quality as f32,
     }
 }
 

@@ -76,7 +76,8 @@ impl Participant {
     /// (once per round).
     pub(crate) fn ack(&mut self) -> Result<(), Error> {
         let before = self.acker.holds(self.round);
-        self.acker.after_iteration(&self.node, self.round, 0, u64::MAX)?;
+        self.acker
+            .after_iteration(&self.node, self.round, 0, u64::MAX)?;
         if !before && self.acker.holds(self.round) {
             self.acks += 1;
         }

@@ -13,6 +13,10 @@
 //! - `lidar_to_command_roundtrip`: to the receipt of that command back in this process, one
 //!   hop more.
 //!
+//! With `--browsers N` the loop is measured twice: as above, then while N headless Chromium
+//! browsers show the operator page, which streams the bench's scans (`browsers.rs`); the
+//! second pair of rows has the suffix `_Nbrowsers` and the scan frames each page received.
+//!
 //! Scans alternate between a wall far ahead (command passed through) and a wall close ahead
 //! (command slowed), and every answer is checked to be the one for its scan.
 
@@ -52,6 +56,11 @@ pub struct LoopArgs {
     /// One JSON object per case.
     #[arg(long)]
     pub json: bool,
+    /// Also measure the loop while this many headless Chromium browsers watch the operator
+    /// page (served for the bench's channels); the cases get the suffix `_Nbrowsers`. Skipped,
+    /// saying why, without chromium, node or playwright-core.
+    #[arg(long, default_value_t = 0)]
+    pub browsers: usize,
 }
 
 const SCAN: &str = "bench/scan";
@@ -152,6 +161,11 @@ impl Drop for Modules {
 
 /// Runs the loop; returns the rows of `lidar_to_command` and `lidar_to_command_roundtrip`.
 pub fn lidar_to_command(a: &LoopArgs) -> Result<Vec<BenchRow>> {
+    lidar_to_command_watched(a, 0)
+}
+
+/// The loop, while `browsers` browsers watch the operator page (0: none).
+fn lidar_to_command_watched(a: &LoopArgs, browsers: usize) -> Result<Vec<BenchRow>> {
     let mode = WaitMode::parse(&a.wait).context("--wait")?;
     let prefix = shm::unique_prefix("loop");
     let mut modules = Modules {
@@ -226,6 +240,11 @@ pub fn lidar_to_command(a: &LoopArgs) -> Result<Vec<BenchRow>> {
     } else {
         None
     };
+    let watchers = if browsers > 0 {
+        Some(super::browsers::Watchers::start(&prefix, SCAN, browsers)?)
+    } else {
+        None
+    };
     // Let the start-up traffic settle, then drain it.
     let settle = Instant::now();
     while settle.elapsed() < Duration::from_millis(200) {
@@ -288,7 +307,17 @@ pub fn lidar_to_command(a: &LoopArgs) -> Result<Vec<BenchRow>> {
         }
         None => None,
     };
-    let suffix = if a.record { "_recorded" } else { "" };
+    let frames = match watchers {
+        Some(w) => w.finish()?,
+        None => Vec::new(),
+    };
+    let mut suffix = String::new();
+    if browsers > 0 {
+        suffix.push_str(&format!("_{browsers}browsers"));
+    }
+    if a.record {
+        suffix.push_str("_recorded");
+    }
     let row = |case: &str, samples: &mut Vec<u64>, hops: u64| {
         let mean_ns = samples.iter().sum::<u64>() / (samples.len() as u64).max(1);
         let mut r = BenchRow::new("loop", &format!("{case}{suffix}"), Percentiles::of(samples));
@@ -303,6 +332,8 @@ pub fn lidar_to_command(a: &LoopArgs) -> Result<Vec<BenchRow>> {
             .with("processes", 3)
             .with("hops", hops)
             .with("limited_commands", limited)
+            .with("browsers", browsers as u64)
+            .with("page_scan_frames", serde_json::Value::from(frames.clone()))
     };
     Ok(vec![
         row("lidar_to_command", &mut to_robot, 2),
@@ -311,7 +342,13 @@ pub fn lidar_to_command(a: &LoopArgs) -> Result<Vec<BenchRow>> {
 }
 
 pub fn run(a: &LoopArgs) -> Result<()> {
-    let rows = lidar_to_command(a)?;
+    let mut rows = lidar_to_command(a)?;
+    if a.browsers > 0 {
+        match super::browsers::missing() {
+            Some(why) => eprintln!("hng bench loop: --browsers skipped: {why}"),
+            None => rows.extend(lidar_to_command_watched(a, a.browsers)?),
+        }
+    }
     super::print_rows(&rows, a.json);
     Ok(())
 }

@@ -456,6 +456,16 @@ fn a_real_browser_sees_the_robot_sends_it_to_a_goal_and_stops_it() {
         "the browser driver failed: {text}"
     );
     assert!(log.iter().any(|e| e["event"] == "live"), "{text}");
+    let labels = log
+        .iter()
+        .find(|e| e["event"] == "labels")
+        .expect("contract graph labels");
+    eprintln!("gui browser test: contract graph {labels}");
+    assert_eq!(
+        labels["overlaps"].as_array().map(Vec::len),
+        Some(0),
+        "contract graph labels overlap: {labels}"
+    );
     let clicked = log
         .iter()
         .find(|e| e["event"] == "goal_clicked")
@@ -467,6 +477,18 @@ fn a_real_browser_sees_the_robot_sends_it_to_a_goal_and_stops_it() {
     assert_eq!(
         clicked["answer"]["body"]["answer"]["accepted"], true,
         "{clicked}"
+    );
+    // Planning's whole path was drawn, and it leads to the clicked goal.
+    let drawn = log
+        .iter()
+        .find(|e| e["event"] == "path_drawn")
+        .expect("path drawn");
+    let points = drawn["path"]["points"].as_array().expect("points");
+    let last = points.last().expect("a point");
+    let (lx, ly) = (last[0].as_f64().expect("x"), last[1].as_f64().expect("y"));
+    assert!(
+        points.len() >= 2 && ((lx - goal.0).powi(2) + (ly - goal.1).powi(2)).sqrt() < 0.3,
+        "the drawn path ends at the goal: {drawn}"
     );
     let err = goal_true_error.expect("goal reached on the page");
     assert!(

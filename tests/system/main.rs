@@ -22,6 +22,7 @@ mod orders;
 mod recording;
 mod rm;
 mod sdk;
+mod showcase;
 mod signals;
 mod sim;
 mod slam_loop;

@@ -160,8 +160,11 @@ struct Run {
     /// The contract log: (simulated time, module id of the tracker holding the reacher's
     /// "Track beacon").
     switches: Vec<(f64, u32)>,
-    /// Colour tracker's track states seen.
+    /// Colour tracker's track states seen of the designated beacon (the trackers also
+    /// publish the beacons they discover while none is designated).
     colour_states: Vec<(f64, u8)>,
+    /// The beacon designated last.
+    designated: Option<u32>,
 }
 
 impl Run {
@@ -193,6 +196,7 @@ impl Run {
             names: Default::default(),
             switches: Vec::new(),
             colour_states: Vec::new(),
+            designated: None,
             prefix,
             dir,
         };
@@ -225,7 +229,8 @@ impl Run {
         (self.pose.0 - BEACON[0]).hypot(self.pose.1 - BEACON[1])
     }
 
-    fn designate(&self, id: u32) {
+    fn designate(&mut self, id: u32) {
+        self.designated = Some(id);
         self.designation
             .publish(Designation {
                 beacon_id: id,
@@ -269,6 +274,9 @@ impl Run {
         }
         while let Some(t) = self.colour_track.receive().expect("track") {
             let now = self.now_s();
+            if Some(t.beacon_id) != self.designated {
+                continue;
+            }
             if self.colour_states.last().is_none_or(|(_, s)| *s != t.state) {
                 self.colour_states.push((now, t.state));
             }

@@ -15,6 +15,7 @@
 //! grid path into waypoints for the controller.
 
 mod astar;
+pub mod config;
 pub mod costmap;
 mod inflate;
 pub mod movingai;

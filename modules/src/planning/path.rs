@@ -1,5 +1,90 @@
 //! Planning's path geometry: the followed path (projection, the point at an arc length) and
-//! the nearest acceptable cell.
+//! the nearest acceptable cell; the planned path's publisher.
+
+use hng_runtime::msg::{FrameId, Header, PathInfo, Pose2D};
+use hng_runtime::{Context, ModuleResult, SlicePublisher};
+
+/// Most poses a published path holds; a longer path is thinned (its last pose kept).
+pub(crate) const MAX_PATH_POSES: usize = 2048;
+
+/// Publishes Planning's whole path ([`PathInfo`] on `planning/path`) when it changes: a new
+/// plan, another goal, or no path any more (an empty path).
+pub(crate) struct PathOut {
+    out: SlicePublisher<PathInfo>,
+    /// What was published last: goal id, number of points, first and last point.
+    sent: Option<(u32, usize, [f64; 2], [f64; 2])>,
+}
+
+impl std::fmt::Debug for PathOut {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("PathOut").field("sent", &self.sent).finish()
+    }
+}
+
+impl PathOut {
+    pub(crate) fn new(ctx: &mut Context, channel: &str) -> ModuleResult<PathOut> {
+        Ok(PathOut {
+            out: ctx.slice_publisher(channel, MAX_PATH_POSES)?,
+            sent: None,
+        })
+    }
+
+    /// The path now (`points` in `map`, empty when none) of goal `goal_id` (0: none).
+    pub(crate) fn update(
+        &mut self,
+        goal_id: u32,
+        points: &[[f64; 2]],
+        length_m: f64,
+    ) -> ModuleResult {
+        let key = (
+            goal_id,
+            points.len(),
+            points.first().copied().unwrap_or_default(),
+            points.last().copied().unwrap_or_default(),
+        );
+        if self.sent == Some(key) {
+            return Ok(());
+        }
+        let poses = path_poses(points);
+        let info = PathInfo {
+            header: Header {
+                frame_id: FrameId::MAP,
+                ..Header::default()
+            },
+            goal_id: if points.is_empty() { 0 } else { goal_id },
+            length_m,
+        };
+        self.out.publish_copy(info, &poses)?;
+        self.sent = Some(key);
+        Ok(())
+    }
+}
+
+/// The poses of a path (heading: along the next segment), at most [`MAX_PATH_POSES`].
+pub(crate) fn path_poses(points: &[[f64; 2]]) -> Vec<Pose2D> {
+    let step = points.len().div_ceil(MAX_PATH_POSES).max(1);
+    let mut keep: Vec<[f64; 2]> = points.iter().step_by(step).copied().collect();
+    if let Some(last) = points.last()
+        && keep.last() != Some(last)
+    {
+        if keep.len() == MAX_PATH_POSES {
+            keep.pop();
+        }
+        keep.push(*last);
+    }
+    let heading = |a: [f64; 2], b: [f64; 2]| (b[1] - a[1]).atan2(b[0] - a[0]);
+    (0..keep.len())
+        .map(|i| {
+            let p = keep[i];
+            let theta = match (keep.get(i + 1), i.checked_sub(1).map(|j| keep[j])) {
+                (Some(&next), _) => heading(p, next),
+                (None, Some(prev)) => heading(prev, p),
+                (None, None) => 0.0,
+            };
+            Pose2D::new(p[0], p[1], theta)
+        })
+        .collect()
+}
 
 #[derive(Debug, Clone)]
 pub(crate) struct PathState {

@@ -4,7 +4,9 @@
 //
 // node gui.mjs URL ARTEFACT_DIR GOAL_X GOAL_Y [TIMEOUT_MS]
 //   - loads the page, waits until the pose and the laser update;
-//   - clicks the goal on the map; waits until the page's pose is within 0.5 m of it;
+//   - checks that no two labels of the contract graph overlap;
+//   - clicks the goal on the map; waits until Planning's path to it is drawn, and until the
+//     page's pose is within 0.5 m of it;
 //   - waits until the robot moves again (the mission's next goal), presses STOP, waits until
 //     the page shows it stopped;
 //   - saves screenshots in ARTEFACT_DIR.
@@ -42,17 +44,41 @@ try {
   const c1 = await counts();
   say({ event: "live", before: c0, after: c1 });
 
+  // The contract graph: no two labels (the edges' and the modules' boxes) overlap.
+  await page.waitForFunction(() => document.querySelectorAll("#contracts text.edge").length >= 4, null, { timeout });
+  await page.waitForTimeout(600); // the next contracts frame, laid out again
+  say({ event: "labels", ...(await page.evaluate(() => {
+    const svg = document.getElementById("contracts");
+    const b = (el) => { const r = el.getBBox(); return { x: r.x, y: r.y, w: r.width, h: r.height, t: el.textContent || "box" }; };
+    const boxes = [...svg.querySelectorAll("text.edge")].map(b).concat([...svg.querySelectorAll("rect.node")].map(b));
+    const hit = (p, q) => p.x < q.x + q.w && q.x < p.x + p.w && p.y < q.y + q.h && q.y < p.y + p.h;
+    const overlaps = [];
+    for (let i = 0; i < boxes.length; i++) for (let j = i + 1; j < boxes.length; j++) if (hit(boxes[i], boxes[j])) overlaps.push([boxes[i].t, boxes[j].t]);
+    return { edges: svg.querySelectorAll("text.edge").length, nodes: svg.querySelectorAll("rect.node").length, overlaps };
+  })) });
+  await page.screenshot({ path: path.join(dir, "gui-contracts.png") });
+
   const [cx, cy] = await page.evaluate((g) => window.hng.view.worldToClient(g.x, g.y), goal);
   await page.mouse.click(cx, cy);
   await page.waitForFunction(() => window.hng.state.answers.length > 0, null, { timeout: 10000 });
   const answer = await page.evaluate(() => window.hng.state.answers[0]);
   say({ event: "goal_clicked", at: [cx, cy], answer, answer_text: await page.textContent("#answer") });
-
+  // Planning's whole path to it (planning/path) drawn on the map, watched while the robot
+  // goes (the arrival is caught the moment it happens).
+  const pathDrawn = page.waitForFunction((g) => {
+    const p = window.hng.state.path, pts = p && p.points;
+    if (!pts || pts.length < 2 || window.hng.drawn.path !== pts.length) return false;
+    const l = pts[pts.length - 1];
+    return Math.hypot(l[0] - g.x, l[1] - g.y) < 0.3;
+  }, goal, { timeout: 60000, polling: 50 }).then(async () => {
+    say({ event: "path_drawn", drawn: await page.evaluate(() => window.hng.drawn.path), path: await page.evaluate(() => window.hng.state.path) });
+  });
   await page.waitForFunction((g) => {
     const p = window.hng.state.pose && window.hng.state.pose.pose;
     return p && Math.hypot(p.x - g.x, p.y - g.y) < 0.5;
   }, goal, { timeout, polling: 50 });
   say({ event: "goal_reached_on_page", pose: await page.evaluate(() => window.hng.state.pose.pose) });
+  await pathDrawn;
   await page.screenshot({ path: path.join(dir, "gui-goal.png") });
 
   // The mission resumes once the operator's goal is done: wait for motion, then STOP.

@@ -1,0 +1,165 @@
+//! Browsers watching the operator page during a bench (`hng bench loop --browsers N`): the
+//! page server (hng-gui, in this process, on the bench's prefix and a free loopback port,
+//! streaming the bench's channels) and N headless Chromium instances with the page open,
+//! driven by `tests/system/js/watch.mjs` (node and the npm package playwright-core, as the
+//! browser test uses them). [`Watchers::start`] says why when the machine has no browser.
+
+use std::io::{BufRead as _, BufReader, Write as _};
+use std::net::TcpListener;
+use std::path::{Path, PathBuf};
+use std::process::{Child, ChildStdin, Command, Stdio};
+use std::sync::mpsc;
+use std::time::Duration;
+
+use anyhow::{Context as _, Result, bail};
+use hng_gui::{Channels, Options, Server};
+use serde_json::Value;
+
+/// The folder of the browser driver (the repository's tests/system/js).
+fn js_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/system/js")
+}
+
+/// Why browsers cannot watch on this machine, if they cannot.
+pub fn missing() -> Option<String> {
+    let chromium = std::env::var_os("CHROMIUM")
+        .map_or_else(|| PathBuf::from("/usr/bin/chromium"), PathBuf::from);
+    if !chromium.exists() {
+        return Some(format!(
+            "no {} (CHROMIUM names another)",
+            chromium.display()
+        ));
+    }
+    let node_ok = Command::new("node")
+        .arg("--version")
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if !node_ok {
+        return Some("no node".into());
+    }
+    let js = js_dir();
+    if !js.join("node_modules/playwright-core").exists() {
+        return Some(format!(
+            "no {}/node_modules/playwright-core (npm ci there installs it)",
+            js.display()
+        ));
+    }
+    None
+}
+
+/// The page server and the browsers; both stopped on drop.
+pub struct Watchers {
+    server: Option<Server>,
+    driver: Child,
+    stdin: Option<ChildStdin>,
+    events: mpsc::Receiver<Value>,
+    /// Scan frames each page had received when watching began.
+    pub scans_at_start: Vec<u64>,
+}
+
+impl Watchers {
+    /// Serves the page for `prefix` (the scan shown read from `scan`) and opens it in
+    /// `browsers` headless Chromium instances; returns once every page is connected to the live stream.
+    pub fn start(prefix: &str, scan: &str, browsers: usize) -> Result<Watchers> {
+        let listener = TcpListener::bind("127.0.0.1:0")?;
+        let server = Server::start(
+            listener,
+            Options {
+                prefix: prefix.to_owned(),
+                token: None,
+                channels: Channels {
+                    scan: scan.to_owned(),
+                    ..Channels::default()
+                },
+            },
+        )?;
+        let url = format!("http://{}/", server.local_addr());
+        let mut driver = Command::new("node")
+            .arg(js_dir().join("watch.mjs"))
+            .arg(&url)
+            .arg(browsers.to_string())
+            .current_dir(js_dir())
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .spawn()
+            .context("starting node watch.mjs")?;
+        let stdin = driver.stdin.take();
+        let out = driver.stdout.take().context("the driver's stdout")?;
+        let (tx, events) = mpsc::channel();
+        std::thread::spawn(move || {
+            for l in BufReader::new(out).lines().map_while(Result::ok) {
+                let v = serde_json::from_str(&l).unwrap_or(Value::String(l));
+                if tx.send(v).is_err() {
+                    break;
+                }
+            }
+        });
+        let mut w = Watchers {
+            server: Some(server),
+            driver,
+            stdin,
+            events,
+            scans_at_start: Vec::new(),
+        };
+        let e = w
+            .events
+            .recv_timeout(Duration::from_secs(120))
+            .context("the browsers did not start within 120 s")?;
+        if e["event"] != "watching" {
+            bail!("the browsers did not start: {e}");
+        }
+        w.scans_at_start = scans(&e);
+        Ok(w)
+    }
+
+    /// Closes the browsers; returns the scan frames each page received while watching.
+    pub fn finish(mut self) -> Result<Vec<u64>> {
+        if let Some(mut s) = self.stdin.take() {
+            let _ = writeln!(s, "stop");
+        }
+        let e = self
+            .events
+            .recv_timeout(Duration::from_secs(60))
+            .context("the browsers did not answer")?;
+        if e["event"] != "done" {
+            bail!("the browsers failed: {e}");
+        }
+        let end = scans(&e);
+        Ok(end
+            .iter()
+            .zip(&self.scans_at_start)
+            .map(|(b, a)| b.saturating_sub(*a))
+            .collect())
+    }
+}
+
+fn scans(e: &Value) -> Vec<u64> {
+    e["scans"]
+        .as_array()
+        .map(|a| a.iter().filter_map(Value::as_u64).collect())
+        .unwrap_or_default()
+}
+
+impl Drop for Watchers {
+    fn drop(&mut self) {
+        drop(self.stdin.take());
+        let deadline = std::time::Instant::now() + Duration::from_secs(30);
+        loop {
+            match self.driver.try_wait() {
+                Ok(Some(_)) => break,
+                Ok(None) if std::time::Instant::now() < deadline => {
+                    // Waiting for the driver to close its browsers: poll its status.
+                    std::thread::sleep(Duration::from_millis(20));
+                }
+                _ => {
+                    let _ = self.driver.kill();
+                    let _ = self.driver.wait();
+                    break;
+                }
+            }
+        }
+        if let Some(s) = self.server.take() {
+            s.stop();
+        }
+    }
+}
