@@ -10,7 +10,8 @@
 
 use std::path::PathBuf;
 
-use hng_modules::slam::{BackendConfig, Slam, SlamConfig, pose_from, read_log};
+use hng_modules::slam::{BackendConfig, LikelihoodField, Slam, SlamConfig, pose_from, read_log};
+use nalgebra::{Isometry2, Point2, Vector2};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut args = std::env::args().skip(1);
@@ -37,6 +38,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     if let Ok(v) = std::env::var("FUSE_SCALE") {
         cfg.match_information_scale = v.parse()?;
     }
+    if let Ok(v) = std::env::var("CV") {
+        cfg.constant_velocity_hypothesis = v == "1";
+    }
     if let Ok(v) = std::env::var("LOCAL") {
         cfg.local_map_scans = v.parse()?;
     }
@@ -61,6 +65,21 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         truth[0],
     );
     let mut prev = truth[0];
+    let mut est_poses: Vec<Isometry2<f64>> = Vec::new();
+    // Score of scan k against the previous `w` scans rendered at `poses`, at `pose`.
+    let ctx = |poses: &[Isometry2<f64>], k: usize, pose: &Isometry2<f64>| -> f64 {
+        let w = 5.min(k);
+        let mut pts: Vec<Vector2<f64>> = Vec::new();
+        for j in k - w..k {
+            for q in scans[j].laser.points(&scans[j].ranges) {
+                pts.push((poses[j] * Point2::from(q)).coords);
+            }
+        }
+        let own = scans[k].laser.points(&scans[k].ranges);
+        LikelihoodField::build(&pts, 0.05, 0.05, 0)
+            .map(|f| f.score(&own, pose))
+            .unwrap_or(0.0)
+    };
     let (mut sum_t, mut sum_r) = (0.0, 0.0);
     for (k, (s, d)) in scans.iter().zip(&deltas).enumerate() {
         let e = slam.process(d, &s.laser, &s.ranges);
@@ -71,9 +90,28 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             sum_t += err.translation.vector.norm();
             sum_r += err.rotation.angle().abs().to_degrees();
             if err.translation.vector.norm() > thresh {
+                let oe = gt.inverse() * d;
+                let mut ep = est_poses.clone();
+                ep.push(e.pose);
                 println!(
-                    "scan {k} line {}: err {:.3} m ({:.3},{:.3}) {:.2} deg, score {:.3} {:?}, gt step {:.2} m {:.1} deg",
+                    "   truth frame: score at truth {:.3} at est step {:.3} at odom step {:.3}; est frame: at est {:.3} at truth step {:.3}",
+                    ctx(&truth, k, &truth[k]),
+                    ctx(&truth, k, &(truth[k - 1] * est)),
+                    ctx(&truth, k, &(truth[k - 1] * d)),
+                    ctx(&ep, k, &e.pose),
+                    ctx(&ep, k, &(prev * gt)),
+                );
+                let dup = s.ranges == scans[k - 1].ranges;
+                println!(
+                    "scan {k} line {} dt {:.3} dup {dup}: odom err ({:.3},{:.3}) est step ({:.3},{:.3}) odom step ({:.3},{:.3}): err {:.3} m ({:.3},{:.3}) {:.2} deg, score {:.3} {:?}, gt step {:.2} m {:.1} deg",
                     s.line,
+                    s.timestamp - scans[k - 1].timestamp,
+                    oe.translation.x,
+                    oe.translation.y,
+                    est.translation.x,
+                    est.translation.y,
+                    d.translation.x,
+                    d.translation.y,
                     err.translation.vector.norm(),
                     err.translation.x,
                     err.translation.y,
@@ -86,6 +124,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             }
         }
         prev = e.pose;
+        est_poses.push(e.pose);
     }
     let n = (scans.len() - 1) as f64;
     println!("mean {:.4} m {:.3} deg", sum_t / n, sum_r / n);

@@ -6,7 +6,8 @@
 //!   [`BackendConfig::node_min_translation`] or turned
 //!   [`BackendConfig::node_min_rotation`] since the last node; other scans
 //!   are kept as an offset from the last node. Each node keeps its scan's
-//!   points (sensor frame) for submaps and the map.
+//!   end points (sensor frame, 16 bytes a point) for submaps and the map; the
+//!   matching subset and normals are derived when a loop closure needs them.
 //! - **Sequential edges**: the front end's motion between consecutive nodes,
 //!   information from its match covariance with a floor
 //!   ([`BackendConfig::sequential_sigma`]): ICP covariances are optimistic.
@@ -103,13 +104,26 @@ impl Default for BackendConfig {
     }
 }
 
-/// A node's scan: sensor-frame points within the matching range and normals.
+/// A node's scan: its valid end points (sensor frame), for the map. The
+/// points within the matching range and their normals are derived when a
+/// loop closure needs them, not stored: a node costs 16 bytes per point.
 #[derive(Debug)]
 struct NodeScan {
-    points: Vec<Vector2<f64>>,
-    normals: Vec<Option<Vector2<f64>>>,
-    /// All valid end points, for the map.
     all: Vec<Vector2<f64>>,
+}
+
+impl NodeScan {
+    /// The points within `max_range` and their normals.
+    fn matchable(&self, max_range: f64) -> (Vec<Vector2<f64>>, Vec<Option<Vector2<f64>>>) {
+        let points: Vec<Vector2<f64>> = self
+            .all
+            .iter()
+            .filter(|p| p.norm() <= max_range)
+            .copied()
+            .collect();
+        let normals = scan_normals(&points);
+        (points, normals)
+    }
 }
 
 /// A loop closure that was accepted.
@@ -356,12 +370,6 @@ impl Slam {
             }
             return est;
         }
-        let points: Vec<Vector2<f64>> = all
-            .iter()
-            .filter(|p| p.norm() <= self.cfg.match_max_range)
-            .copied()
-            .collect();
-        let normals = scan_normals(&points);
         let k = self.poses.len();
         if let Some(l) = last {
             let cov = match est.source {
@@ -387,11 +395,7 @@ impl Slam {
             });
         }
         self.poses.push(est.pose);
-        self.scans.push(Arc::new(NodeScan {
-            points,
-            normals,
-            all,
-        }));
+        self.scans.push(Arc::new(NodeScan { all }));
         self.scan_nodes.push((k, Isometry2::identity()));
         if self.be.loop_closure && k > 0 && k.is_multiple_of(self.be.loop_every.max(1)) {
             self.try_close(k);
@@ -427,13 +431,15 @@ impl Slam {
             })
             .collect();
         cands.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let (current, _) = self.scans[k].matchable(self.cfg.match_max_range);
         for &(_, s) in cands.iter().take(self.be.loop_candidates) {
             self.stats.closures_tried += 1;
             let range = self.submap_range(s);
             let (mut pts, mut nrm) = (Vec::new(), Vec::new());
             for i in range.clone() {
                 let p = self.poses[i];
-                for (q, nq) in self.scans[i].points.iter().zip(&self.scans[i].normals) {
+                let (points, normals) = self.scans[i].matchable(self.cfg.match_max_range);
+                for (q, nq) in points.iter().zip(&normals) {
                     pts.push((p * Point2::from(*q)).coords);
                     nrm.push(nq.map(|v| p.rotation * v));
                 }
@@ -446,7 +452,7 @@ impl Slam {
             let Some(m) = match_robust(
                 pts,
                 nrm,
-                &self.scans[k].points,
+                &current,
                 &self.poses[k],
                 &self.cfg.matcher,
                 &wide,

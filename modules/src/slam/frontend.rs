@@ -48,6 +48,10 @@ pub struct SlamConfig {
     /// Hessian counts every point as independent, which neighbouring beams on
     /// one wall are not. Default 0.01.
     pub match_information_scale: f64,
+    /// When the odometry reports no motion, also match from the last step
+    /// repeated (a constant-velocity hypothesis) and keep the better score.
+    /// Default true.
+    pub constant_velocity_hypothesis: bool,
 }
 
 /// The information-weighted mean of a match (information `h`, from the scan
@@ -180,6 +184,7 @@ impl Default for SlamConfig {
             wide: WideSearch::default(),
             fuse_odometry: false,
             match_information_scale: 0.01,
+            constant_velocity_hypothesis: true,
         }
     }
 }
@@ -223,6 +228,9 @@ pub struct SlamFrontEnd {
     local: VecDeque<Vec<MapPoint>>,
     map: LogOddsMap,
     scans: usize,
+    /// Motion between the last two estimates (sensor frame), the
+    /// constant-velocity hypothesis when the odometry reports no motion.
+    last_step: Isometry2<f64>,
 }
 
 impl SlamFrontEnd {
@@ -234,6 +242,7 @@ impl SlamFrontEnd {
             local: VecDeque::new(),
             map: LogOddsMap::new(cfg.mapper),
             scans: 0,
+            last_step: Isometry2::identity(),
         }
     }
 
@@ -326,6 +335,27 @@ impl SlamFrontEnd {
         } else {
             self.cfg.wide_below_score
         };
+        // Without odometry, a second hypothesis: the last step repeated
+        // (constant velocity), matched the same way; the higher score wins.
+        let mut seeds: Vec<Isometry2<f64>> = Vec::new();
+        if still && self.cfg.constant_velocity_hypothesis && self.scans > 1 {
+            seeds.push(self.pose * self.last_step);
+        }
+        seeds.retain(|p| (p.translation.vector - prior.translation.vector).norm() > 0.5);
+        let second = seeds
+            .iter()
+            .filter_map(|p| {
+                match_robust(
+                    local_pts.clone(),
+                    local_normals.clone(),
+                    &pts,
+                    p,
+                    &self.cfg.matcher,
+                    &self.cfg.wide,
+                    wide_below,
+                )
+            })
+            .max_by(|a, b| a.score.total_cmp(&b.score));
         let matched = match_robust(
             local_pts,
             local_normals,
@@ -335,6 +365,11 @@ impl SlamFrontEnd {
             &self.cfg.wide,
             wide_below,
         );
+        let matched = match (matched, second) {
+            (Some(a), Some(b)) if b.score > a.score => Some(b),
+            (a, None) => a,
+            (a, b) => a.or(b),
+        };
         let est = match matched {
             None => PoseEstimate {
                 pose: prior,
@@ -367,6 +402,7 @@ impl SlamFrontEnd {
                 source: EstimateSource::OdometryFallback,
             },
         };
+        self.last_step = self.pose.inverse() * est.pose;
         self.pose = est.pose;
         let rot = est.pose.rotation;
         self.local.push_back(
