@@ -26,6 +26,7 @@ pub mod monitor;
 mod nav_watch;
 pub mod probe;
 mod receiver;
+pub use receiver::block_termination_signals;
 pub mod status;
 mod validate;
 
@@ -50,7 +51,6 @@ use hng_watchdog::{
     Event, EventKind, LaunchPlan, LoadOptions, ModuleSpec, Signal, Supervisor, SupervisorOptions,
     launch,
 };
-use nix::sys::signal::SigSet;
 
 use self::hooks::RunHooks;
 use self::lock::SystemLock;
@@ -162,21 +162,6 @@ period_ms = 100
 
 /// Exit code for a launch file that does not validate.
 const EXIT_BAD_LAUNCH_FILE: u8 = 2;
-
-/// Blocks SIGINT, SIGTERM and SIGHUP in the calling thread, and so in every thread it starts
-/// later. `main` calls it for `hng run` before anything else, while it is the only thread:
-/// from then on these signals are only read from the receiver thread's signalfd and start the
-/// orderly stop, whichever thread the kernel would have picked (a signal delivered to a thread
-/// that did not block it would have killed the process by its default action).
-pub fn block_termination_signals() {
-    let mut mask = SigSet::empty();
-    mask.add(Signal::SIGINT);
-    mask.add(Signal::SIGTERM);
-    mask.add(Signal::SIGHUP);
-    if let Err(e) = mask.thread_block() {
-        eprintln!("hng: warning: cannot block termination signals: {e}");
-    }
-}
 
 /// `hng run`: returns the process's exit code.
 pub fn run(prefix: &str, args: &RunArgs) -> ExitCode {

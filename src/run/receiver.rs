@@ -14,6 +14,7 @@ use hng_runtime::system::{SUPERVISOR_COMMAND, SupervisorCommand};
 use hng_runtime::wait::{WaitMode, Waiter, Wake};
 use hng_runtime::{Node, NodeOptions};
 use hng_watchdog::Waker;
+use nix::sys::signal::{SigSet, Signal};
 
 /// What the receiver thread hands to the main thread.
 pub(super) enum Inbox {
@@ -105,4 +106,19 @@ fn receive_loop(
         }
     }
     Ok(())
+}
+
+/// Blocks SIGINT, SIGTERM and SIGHUP in the calling thread, and so in every thread it starts
+/// later. `main` calls it for `hng run` before anything else, while it is the only thread:
+/// from then on these signals are only read from the receiver thread's signalfd and start the
+/// orderly stop, whichever thread the kernel would have picked (a signal delivered to a thread
+/// that did not block it would have killed the process by its default action).
+pub fn block_termination_signals() {
+    let mut mask = SigSet::empty();
+    mask.add(Signal::SIGINT);
+    mask.add(Signal::SIGTERM);
+    mask.add(Signal::SIGHUP);
+    if let Err(e) = mask.thread_block() {
+        eprintln!("hng: warning: cannot block termination signals: {e}");
+    }
 }

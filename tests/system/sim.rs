@@ -261,8 +261,10 @@ fn cmd_vel_moves_the_robot_and_a_nan_command_is_rejected_and_stops_it() {
     };
     let start = truth.next(deadline(), "ground truth");
     let mut last = start;
+    let mut published = 0u64;
     while last.header.stamp_ns < start.header.stamp_ns + 2 * SEC {
         cmd.publish(go).expect("publish");
+        published += 1;
         last = truth.next(deadline(), "ground truth");
     }
     let (dx, dy) = (last.pose.x - start.pose.x, last.pose.y - start.pose.y);
@@ -312,7 +314,14 @@ fn cmd_vel_moves_the_robot_and_a_nan_command_is_rejected_and_stops_it() {
     let st = status.until(deadline(), "status", |st| st.rejected_commands > 0);
     let st = st.last().expect("status");
     assert_eq!(st.rejected_commands, 1);
-    assert!(st.accepted_commands >= 150, "{st:?}");
+    // Every command this test sent was accepted, bar those a loaded machine lets a newer one
+    // overwrite in the simulator's queue before it reads them (a slow test also sends fewer:
+    // one per ground-truth message it receives).
+    assert!(
+        st.accepted_commands <= published && 2 * st.accepted_commands >= published,
+        "{} of {published} commands accepted: {st:?}",
+        st.accepted_commands
+    );
     assert_eq!(
         st.command_timeouts, 0,
         "stopped by the rejection, not the timeout"
