@@ -155,14 +155,13 @@ fn under_a_sigkill_every_1_5_s_the_mission_has_no_collision_and_leaves_nothing()
     eprintln!("chaos: success {success}: {s}");
 }
 
-/// The issue's target: the mission succeeds under these faults. It does not yet on this
-/// project's loaded 2-core machine: at speed 10 a restart (1-2.5 s of wall time from the
-/// kill to the first heartbeat under load 10-13) is 10-25 s of simulated time in which the
-/// simulator runs on without the killed module, and the 240 s limit runs out with 1 or 2 of
-/// 3 goals reached (the same mission without kills succeeds: 85.5 s simulated). Lockstep
-/// simulation (issue 16, another part) is what lets simulated time wait for a restart.
+/// The issue's target: the mission succeeds under these faults. Before lockstep it did not on
+/// this project's loaded 2-core machine (a restart was 10-25 s of simulated time in which the
+/// world ran on without the killed module: 1 success in 10 at load 10-13). With lockstep the
+/// world waits for restarted modules: 7 of 7 successes on an idle machine (session 7), and
+/// 6 of 6 with deadline-driven rounds and fused localization (session 8, load 2-4, two of
+/// them beside two busy loops; 4-5 SIGKILLs each).
 #[test]
-#[ignore = "with lockstep: 7 of 7 successes on an idle machine (3-5 SIGKILLs each); before lockstep 1 of 10 at load 10-13; to be un-ignored once measured under CI load (docs/fault-matrix.md)"]
 fn the_mission_succeeds_under_a_sigkill_of_a_random_module_every_1_5_s() {
     let (success, s) = mission_under_sigkills();
     assert!(success, "the mission failed under faults: {s}");
