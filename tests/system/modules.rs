@@ -6,15 +6,18 @@
 //! objectives "Robot integrity" (Security, whose "Robot control" contract is 1.1) and "Human
 //! control" (the Interface, 2.1); the Robot obeys Security, which limits the Interface's
 //! commands. The test plays an operator pushing full speed (1 m/s) straight at the wall on the
-//! Interface's `hng/teleop`, one command per ground-truth sample (the simulated time paces it,
-//! no sleeps), and checks on the ground truth and the simulator's own counters that the robot
+//! Interface's `hng/teleop`, one command every 0.1 s of simulated time, as a lockstep
+//! participant (the world waits for it every round, so load cannot starve it; no sleeps), and
+//! checks on the ground truth and the simulator's own counters that the robot
 //! drove towards the wall, stopped short of it and never touched it, and on the Robot's
 //! contract table that the commands came by contract.
 
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use hng_runtime::msg::{PoseWithCovariance, Twist};
+use hng_runtime::clock::lockstep::Acker;
+use hng_runtime::clock::{CLOCK_CHANNEL, Clock};
+use hng_runtime::msg::{self, PoseWithCovariance, Twist};
 use hng_runtime::system::{CONTRACTS, ContractRole, ContractTable};
 use hng_runtime::wait::{WaitMode, Waiter};
 use hng_runtime::{Node, NodeOptions};
@@ -56,6 +59,11 @@ enabled = false
 [sensors.camera]
 enabled = false
 "#;
+
+/// The modules of the test, all lockstep participants.
+const MODULES: [&str; 5] = ["robot", "laser", "security", "interface", "manager"];
+/// The test's own node: the operator pushing on `hng/teleop`, a lockstep participant too.
+const OPERATOR: &str = "operator";
 
 /// East wall face: wall line x = 4.5 minus half its 5 cm thickness.
 const WALL_FACE_X: f64 = 4.475;
@@ -153,7 +161,16 @@ fn security_stops_a_robot_teleoperated_straight_at_a_wall() {
         sys,
         dir,
     };
-    let node = Node::new(NodeOptions::new("teleop").prefix(&p.sys.prefix)).expect("node");
+    // The test is the operator, and a lockstep participant like the modules: the world
+    // waits for its command every round, so the outcome does not depend on how the test
+    // process is scheduled (under load, a paced simulator outran it and the Interface's
+    // 0.5 s deadman stopped the robot before the wall).
+    let node = Node::new(
+        NodeOptions::new(OPERATOR)
+            .prefix(&p.sys.prefix)
+            .clock(Clock::sim()),
+    )
+    .expect("node");
     let teleop = node.publisher::<Twist>("hng/teleop").expect("teleop");
     let tables = node
         .subscriber::<ContractTable>(CONTRACTS)
@@ -162,8 +179,10 @@ fn security_stops_a_robot_teleoperated_straight_at_a_wall() {
         .subscriber::<PoseWithCovariance>("sim/ground_truth")
         .expect("ground truth");
     let status = node.subscriber::<SimStatus>("sim/status").expect("status");
+    let clock = node.subscriber::<msg::Clock>(CLOCK_CHANNEL).expect("clock");
+    let mut acker = Acker::new(&node).expect("acker");
     let mut waiter = Waiter::new(WaitMode::default()).expect("waiter");
-    waiter.attach(&truth).expect("attach");
+    waiter.attach(&clock).expect("attach");
 
     p.spawn("robot", "", true);
     p.spawn("laser", "", true);
@@ -172,7 +191,12 @@ fn security_stops_a_robot_teleoperated_straight_at_a_wall() {
     p.spawn("manager", "", true);
     p.spawn(
         "simulator",
-        &format!("world = {:?}\nspeed = 2\n", world.to_string_lossy()),
+        &format!(
+            "world = {:?}\nspeed = \"max\"\nwait_for = {MODULES:?}\nwait_timeout_s = 60.0\n\
+             lockstep = {:?}\nlockstep_timeout_s = 60.0\n",
+            world.to_string_lossy(),
+            [&MODULES[..], &[OPERATOR]].concat(),
+        ),
         false,
     );
 
@@ -180,19 +204,31 @@ fn security_stops_a_robot_teleoperated_straight_at_a_wall() {
         linear_x: 1.0,
         ..Default::default()
     };
+    // One command every 0.1 s of simulated time, the Interface's deadman being 0.5 s.
+    const COMMAND_PERIOD_NS: u64 = 100_000_000;
     let end_ns = 7_000_000_000u64; // 7 s of simulated time: 3.3 m at 1 m/s, then standing
-    let deadline = Instant::now() + Duration::from_secs(90);
+    let deadline = Instant::now() + Duration::from_secs(120);
     let (mut x, mut max_x, mut t_ns) = (1.0_f64, 1.0_f64, 0u64);
     let mut robot_table = None;
     let mut x_at_6s = None;
+    let mut next_command_ns = 0u64;
     while t_ns < end_ns {
         assert!(
             Instant::now() < deadline,
             "simulation too slow: at {t_ns} ns"
         );
-        waiter
-            .wait(Some(Duration::from_secs(5)))
-            .expect("wait for ground truth");
+        let Some(first) = clock
+            .receive_timeout(&mut waiter, Duration::from_secs(5))
+            .expect("wait for the clock")
+        else {
+            continue;
+        };
+        let mut latest = first;
+        while let Some(c) = clock.receive().expect("clock") {
+            latest = c;
+        }
+        node.clock().set_sim_ns(latest.sim_time_ns);
+        // Everything the round brought is in the queues now (published before the round).
         while let Some(g) = truth.receive().expect("receive") {
             x = g.pose.x;
             max_x = max_x.max(x);
@@ -205,9 +241,15 @@ fn security_stops_a_robot_teleoperated_straight_at_a_wall() {
             if x_at_6s.is_none() && t_ns >= 6_000_000_000 {
                 x_at_6s = Some(x);
             }
+        }
+        if latest.sim_time_ns >= next_command_ns {
             teleop.publish(push).expect("teleop");
+            next_command_ns = latest.sim_time_ns + COMMAND_PERIOD_NS;
         }
         read_robot_table(&tables, &mut robot_table);
+        acker
+            .after_iteration(&node, latest.round, 0, next_command_ns)
+            .expect("acknowledge the round");
     }
     read_robot_table(&tables, &mut robot_table);
     let s = *status.latest().expect("status").expect("a status sample");
