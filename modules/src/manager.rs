@@ -432,7 +432,7 @@ impl Module for ManagerModule {
         let mut changed = false;
         if input == self.mission_in.id() {
             while let Some(m) = self.mission_in.receive()? {
-                let Some(op) = MissionOp::from_u8(m.op) else {
+                let Some(op) = MissionOp::from_repr(m.op) else {
                     tracing::warn!(
                         module = ctx.name(),
                         op = m.op,

@@ -13,7 +13,7 @@ pub const MAX_MISSION_GOALS: usize = 32;
 
 /// Where a goal stands.
 #[repr(u8)]
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize, strum::FromRepr)]
 #[serde(rename_all = "snake_case")]
 pub enum GoalState {
     /// Nothing known (no goal).
@@ -25,18 +25,6 @@ pub enum GoalState {
     Reached = 2,
     /// Refused: out of the map, or unreachable (see the reporter's log for why).
     Refused = 3,
-}
-
-impl GoalState {
-    /// From the wire byte (unknown values read as `Idle`).
-    pub fn from_u8(v: u8) -> GoalState {
-        match v {
-            1 => GoalState::Active,
-            2 => GoalState::Reached,
-            3 => GoalState::Refused,
-            _ => GoalState::Idle,
-        }
-    }
 }
 
 /// The progress of a goal, reported by the Servo-controller (reached) and Planning (refused).
@@ -61,18 +49,18 @@ pub struct GoalStatus {
 impl GoalStatus {
     /// The state.
     pub fn goal_state(&self) -> GoalState {
-        GoalState::from_u8(self.state)
+        GoalState::from_repr(self.state).unwrap_or_default()
     }
 
     /// Why the goal was refused, if it was.
     pub fn refusal_reason(&self) -> Option<RefusalReason> {
-        RefusalReason::from_u8(self.reason)
+        RefusalReason::from_repr(self.reason)
     }
 }
 
 /// Why Planning refused a goal ([`GoalStatus::reason`]).
 #[repr(u8)]
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, strum::FromRepr)]
 #[serde(rename_all = "snake_case")]
 pub enum RefusalReason {
     /// Outside the known map.
@@ -89,18 +77,6 @@ pub enum RefusalReason {
 }
 
 impl RefusalReason {
-    /// From the wire byte (0 and unknown values: none).
-    pub fn from_u8(v: u8) -> Option<RefusalReason> {
-        Some(match v {
-            1 => RefusalReason::OutsideMap,
-            2 => RefusalReason::InObstacle,
-            3 => RefusalReason::Unreachable,
-            4 => RefusalReason::Invalid,
-            5 => RefusalReason::Stuck,
-            _ => return None,
-        })
-    }
-
     /// In words.
     pub fn describe(self) -> &'static str {
         match self {
@@ -129,7 +105,7 @@ pub struct MissionGoal {
 
 /// What a [`Mission`] message does to the Manager's goal list.
 #[repr(u8)]
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize, strum::FromRepr)]
 #[serde(rename_all = "snake_case")]
 pub enum MissionOp {
     /// Replace the goals (the current goal is abandoned).
@@ -143,18 +119,7 @@ pub enum MissionOp {
     Skip = 3,
 }
 
-impl MissionOp {
-    /// From the wire byte.
-    pub fn from_u8(v: u8) -> Option<MissionOp> {
-        Some(match v {
-            0 => MissionOp::Replace,
-            1 => MissionOp::Append,
-            2 => MissionOp::Clear,
-            3 => MissionOp::Skip,
-            _ => return None,
-        })
-    }
-}
+impl MissionOp {}
 
 /// A change of mission, sent to the Manager on `hng/mission` (a command channel: every
 /// message counts, none is replayed to late joiners).

@@ -482,7 +482,7 @@ crate::impl_message!(Clock, ChannelKind::State);
 
 /// Life-cycle state of a module, as reported in its [`ModuleReport`].
 #[repr(u8)]
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, strum::FromRepr)]
 pub enum ModuleState {
     /// Configured, not started.
     #[default]
@@ -495,18 +495,7 @@ pub enum ModuleState {
     Stopping = 3,
 }
 
-impl ModuleState {
-    /// From the wire byte.
-    pub fn from_u8(v: u8) -> Option<ModuleState> {
-        Some(match v {
-            0 => ModuleState::Configured,
-            1 => ModuleState::Running,
-            2 => ModuleState::Idle,
-            3 => ModuleState::Stopping,
-            _ => return None,
-        })
-    }
-}
+impl ModuleState {}
 
 /// Length of a module name in a report.
 pub const MODULE_NAME_LEN: usize = 32;
@@ -564,7 +553,7 @@ impl Serialize for ModuleReport {
         st.serialize_field("header", &self.header)?;
         st.serialize_field("name", self.name())?;
         st.serialize_field("pid", &self.pid)?;
-        st.serialize_field("state", &ModuleState::from_u8(self.state))?;
+        st.serialize_field("state", &ModuleState::from_repr(self.state))?;
         st.serialize_field("aptitude", &self.aptitude)?;
         st.serialize_field("quality", &self.quality)?;
         st.serialize_field("waiting_for_resources", &self.waiting_for_resources)?;

@@ -55,7 +55,7 @@ pub const REASON_LEN: usize = 64;
 
 /// What a [`SupervisorCommand`] asks.
 #[repr(u8)]
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, strum::FromRepr)]
 pub enum CommandOp {
     /// Send `signal` to the module (fault injection).
     Kill = 1,
@@ -71,20 +71,7 @@ pub enum CommandOp {
     Shutdown = 6,
 }
 
-impl CommandOp {
-    /// From the wire byte.
-    pub fn from_u8(v: u8) -> Option<CommandOp> {
-        Some(match v {
-            1 => CommandOp::Kill,
-            2 => CommandOp::Restart,
-            3 => CommandOp::Stop,
-            4 => CommandOp::Start,
-            5 => CommandOp::OverLimit,
-            6 => CommandOp::Shutdown,
-            _ => return None,
-        })
-    }
-}
+impl CommandOp {}
 
 /// A command to the supervisor.
 #[repr(C)]
@@ -135,7 +122,7 @@ impl SupervisorCommand {
 
     /// The operation, if valid.
     pub fn op(&self) -> Option<CommandOp> {
-        CommandOp::from_u8(self.op)
+        CommandOp::from_repr(self.op)
     }
 
     /// The target module.
@@ -166,7 +153,7 @@ crate::impl_message!(SupervisorCommand, ChannelKind::Control);
 
 /// What happened to a module.
 #[repr(u8)]
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, strum::FromRepr)]
 pub enum EventKind {
     /// A process was started (`pid`).
     Started = 1,
@@ -178,18 +165,7 @@ pub enum EventKind {
     Stopped = 4,
 }
 
-impl EventKind {
-    /// From the wire byte.
-    pub fn from_u8(v: u8) -> Option<EventKind> {
-        Some(match v {
-            1 => EventKind::Started,
-            2 => EventKind::Died,
-            3 => EventKind::Deactivated,
-            4 => EventKind::Stopped,
-            _ => return None,
-        })
-    }
-}
+impl EventKind {}
 
 /// A module life-cycle event from the supervisor.
 #[repr(C)]
@@ -223,7 +199,7 @@ impl ModuleEvent {
 
     /// The kind, if valid.
     pub fn kind(&self) -> Option<EventKind> {
-        EventKind::from_u8(self.kind)
+        EventKind::from_repr(self.kind)
     }
 
     /// The module's name.

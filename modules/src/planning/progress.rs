@@ -61,7 +61,7 @@ impl NavProgress {
                 "goal {} recovery {}: {}",
                 self.goal_id,
                 self.step,
-                Recovery::from_u8(self.behaviour).map_or("?", Recovery::describe)
+                Recovery::from_repr(self.behaviour).map_or("?", Recovery::describe)
             ),
             3 => format!(
                 "goal {} recovered: moving toward it again ({:.2} m left)",
@@ -117,7 +117,7 @@ impl Default for ProgressParams {
 
 /// A recovery behaviour.
 #[repr(u8)]
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, strum::FromRepr)]
 #[serde(rename_all = "snake_case")]
 pub enum Recovery {
     /// Rebuild the costmap from the provider's map and plan afresh.
@@ -138,11 +138,6 @@ impl Recovery {
         Recovery::BackUp,
         Recovery::Replan,
     ];
-
-    /// From the wire byte.
-    pub fn from_u8(v: u8) -> Option<Recovery> {
-        Self::SEQUENCE.iter().copied().find(|r| *r as u8 == v)
-    }
 
     /// In words.
     pub fn describe(self) -> &'static str {

@@ -159,7 +159,7 @@ pub fn millis(d: Duration) -> f64 {
 impl ReportFigures {
     /// From a report received at `at`.
     pub fn new(r: &ModuleReport, at: Instant, now: Instant) -> ReportFigures {
-        let state = match ReportState::from_u8(r.state) {
+        let state = match ReportState::from_repr(r.state) {
             Some(ReportState::Configured) => "configured",
             Some(ReportState::Running) => "running",
             Some(ReportState::Idle) => "idle",
