@@ -280,7 +280,7 @@ impl ResourceManager {
             .entry(name.clone())
             .or_insert_with(|| Tracked::new(&name));
         t.last_report = Some(now);
-        t.state = ModuleState::from_u8(r.state);
+        t.state = ModuleState::from_repr(r.state);
         t.quality = r.quality;
         t.waiting = r.waiting_for_resources != 0;
         if r.period_ns > 0 {

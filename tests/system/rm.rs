@@ -290,7 +290,7 @@ fn degraded_mode_stops_least_important_first_and_recovers() {
                 "p3" => 2,
                 _ => continue,
             };
-            states[i] = ModuleState::from_u8(r.state);
+            states[i] = ModuleState::from_repr(r.state);
             if states[i] == Some(ModuleState::Idle) {
                 idle_seen[i] = true;
                 if i == 0 {
