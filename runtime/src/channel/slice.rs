@@ -269,8 +269,14 @@ impl<H: SliceMessage> SliceLoan<'_, H> {
 /// A received variable-size sample, still in shared memory (or copied out of it, when it
 /// was kept for the next lockstep round).
 pub struct SliceSample<H: SliceMessage> {
-    pub(super) inner: Received<IoxSample<Service, [H::Elem], H>, (H, Vec<H::Elem>)>,
+    pub(super) inner: Received<SharedSlice<H>, OwnedSlice<H>>,
 }
+
+/// A slice sample in shared memory.
+type SharedSlice<H> = IoxSample<Service, [<H as SliceMessage>::Elem], H>;
+
+/// A slice sample copied out of shared memory: its header and payload.
+type OwnedSlice<H> = (H, Vec<<H as SliceMessage>::Elem>);
 
 impl<H: SliceMessage> SliceSample<H> {
     /// The header.
