@@ -16,6 +16,7 @@
 //! only when a subscriber is actually blocked ([`crate::wake`]).
 
 use std::cell::{Cell, RefCell};
+use std::collections::VecDeque;
 use std::fmt;
 use std::mem::MaybeUninit;
 use std::ops::{Deref, DerefMut};
@@ -49,6 +50,7 @@ mod hanging;
 mod publish;
 mod receive;
 mod slice;
+use publish::Received;
 pub use publish::{Loan, Publisher, Sample};
 use receive::Reader;
 pub use receive::{Fixed, Kind, Receiver, Slice, SliceSubscriber, Subscriber, Waitable};
@@ -170,6 +172,8 @@ pub struct Node {
     config: iceoryx2::config::Config,
     counters: Rc<Counters>,
     state_publishers: RefCell<Vec<Weak<dyn UpdateConnections>>>,
+    /// The lockstep round the node is handling (0: none), shared with its ports.
+    round: Rc<Cell<u32>>,
 }
 
 impl fmt::Debug for Node {
@@ -210,6 +214,7 @@ impl Node {
             config,
             counters: Rc::new(Counters::default()),
             state_publishers: RefCell::new(Vec::new()),
+            round: Rc::new(Cell::new(0)),
         })
     }
 
@@ -261,6 +266,20 @@ impl Node {
     /// The clock.
     pub fn clock(&self) -> &Clock {
         &self.clock
+    }
+
+    /// Sets the lockstep round this node is handling (0: none). From then on its messages
+    /// carry it ([`Header::round`]), and its subscribers keep a message sent in this round
+    /// for the next one (the executor calls this for a module on the simulation clock; see
+    /// [`crate::clock::lockstep`]).
+    pub fn set_lockstep_round(&self, round: u64) {
+        // Rounds only ever need telling apart from the next one: the low 32 bits do.
+        self.round.set(round as u32);
+    }
+
+    /// The lockstep round this node is handling (low 32 bits; 0: none).
+    pub fn lockstep_round(&self) -> u32 {
+        self.round.get()
     }
 
     /// Message counters summed over this node's ports.
@@ -536,6 +555,7 @@ impl Node {
             channel: channel.into(),
             counters: self.counters.clone(),
             notified: Cell::new(0),
+            round: self.round.clone(),
         };
         Ok((port, out))
     }
@@ -559,10 +579,15 @@ impl Node {
             last_seq: RefCell::new(Vec::new()),
             stats: Cell::new(ChannelStats::default()),
             counters: self.counters.clone(),
+            round: self.round.clone(),
         });
         K::update_connections(&port);
         Ok(Receiver {
-            reader: Rc::new(Reader { port, inlet }),
+            reader: Rc::new(Reader {
+                port,
+                inlet,
+                held: RefCell::new(VecDeque::new()),
+            }),
         })
     }
 }
@@ -609,6 +634,7 @@ struct Outlet {
     channel: Rc<str>,
     counters: Rc<Counters>,
     notified: Cell<u64>,
+    round: Rc<Cell<u32>>,
 }
 
 impl Outlet {
@@ -619,6 +645,7 @@ impl Outlet {
         h.seq = seq;
         h.stamp_ns = self.clock.now_ns();
         h.source = self.source;
+        h.round = self.round.get();
     }
 
     /// Numbers a recorded header (replay): the sequence is this publisher's, the stamp and
@@ -627,6 +654,7 @@ impl Outlet {
         let seq = self.seq.get() + 1;
         self.seq.set(seq);
         h.seq = seq;
+        h.round = self.round.get();
     }
 
     #[inline]
@@ -663,9 +691,19 @@ pub(crate) struct Inlet {
     last_seq: RefCell<Vec<(u32, u64)>>,
     stats: Cell<ChannelStats>,
     counters: Rc<Counters>,
+    /// The node's lockstep round (see [`Header::round`]).
+    round: Rc<Cell<u32>>,
 }
 
 impl Inlet {
+    /// True if `h` was sent in the lockstep round this node is handling (never outside
+    /// lockstep): it waits for the next round.
+    #[inline]
+    fn is_current_round(&self, h: &Header) -> bool {
+        let r = self.round.get();
+        r != 0 && h.round == r
+    }
+
     #[inline]
     fn account(&self, h: &Header) {
         let mut stats = self.stats.get();

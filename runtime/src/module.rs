@@ -576,6 +576,7 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
             clock.set_sim_ns(c.sim_time_ns);
             round = c.round;
         }
+        ctx.node.set_lockstep_round(round);
         Some(sub)
     } else {
         None
@@ -671,6 +672,9 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
         {
             clock.set_sim_ns(c.sim_time_ns);
             round = c.round;
+            // What this iteration publishes belongs to this round, and what others publish
+            // in it waits for the next (crate::clock::lockstep, "two phases").
+            ctx.node.set_lockstep_round(round);
         }
         let now = clock.now_ns();
         if !acker.as_ref().is_some_and(|a| a.holds(round)) {

@@ -137,6 +137,13 @@ pub struct Header {
     pub source: u32,
     /// Coordinate frame the data is expressed in.
     pub frame_id: FrameId,
+    /// The lockstep round in which the publisher sent the message (0: outside lockstep).
+    /// A module in lockstep handles in round `r` only messages sent before `r` opened; one
+    /// sent in `r` waits for the next round, however the processes were scheduled (see
+    /// [`crate::clock::lockstep`]). Set by the publisher; not part of the message's content
+    /// (left out of its serialisation).
+    #[serde(skip)]
+    pub round: u32,
 }
 
 /// A message type that can travel on an hng channel.

@@ -73,7 +73,6 @@ fn the_default_mission_succeeds_at_speed_max() {
 }
 
 #[test]
-#[ignore = "not deterministic yet (issue 16): with deadline-driven rounds (2026-11-25, load 9) two seeded runs gave 14 and 12 contract switches and paths of 17.39 and 17.15 m (earlier: 8/4, 17.22/17.73 m); modules can hand outputs on within one lockstep round or the next (docs/simulator.md, Determinism)"]
 fn two_runs_with_one_seed_give_the_same_summary() {
     let _heavy = crate::common::heavy();
     let mut summaries = Vec::new();
@@ -95,12 +94,13 @@ fn two_runs_with_one_seed_give_the_same_summary() {
         a["path_length_m"].as_f64().expect("path"),
         b["path_length_m"].as_f64().expect("path"),
     );
-    // The issue asks for 1 %; measured 0.8-2.6 % (see docs/simulator.md, "Determinism": modules
-    // between the simulator and SLAM can still hand their outputs on within one round or the
-    // next). The same goals and contract switches hold every time.
+    // The issue's bound. Measured by hand with `hng run` (2026-11-28, debug, load 13-17): two
+    // pairs with two-phase rounds at 16.867/16.855 and 16.867/16.874 m (0 switches each, goal
+    // errors equal to the last digit in the second pair), one pair before them at
+    // 16.853/16.863 m (docs/simulator.md, "Determinism").
     assert!(
-        (pa - pb).abs() <= 0.05 * pa.max(pb),
-        "path lengths {pa} and {pb} differ by more than 5 %:\n{a}\n{b}"
+        (pa - pb).abs() <= 0.01 * pa.max(pb),
+        "path lengths {pa} and {pb} differ by more than 1 %:\n{a}\n{b}"
     );
     assert_eq!(
         a["contract_switches"], b["contract_switches"],

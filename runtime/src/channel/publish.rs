@@ -123,20 +123,40 @@ impl<T: Message> DerefMut for Loan<'_, T> {
     }
 }
 
-/// A received message, still in shared memory; dereferences to the message.
+/// A received message, still in shared memory (or copied out of it, when it was kept for the
+/// next lockstep round); dereferences to the message.
 pub struct Sample<T: Message> {
-    pub(super) inner: IoxSample<Service, T, ()>,
+    pub(super) inner: Received<IoxSample<Service, T, ()>, T>,
+}
+
+/// A received sample in shared memory, or copied out of it (it then borrows no sample of
+/// the subscriber's few, see [`crate::qos::Qos::borrowed`]).
+pub(super) enum Received<S, C> {
+    Shared(S),
+    Copied(C),
+}
+
+impl<T: Message> Sample<T> {
+    /// The same message, copied out of shared memory.
+    pub(super) fn copied(self) -> Sample<T> {
+        Sample {
+            inner: Received::Copied(*self),
+        }
+    }
 }
 
 impl<T: Message> Deref for Sample<T> {
     type Target = T;
     fn deref(&self) -> &T {
-        self.inner.payload()
+        match &self.inner {
+            Received::Shared(s) => s.payload(),
+            Received::Copied(c) => c,
+        }
     }
 }
 
 impl<T: Message> fmt::Debug for Sample<T> {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        self.inner.payload().fmt(f)
+        (**self).fmt(f)
     }
 }

@@ -27,6 +27,10 @@ pub trait Kind: sealed::Sealed + 'static {
     fn update_connections(port: &Self::Port);
     #[doc(hidden)]
     fn header(sample: &Self::Sample) -> &Header;
+    /// The sample copied out of shared memory (kept for the next lockstep round without
+    /// borrowing one of the subscriber's few samples).
+    #[doc(hidden)]
+    fn copied(sample: Self::Sample) -> Self::Sample;
 }
 
 /// Fixed-size messages of type `T` (see [`Subscriber`]).
@@ -44,7 +48,9 @@ impl<T: Message> Kind for Fixed<T> {
     const NAME: &'static str = "Subscriber";
     #[inline]
     fn receive(port: &Self::Port) -> Result<Option<Sample<T>>, ReceiveError> {
-        Ok(port.receive()?.map(|inner| Sample { inner }))
+        Ok(port.receive()?.map(|s| Sample {
+            inner: Received::Shared(s),
+        }))
     }
     fn has_samples(port: &Self::Port) -> bool {
         port.has_samples().unwrap_or(false)
@@ -53,7 +59,10 @@ impl<T: Message> Kind for Fixed<T> {
         let _ = port.update_connections();
     }
     fn header(sample: &Sample<T>) -> &Header {
-        sample.inner.payload().header()
+        (**sample).header()
+    }
+    fn copied(sample: Sample<T>) -> Sample<T> {
+        sample.copied()
     }
 }
 
@@ -63,7 +72,9 @@ impl<H: SliceMessage> Kind for Slice<H> {
     const NAME: &'static str = "SliceSubscriber";
     #[inline]
     fn receive(port: &Self::Port) -> Result<Option<SliceSample<H>>, ReceiveError> {
-        Ok(port.receive()?.map(|inner| SliceSample { inner }))
+        Ok(port.receive()?.map(|s| SliceSample {
+            inner: Received::Shared(s),
+        }))
     }
     fn has_samples(port: &Self::Port) -> bool {
         port.has_samples().unwrap_or(false)
@@ -72,7 +83,10 @@ impl<H: SliceMessage> Kind for Slice<H> {
         let _ = port.update_connections();
     }
     fn header(sample: &SliceSample<H>) -> &Header {
-        sample.inner.user_header().header()
+        sample.header().header()
+    }
+    fn copied(sample: SliceSample<H>) -> SliceSample<H> {
+        sample.copied()
     }
 }
 
@@ -80,6 +94,19 @@ impl<H: SliceMessage> Kind for Slice<H> {
 pub(super) struct Reader<K: Kind> {
     pub(super) port: K::Port,
     pub(super) inlet: Rc<Inlet>,
+    /// Messages sent in the lockstep round this node is handling, copied out and kept for
+    /// the next round (oldest first; see [`Header::round`]).
+    pub(super) held: RefCell<VecDeque<K::Sample>>,
+}
+
+impl<K: Kind> Reader<K> {
+    /// True if the oldest kept message may be handled now (its round has passed).
+    fn held_ready(&self) -> bool {
+        self.held
+            .borrow()
+            .front()
+            .is_some_and(|s| !self.inlet.is_current_round(K::header(s)))
+    }
 }
 
 impl<K: Kind> Input for Reader<K> {
@@ -87,7 +114,7 @@ impl<K: Kind> Input for Reader<K> {
         &self.inlet
     }
     fn has_samples(&self) -> bool {
-        K::has_samples(&self.port)
+        self.held_ready() || K::has_samples(&self.port)
     }
 }
 
@@ -118,15 +145,30 @@ impl<K: Kind> Receiver<K> {
     }
 
     /// The next message, or `None` when there is none.
+    ///
+    /// In lockstep ([`Node::set_lockstep_round`]), a message sent in the round this node is
+    /// handling is not returned now: it is copied out, kept, and returned in the next round
+    /// before anything newer, so what a module handles in a round never depends on whether
+    /// another module answered the same round before or after it.
     #[inline]
     pub fn receive(&self) -> Result<Option<K::Sample>, Error> {
         let r = &*self.reader;
-        let next =
-            K::receive(&r.port).map_err(|e| Error::channel(&r.inlet.channel, "receive", e))?;
-        if let Some(s) = &next {
-            r.inlet.account(K::header(s));
+        if r.held_ready() {
+            return Ok(r.held.borrow_mut().pop_front());
         }
-        Ok(next)
+        loop {
+            let next =
+                K::receive(&r.port).map_err(|e| Error::channel(&r.inlet.channel, "receive", e))?;
+            let Some(s) = next else {
+                return Ok(None);
+            };
+            r.inlet.account(K::header(&s));
+            if r.inlet.is_current_round(K::header(&s)) {
+                r.held.borrow_mut().push_back(K::copied(s));
+                continue;
+            }
+            return Ok(Some(s));
+        }
     }
 
     /// The next message, waiting for it with `waiter` for at most `timeout`; `None` when none
@@ -188,5 +230,82 @@ impl<K: Kind> Waitable for Receiver<K> {
     #[allow(private_interfaces)]
     fn erased(&self) -> Rc<dyn Input> {
         self.as_input()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::channel::{Node, NodeOptions};
+    use crate::msg::{GridInfo, Twist};
+    use crate::shm;
+
+    fn twist(x: f64) -> Twist {
+        Twist {
+            linear_x: x,
+            ..Twist::default()
+        }
+    }
+
+    #[test]
+    fn in_lockstep_a_message_sent_in_the_current_round_waits_for_the_next() {
+        let prefix = shm::unique_prefix("holdround");
+        let a = Node::new(NodeOptions::new("a").prefix(&prefix)).expect("node a");
+        let b = Node::new(NodeOptions::new("b").prefix(&prefix)).expect("node b");
+        let publisher = a.publisher::<Twist>("t/cmd").expect("publisher");
+        let subscriber = b.subscriber::<Twist>("t/cmd").expect("subscriber");
+        let grids = a.slice_publisher::<GridInfo>("t/grid", 16).expect("grids");
+        let grid_sub = b.slice_subscriber::<GridInfo>("t/grid").expect("grid sub");
+
+        // Outside lockstep nothing is held.
+        publisher.publish(twist(1.0)).expect("publish");
+        assert_eq!(
+            subscriber.receive().expect("rx").expect("outside").linear_x,
+            1.0
+        );
+
+        // Round 5: `a` sends one message before the round (4) and two in it.
+        a.set_lockstep_round(4);
+        publisher.publish(twist(2.0)).expect("publish");
+        a.set_lockstep_round(5);
+        b.set_lockstep_round(5);
+        publisher.publish(twist(3.0)).expect("publish");
+        publisher.publish(twist(4.0)).expect("publish");
+        grids
+            .publish_copy(GridInfo::default(), &[7, 8, 9])
+            .expect("grid");
+        let got = subscriber
+            .receive()
+            .expect("rx")
+            .expect("sent before the round");
+        assert_eq!((got.linear_x, got.header.round), (2.0, 4));
+        assert!(
+            subscriber.receive().expect("rx").is_none(),
+            "sent in round 5: held"
+        );
+        assert!(grid_sub.receive().expect("rx").is_none(), "held");
+        assert!(
+            !subscriber.has_samples(),
+            "nothing to hand out in this round"
+        );
+
+        // Round 6: the held messages come first, in order, copied out of shared memory
+        // (more of them than the subscriber may borrow at once).
+        b.set_lockstep_round(6);
+        a.set_lockstep_round(6);
+        publisher.publish(twist(5.0)).expect("publish");
+        assert!(subscriber.has_samples());
+        let x: Vec<f64> = std::iter::from_fn(|| subscriber.receive().expect("rx"))
+            .map(|s| s.linear_x)
+            .collect();
+        assert_eq!(x, [3.0, 4.0], "round 6's own message waits for round 7");
+        let g = grid_sub
+            .receive()
+            .expect("rx")
+            .expect("grid in the next round");
+        assert_eq!(g.data(), &[7, 8, 9]);
+        b.set_lockstep_round(7);
+        assert_eq!(subscriber.latest().expect("rx").expect("5").linear_x, 5.0);
+        drop((publisher, subscriber, grids, grid_sub, a, b));
+        shm::remove_prefix_files(&prefix);
     }
 }

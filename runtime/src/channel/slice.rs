@@ -266,19 +266,39 @@ impl<H: SliceMessage> SliceLoan<'_, H> {
     }
 }
 
-/// A received variable-size sample, still in shared memory.
+/// A received variable-size sample, still in shared memory (or copied out of it, when it
+/// was kept for the next lockstep round).
 pub struct SliceSample<H: SliceMessage> {
-    pub(super) inner: IoxSample<Service, [H::Elem], H>,
+    pub(super) inner: Received<SharedSlice<H>, OwnedSlice<H>>,
 }
+
+/// A slice sample in shared memory.
+type SharedSlice<H> = IoxSample<Service, [<H as SliceMessage>::Elem], H>;
+
+/// A slice sample copied out of shared memory: its header and payload.
+type OwnedSlice<H> = (H, Vec<<H as SliceMessage>::Elem>);
 
 impl<H: SliceMessage> SliceSample<H> {
     /// The header.
     pub fn header(&self) -> &H {
-        self.inner.user_header()
+        match &self.inner {
+            Received::Shared(s) => s.user_header(),
+            Received::Copied((h, _)) => h,
+        }
     }
 
     /// The payload.
     pub fn data(&self) -> &[H::Elem] {
-        self.inner.payload()
+        match &self.inner {
+            Received::Shared(s) => s.payload(),
+            Received::Copied((_, d)) => d,
+        }
+    }
+
+    /// The same sample, copied out of shared memory.
+    pub(super) fn copied(self) -> SliceSample<H> {
+        SliceSample {
+            inner: Received::Copied((*self.header(), self.data().to_vec())),
+        }
     }
 }

@@ -32,6 +32,19 @@
 //! (until this version, handling an input or firing a timer did too: one more round per
 //! link of every chain of modules).
 //!
+//! **Two phases: what a round delivers does not depend on scheduling.** A module that answers
+//! round `r` quickly could hand its output to another module within `r` (if that one had not
+//! read its inputs yet) or in `r + 1` (if it had): the same simulated instant, but the
+//! receiver then handled its inputs in different groups and orders, and two runs with one
+//! seed drifted apart. So every message carries the round in which it was sent
+//! ([`msg::Header::round`], set from [`crate::Node::set_lockstep_round`], which the executor
+//! calls with each round it reads), and a subscriber in round `r` keeps a message sent in `r`
+//! for round `r + 1` (copied out of shared memory). In round `r` every module thus handles
+//! exactly the messages sent before `r` opened, all of which are in its queues then (round
+//! `r` opens only after every answer to `r - 1`, and a module answers after publishing): a
+//! bulk-synchronous step, whatever the scheduling. The simulator sends a step's data outside
+//! any round (0), so every module handles it in the round the step opens.
+//!
 //! Dead modules never freeze the world: the simulator drops a participant when the supervisor
 //! reports it died or was deactivated, takes it back when it is started again (the world then
 //! waits for the restarted module, which resumes from its checkpoint), and drops one that has
