@@ -73,7 +73,7 @@ $HNG order teleop
 drive '{"angular_z": 0.6}'
 sleep 1.3
 halt
-drive '{"linear_x": 0.25, "angular_z": -0.25}'
+drive '{"linear_x": 0.25, "angular_z": -0.1}'
 wait_for 60 "follow wall right offered by the north wall" offered "$WALL"
 $HNG order follow-wall right
 halt
