@@ -28,7 +28,18 @@ wait_for() {
 }
 offered() { $HNG behaviours --once --json 2>/dev/null | grep -q "$1"; }
 in_force() { $HNG order show --json | grep -q '"active":true'; }
-reached() { $HNG topic echo reacher/status --count 1 --timeout 2 --json | grep -q '"state":2'; }
+# near X Y D: the robot's true pose (the simulator's ground truth) within D m of (X, Y).
+near() {
+    $HNG topic echo sim/ground_truth --count 1 --timeout 2 --json |
+        sed -n 's/.*"x":\([-0-9.e]*\),"y":\([-0-9.e]*\),.*/\1 \2/p' |
+        awk -v x="$1" -v y="$2" -v d="$3" '{ exit !(($1 - x) ^ 2 + ($2 - y) ^ 2 < d * d) }'
+}
+# facing_west: the robot's true heading within 0.25 rad of west.
+facing_west() {
+    $HNG topic echo sim/ground_truth --count 1 --timeout 2 --json |
+        sed -n 's/.*"theta":\([-0-9.e]*\)}.*/\1/p' |
+        awk '{ a = $1 < 0 ? -$1 : $1; exit !(a > 3.1416 - 0.25) }'
+}
 # drive JSON: publishes the teleop command at 10 Hz in the background until `halt`.
 drive() {
     $HNG topic pub hng/teleop "$1" --rate 10 >/dev/null &
@@ -65,13 +76,14 @@ wait_for 120 "reach beacon 3 offered" offered "$BEACON"
 $HNG order reach-beacon 3
 halt
 $HNG contracts | grep -i "track beacon" || true
-wait_for 180 "beacon 3 reached" reached
+wait_for 180 "beacon 3 reached (the robot within 0.5 m of it)" near 17.5 8 0.5
+sleep 1
 $HNG contracts | grep -i "track beacon" || true
 
 say "teleop toward the north wall, then follow it on the right while moving"
 $HNG order teleop
 drive '{"angular_z": 0.6}'
-sleep 1.3
+wait_for 30 "the robot facing west" facing_west
 halt
 drive '{"linear_x": 0.25, "angular_z": -0.1}'
 wait_for 60 "follow wall right offered by the north wall" offered "$WALL"

@@ -70,7 +70,10 @@ fn speed(w: &Watch) -> f64 {
     let Some(&(t0, x0, y0)) = w.track.iter().rev().find(|p| t1 - p.0 >= 0.3) else {
         return 0.0;
     };
-    let turn = w.headings.last().zip(w.headings.iter().rev().find(|h| t1 - h.0 >= 0.3));
+    let turn = w
+        .headings
+        .last()
+        .zip(w.headings.iter().rev().find(|h| t1 - h.0 >= 0.3));
     let rot = turn.map_or(0.0, |(a, b)| wrap(a.1 - b.1).abs() * 0.2);
     (dist((x1, y1), (x0, y0)) + rot) / (t1 - t0)
 }
@@ -96,7 +99,10 @@ fn tree(w: &mut Watch, order: &str, want: [Option<&str>; 3]) -> (String, [Option
             .zip(want)
             .all(|(&n, p)| w.provider_of("interface", n).as_deref() == p)
     });
-    (order.to_owned(), needs.map(|n| w.provider_of("interface", n)))
+    (
+        order.to_owned(),
+        needs.map(|n| w.provider_of("interface", n)),
+    )
 }
 
 #[test]
@@ -141,7 +147,9 @@ fn the_showcase_switches_orders_of_every_kind_while_the_robot_moves() {
     assert_eq!(s.accepted, 1, "{}", s.reason());
     watch.drive = Some(twist(0.3, -0.1));
     let start = watch.xy();
-    watch.until("the robot moving under teleop", |w| dist(w.xy(), start) > 0.5);
+    watch.until("the robot moving under teleop", |w| {
+        dist(w.xy(), start) > 0.5
+    });
     trees.push(tree(&mut watch, "teleop", [None, None, None]));
 
     // Waypoints, given while teleop drives: along the south wall, 1 m from it, where
@@ -152,7 +160,11 @@ fn the_showcase_switches_orders_of_every_kind_while_the_robot_moves() {
     );
     watch.drive = None;
     let seq = s.seq;
-    trees.push(tree(&mut watch, "waypoints", [Some("planning"), None, None]));
+    trees.push(tree(
+        &mut watch,
+        "waypoints",
+        [Some("planning"), None, None],
+    ));
     watch.until("follow wall right offered along the south wall", |w| {
         offers(w, OrderKind::FollowWall, SIDE_RIGHT)
     });
@@ -243,7 +255,11 @@ fn the_showcase_switches_orders_of_every_kind_while_the_robot_moves() {
     });
     watch.drive = None;
     assert!(cli_status.is_some_and(|s| s.success()), "{cli_status:?}");
-    trees.push(tree(&mut watch, "reach beacon", [None, None, Some("reacher")]));
+    trees.push(tree(
+        &mut watch,
+        "reach beacon",
+        [None, None, Some("reacher")],
+    ));
     // On the way the robot crosses the dark zone (lighting 0.15): "Track beacon" moves from
     // the colour tracker to the histogram tracker, and back once out of it. The contract log
     // is (simulated time of the latest true pose when the test saw the change, tracker); the
@@ -254,7 +270,10 @@ fn the_showcase_switches_orders_of_every_kind_while_the_robot_moves() {
         let now = w.pose_t();
         let tracker = w.provider_of("reacher", TRACK_NEED).unwrap_or_default();
         if log.last().is_none_or(|l| l.1 != tracker) {
-            eprintln!("showcase: {now:.2} s at {:?}: Track beacon by {tracker:?}", w.xy());
+            eprintln!(
+                "showcase: {now:.2} s at {:?}: Track beacon by {tracker:?}",
+                w.xy()
+            );
             log.push((now, tracker));
         }
         let inside = dist(w.xy(), DARK.0) < DARK.1;
@@ -280,11 +299,14 @@ fn the_showcase_switches_orders_of_every_kind_while_the_robot_moves() {
         "showcase: hng order reach-beacon 3 from {seen_from:.2} m: at rest {d:.3} m from the beacon's centre"
     );
     assert!(d <= 0.5, "stopped {d:.3} m from the beacon");
-    watch.until("Track beacon back to the colour tracker out of the dark", |w| {
-        note(w, &mut log, &mut zone);
-        log.iter().any(|l| l.1 == "tracker_histogram")
-            && log.last().is_some_and(|l| l.1 == "tracker_colour")
-    });
+    watch.until(
+        "Track beacon back to the colour tracker out of the dark",
+        |w| {
+            note(w, &mut log, &mut zone);
+            log.iter().any(|l| l.1 == "tracker_histogram")
+                && log.last().is_some_and(|l| l.1 == "tracker_colour")
+        },
+    );
     let (Some(t_in), Some(t_out)) = zone else {
         panic!("the robot never crossed the dark zone: {zone:?}, contract log {log:?}");
     };
@@ -304,7 +326,9 @@ fn the_showcase_switches_orders_of_every_kind_while_the_robot_moves() {
         .rev()
         .find(|l| l.1 == "tracker_colour" && l.0 >= t_out)
         .map(|l| l.0 - t_out);
-    eprintln!("showcase: Track beacon to the histogram tracker {dark:?} s after entering the dark zone, back {back:?} s after leaving it");
+    eprintln!(
+        "showcase: Track beacon to the histogram tracker {dark:?} s after entering the dark zone, back {back:?} s after leaving it"
+    );
 
     // Teleop: turn to face west, then curve right toward the north wall; "follow wall right"
     // ordered as soon as it is offered, while the robot moves.
@@ -324,10 +348,17 @@ fn the_showcase_switches_orders_of_every_kind_while_the_robot_moves() {
     follow.side = SIDE_RIGHT;
     switch(&mut watch, follow);
     watch.drive = None;
-    trees.push(tree(&mut watch, "follow wall", [None, Some("wall_follower"), None]));
+    trees.push(tree(
+        &mut watch,
+        "follow wall",
+        [None, Some("wall_follower"), None],
+    ));
     watch.until("the Wall follower's Detect wall contract with Walls", |w| {
-        w.provider_of("wall_follower", hng_modules::wall_follower::DETECT_WALL_NEED)
-            .as_deref()
+        w.provider_of(
+            "wall_follower",
+            hng_modules::wall_follower::DETECT_WALL_NEED,
+        )
+        .as_deref()
             == Some("walls")
     });
     // Along the north wall (y = 10) for 3.5 m west: the set distance held at the end.
