@@ -144,6 +144,7 @@ impl Module for ReacherModule {
             ("feedback.window_s", cfg.feedback.window_s),
             ("feedback.bearing_tol_rad", cfg.feedback.bearing_tol_rad),
             ("feedback.range_tol_frac", cfg.feedback.range_tol_frac),
+            ("feedback.horizon_s", cfg.feedback.horizon_s),
         ] {
             positive(f, v)?;
         }

@@ -8,7 +8,8 @@ use hng_runtime::msg::OrderKind;
 use hng_runtime::shm;
 use nix::sys::signal::Signal;
 
-use crate::orders::{Watch, dist, goal, launch, write_map};
+use crate::common::{Watch, dist, goal};
+use crate::orders::{launch, write_map};
 use crate::signals::Run;
 
 const TESTMOD: &str = env!("CARGO_BIN_EXE_hng-testmod");

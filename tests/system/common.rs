@@ -1,9 +1,22 @@
-//! Shared helpers: unique prefixes, spawned module processes that never outlive a test.
+//! Shared helpers: unique prefixes, spawned module processes that never outlive a test, and
+//! [`Watch`], what a test sees of a running robot (true poses, simulator status, orders,
+//! behaviours, contracts) with its operator's ports.
 
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use hng_runtime::shm;
+use hng_runtime::module::REPORT_CHANNEL;
+use hng_runtime::msg::{
+    BEHAVIOURS_CHANNEL, Behaviours, ModuleReport, ORDER_CHANNEL, ORDER_STATUS_CHANNEL, Order,
+    OrderKind, OrderStatus, Pose2D, PoseWithCovariance, Twist,
+};
+use hng_runtime::system::{CONTRACTS, ContractRole, ContractTable};
+use hng_runtime::wait::{WaitMode, Waiter};
+use hng_runtime::{Node, NodeOptions, Publisher, Subscriber, shm};
+use hng_simulator::module::SimStatus;
+
+/// Generous: a whole robot in accelerated simulation on two loaded cores.
+pub(crate) const TIMEOUT: Duration = Duration::from_secs(150);
 
 /// Waits (blocking, with a deadline) for the first report of module `name` that satisfies
 /// `pred`.
@@ -154,4 +167,234 @@ pub fn skip(test: &str, why: &str) {
     {
         let _ = file.write_all(line.as_bytes());
     }
+}
+
+/// What the test sees of the running system, and its operator's ports.
+pub(crate) struct Watch {
+    truth: Subscriber<PoseWithCovariance>,
+    status: Subscriber<SimStatus>,
+    orders_status: Subscriber<OrderStatus>,
+    reports: Subscriber<ModuleReport>,
+    behaviours_in: Subscriber<Behaviours>,
+    tables: Subscriber<ContractTable>,
+    orders: Publisher<Order>,
+    teleop: Publisher<Twist>,
+    waiter: Waiter,
+    /// Latest true pose and its simulated time, s.
+    pub pose: Option<(Pose2D, f64)>,
+    /// True poses since `track` was cleared: (t, x, y).
+    pub track: Vec<(f64, f64, f64)>,
+    /// True headings, with `track`: (t, theta).
+    pub headings: Vec<(f64, f64)>,
+    pub sim: Option<SimStatus>,
+    /// Every order status seen.
+    pub statuses: Vec<OrderStatus>,
+    pub behaviours: Option<Behaviours>,
+    /// Every distinct behaviours list seen.
+    pub offers: Vec<Behaviours>,
+    pub interface_dropped: u64,
+    /// Latest contract table per module name.
+    pub contracts: std::collections::BTreeMap<String, ContractTable>,
+    /// Publish this teleop command every 50 ms of simulated time (by the poses' stamps).
+    pub drive: Option<Twist>,
+    last_drive: f64,
+    /// Teleop commands published so far.
+    pub drive_sent: u64,
+    seq: u32,
+    _node: Node,
+}
+
+impl Watch {
+    pub(crate) fn new(prefix: &str) -> Watch {
+        let node = Node::new(NodeOptions::new("orders-test").prefix(prefix)).expect("node");
+        let truth = node.subscriber("sim/ground_truth").expect("truth");
+        let status = node.subscriber("sim/status").expect("status");
+        let orders_status = node.subscriber(ORDER_STATUS_CHANNEL).expect("order status");
+        let reports = node.subscriber(REPORT_CHANNEL).expect("reports");
+        let behaviours_in = node.subscriber(BEHAVIOURS_CHANNEL).expect("behaviours");
+        let tables = node.subscriber(CONTRACTS).expect("contracts");
+        let orders = node.publisher(ORDER_CHANNEL).expect("orders");
+        let teleop = node.publisher("hng/teleop").expect("teleop");
+        let mut waiter = Waiter::new(WaitMode::Blocking {
+            max_spin: Duration::ZERO,
+        })
+        .expect("waiter");
+        waiter.attach(&truth).expect("attach");
+        waiter.attach(&status).expect("attach");
+        waiter.attach(&orders_status).expect("attach");
+        waiter.attach(&reports).expect("attach");
+        waiter.attach(&behaviours_in).expect("attach");
+        Watch {
+            truth,
+            status,
+            orders_status,
+            reports,
+            behaviours_in,
+            tables,
+            orders,
+            teleop,
+            waiter,
+            pose: None,
+            track: Vec::new(),
+            headings: Vec::new(),
+            sim: None,
+            statuses: Vec::new(),
+            behaviours: None,
+            offers: Vec::new(),
+            interface_dropped: 0,
+            contracts: Default::default(),
+            drive: None,
+            last_drive: f64::NEG_INFINITY,
+            drive_sent: 0,
+            seq: 1000,
+            _node: node,
+        }
+    }
+
+    fn drain(&mut self) {
+        while let Some(s) = self.status.receive().expect("status") {
+            self.sim = Some(*s);
+        }
+        while let Some(p) = self.truth.receive().expect("truth") {
+            let t = p.header.stamp_ns as f64 * 1e-9;
+            self.pose = Some((p.pose, t));
+            self.track.push((t, p.pose.x, p.pose.y));
+            self.headings.push((t, p.pose.theta));
+        }
+        while let Some(s) = self.orders_status.receive().expect("order status") {
+            self.statuses.push(*s);
+        }
+        while let Some(r) = self.reports.receive().expect("reports") {
+            if r.name() == "interface" {
+                self.interface_dropped = self.interface_dropped.max(r.msgs_dropped);
+            }
+        }
+        while let Some(b) = self.behaviours_in.receive().expect("behaviours") {
+            self.behaviours = Some(*b);
+            self.offers.push(*b);
+        }
+        while let Some(t) = self.tables.receive().expect("tables") {
+            self.contracts.insert(t.module().to_string(), *t);
+        }
+        // Paced by the true poses' stamps (the simulator's status comes every 100 ms of wall
+        // time only).
+        let now = self.pose_t();
+        if let Some(cmd) = self.drive
+            && (now - self.last_drive >= 0.05 || now < self.last_drive)
+        {
+            self.teleop.update_connections();
+            self.teleop.publish(cmd).expect("teleop");
+            self.last_drive = now;
+            self.drive_sent += 1;
+        }
+    }
+
+    /// Waits until `pred` holds for what was read.
+    pub(crate) fn until(&mut self, what: &str, mut pred: impl FnMut(&Watch) -> bool) {
+        let deadline = Instant::now() + TIMEOUT;
+        loop {
+            self.drain();
+            if pred(self) {
+                return;
+            }
+            let left = deadline.saturating_duration_since(Instant::now());
+            assert!(
+                !left.is_zero(),
+                "{what} within {TIMEOUT:?}: pose {:?}, sim {:.2} s, interface dropped {}, last statuses {:?}",
+                self.pose,
+                self.sim_s(),
+                self.interface_dropped,
+                self.statuses
+                    .iter()
+                    .rev()
+                    .take(3)
+                    .map(|s| (s.seq, s.accepted, s.active, s.reason().to_string()))
+                    .collect::<Vec<_>>()
+            );
+            self.waiter
+                .wait(Some(left.min(Duration::from_millis(50))))
+                .expect("wait");
+        }
+    }
+
+    pub(crate) fn sim_s(&self) -> f64 {
+        self.sim.map_or(0.0, |s| s.sim_time_ns as f64 * 1e-9)
+    }
+
+    pub(crate) fn xy(&self) -> (f64, f64) {
+        let (p, _) = self.pose.expect("pose");
+        (p.x, p.y)
+    }
+
+    /// Sends `o` and waits for the Interface's answer to it.
+    pub(crate) fn order(&mut self, mut o: Order) -> OrderStatus {
+        self.seq += 1;
+        o.seq = self.seq;
+        let seq = self.seq;
+        self.orders.update_connections();
+        self.orders.publish(o).expect("order");
+        let from = self.statuses.len();
+        self.until("the Interface's answer", |w| {
+            w.statuses[from..].iter().any(|s| s.seq == seq)
+        });
+        *self.statuses[from..]
+            .iter()
+            .find(|s| s.seq == seq)
+            .expect("answer")
+    }
+
+    /// Waits until the robot's true pose has moved less than 1 mm per sample for `still_s`
+    /// simulated seconds (by the poses' own time stamps); returns the time it last moved.
+    pub(crate) fn until_still(&mut self, what: &str, still_s: f64) -> f64 {
+        let (p0, t0) = self.pose.expect("pose");
+        let mut last = (p0.x, p0.y);
+        let mut since = t0;
+        let mut seen = self.track.len();
+        self.until(what, |w| {
+            for &(t, x, y) in &w.track[seen.min(w.track.len())..] {
+                if dist((x, y), last) > 0.001 {
+                    since = t;
+                }
+                last = (x, y);
+            }
+            seen = w.track.len();
+            w.pose.is_some_and(|(_, t)| t - since > still_s)
+        });
+        since
+    }
+
+    /// The time stamp of the latest true pose, s.
+    pub(crate) fn pose_t(&self) -> f64 {
+        self.pose.map_or(0.0, |(_, t)| t)
+    }
+
+    /// The provider module's name of `need` of module `client` in the contract tables.
+    pub(crate) fn provider_of(&self, client: &str, need: u16) -> Option<String> {
+        let t = self.contracts.get(client)?;
+        let e = t
+            .entries()
+            .iter()
+            .find(|e| e.role == ContractRole::Client as u8 && e.need == need)?;
+        self.contracts
+            .values()
+            .find(|m| m.module_id == e.peer)
+            .map(|m| m.module().to_string())
+    }
+
+    pub(crate) fn collisions(&self) -> u64 {
+        self.sim.map_or(0, |s| s.collisions)
+    }
+}
+
+pub(crate) fn dist(a: (f64, f64), b: (f64, f64)) -> f64 {
+    ((a.0 - b.0).powi(2) + (a.1 - b.1).powi(2)).sqrt()
+}
+
+pub(crate) fn goal(kind: OrderKind, pts: &[(f64, f64)]) -> Order {
+    let mut o = Order::new(kind);
+    for (i, (x, y)) in pts.iter().enumerate() {
+        o.points[i] = Pose2D::new(*x, *y, 0.0);
+    }
+    o.count = pts.len() as u32;
+    o
 }

@@ -1,24 +1,43 @@
 //! The showcase (`examples/showcase/launch.toml`, issue 17): every Table 1 module its own
 //! process, in the showcase world (a hall with a partition, three beacons, a dark corner), run
 //! as a user runs it (`hng run` of the launch file from the repository's root, lockstep). The
-//! test is the operator: waypoints along the south wall, where attention starts offering
-//! "follow wall right", and stops once the robot leaves the wall; a goal past the partition
-//! (and a turn under teleop if need be), until a tracker finds beacon 3 by itself (no
-//! designation) and attention offers "reach beacon 3"; then `hng order reach-beacon 3` (the CLI, a real
-//! process) and the reacher drives the robot to within 0.5 m of the beacon (true pose). On the
-//! way, Planning's whole path to the goal is read on `planning/path`, then an empty one.
+//! test is the operator and gives the scripted run of `examples/showcase/orders.sh`, switching
+//! orders of every kind **while the robot moves** (true speed checked at each switch) and
+//! checking each time that the contract tree below the Interface changed to the order's
+//! (Planning, the Wall follower over Walls, the Reacher over a tracker, or none), with no
+//! collision on the whole run (the simulator's count):
+//! - teleop: the robot drives off under remote control;
+//! - waypoints along the south wall, where attention starts offering "follow wall right";
+//! - a goal past the partition, given on the second leg before the waypoints end; Planning's
+//!   whole path to it is read on `planning/path`, then an empty one; the wall is withdrawn;
+//! - teleop turning until a tracker finds beacon 3 by itself (no designation) and attention
+//!   offers "reach beacon 3"; `hng order reach-beacon 3` (the CLI, a real process) while
+//!   turning; the reacher drives the robot to within 0.5 m of the beacon (true pose),
+//!   through a dark zone on the way, where "Track beacon" moves from the colour tracker to
+//!   the histogram tracker within 1 s (simulated) and back once out of it;
+//! - teleop again toward the north wall, and "follow wall right" ordered as soon as it is
+//!   offered; the follower holds 0.6 ± 0.15 m from the wall;
+//! - stop, while following.
 
-use hng_runtime::msg::{Behaviours, OrderKind, PLANNED_PATH_CHANNEL, PathInfo, SIDE_RIGHT, Twist};
+use hng_runtime::msg::{
+    Behaviours, Order, OrderKind, OrderStatus, PLANNED_PATH_CHANNEL, PathInfo, SIDE_RIGHT, Twist,
+};
 use hng_runtime::{Node, NodeOptions, shm};
 use nix::sys::signal::Signal;
 
-use crate::orders::{Watch, dist, goal};
+use hng_modules::interface::{FOLLOW_WALL_NEED, REACH_BEACON_NEED, REACH_GOAL_NEED};
+use hng_modules::reacher_module::TRACK_NEED;
+
+use crate::common::{Watch, dist, goal};
 use crate::signals::Run;
 
 /// The launch file, relative to the repository's root (the tests' working directory).
 const LAUNCH: &str = "examples/showcase/launch.toml";
 /// Beacon 3 of the showcase world.
 const BEACON: (f64, f64) = (17.5, 8.0);
+/// The dark zone on the way from the goal to beacon 3 (`world.toml`): centre, radius.
+const DARK: ((f64, f64), f64) = ((17.35, 5.5), 0.5);
+const HNG: &str = env!("CARGO_BIN_EXE_hng");
 
 fn has(b: &Behaviours, kind: OrderKind, param: i32) -> bool {
     b.items()
@@ -30,8 +49,64 @@ fn offers(w: &Watch, kind: OrderKind, param: i32) -> bool {
     w.behaviours.is_some_and(|b| has(&b, kind, param))
 }
 
+fn twist(linear_x: f64, angular_z: f64) -> Twist {
+    Twist {
+        linear_x,
+        angular_z,
+        ..Default::default()
+    }
+}
+
+fn wrap(a: f64) -> f64 {
+    (a + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI
+}
+
+/// The robot's true speed over the last 0.3 s of simulated time, m/s (turning in place
+/// counts 0.2 m per radian: the robot's radius).
+fn speed(w: &Watch) -> f64 {
+    let Some(&(t1, x1, y1)) = w.track.last() else {
+        return 0.0;
+    };
+    let Some(&(t0, x0, y0)) = w.track.iter().rev().find(|p| t1 - p.0 >= 0.3) else {
+        return 0.0;
+    };
+    let turn = w
+        .headings
+        .last()
+        .zip(w.headings.iter().rev().find(|h| t1 - h.0 >= 0.3));
+    let rot = turn.map_or(0.0, |(a, b)| wrap(a.1 - b.1).abs() * 0.2);
+    (dist((x1, y1), (x0, y0)) + rot) / (t1 - t0)
+}
+
+/// Gives order `o` while the robot moves; it must be accepted.
+fn switch(w: &mut Watch, o: Order) -> OrderStatus {
+    let v = speed(w);
+    let kind = OrderKind::from_u32(o.kind).map_or("?", OrderKind::name);
+    assert!(v > 0.05, "order {kind} given while not moving ({v:.3} m/s)");
+    let s = w.order(o);
+    assert_eq!(s.accepted, 1, "order {kind}: {}", s.reason());
+    eprintln!("showcase: order {kind} given at {v:.2} m/s");
+    s
+}
+
+/// Waits until the Interface's Reach goal, Follow wall and Reach beacon contracts are signed
+/// with `want` (None: no contract); returns them.
+fn tree(w: &mut Watch, order: &str, want: [Option<&str>; 3]) -> (String, [Option<String>; 3]) {
+    let needs = [REACH_GOAL_NEED, FOLLOW_WALL_NEED, REACH_BEACON_NEED];
+    w.until(&format!("the contract tree of {order}: {want:?}"), |w| {
+        needs
+            .iter()
+            .zip(want)
+            .all(|(&n, p)| w.provider_of("interface", n).as_deref() == p)
+    });
+    (
+        order.to_owned(),
+        needs.map(|n| w.provider_of("interface", n)),
+    )
+}
+
 #[test]
-fn the_showcase_offers_a_wall_then_a_beacon_and_hng_order_reaches_the_beacon() {
+fn the_showcase_switches_orders_of_every_kind_while_the_robot_moves() {
     let _heavy = crate::common::heavy();
     let prefix = shm::unique_prefix("showcase");
     let mut watch = Watch::new(&prefix);
@@ -64,10 +139,32 @@ fn the_showcase_offers_a_wall_then_a_beacon_and_hng_order_reaches_the_beacon() {
         "{first:?}"
     );
 
-    // Along the south wall, 1 m from it: "follow wall right" appears.
-    let s = watch.order(goal(OrderKind::Waypoints, &[(6.0, 1.0), (13.0, 1.0)]));
+    let collisions = watch.collisions();
+    let mut trees = Vec::new();
+
+    // Teleop: the robot drives off under remote control; Planning released.
+    let s = watch.order(Order::new(OrderKind::Teleop));
     assert_eq!(s.accepted, 1, "{}", s.reason());
+    watch.drive = Some(twist(0.3, -0.1));
+    let start = watch.xy();
+    watch.until("the robot moving under teleop", |w| {
+        dist(w.xy(), start) > 0.5
+    });
+    trees.push(tree(&mut watch, "teleop", [None, None, None]));
+
+    // Waypoints, given while teleop drives: along the south wall, 1 m from it, where
+    // "follow wall right" appears.
+    let s = switch(
+        &mut watch,
+        goal(OrderKind::Waypoints, &[(6.0, 1.0), (13.0, 1.0)]),
+    );
+    watch.drive = None;
     let seq = s.seq;
+    trees.push(tree(
+        &mut watch,
+        "waypoints",
+        [Some("planning"), None, None],
+    ));
     watch.until("follow wall right offered along the south wall", |w| {
         offers(w, OrderKind::FollowWall, SIDE_RIGHT)
     });
@@ -77,16 +174,19 @@ fn the_showcase_offers_a_wall_then_a_beacon_and_hng_order_reaches_the_beacon() {
         at.0, at.1, at.1
     );
     assert!(at.1 < 1.6, "offered {:.2} m from the wall", at.1);
-    watch.until("the waypoints reached", |w| {
-        w.statuses
-            .iter()
-            .any(|s| s.seq == seq && s.active == 0 && s.reason().contains("reached"))
-    });
 
-    // Past the partition, into the open north-east: the wall is no longer offered.
-    let s = watch.order(goal(OrderKind::Goal, &[(17.0, 4.5)]));
-    assert_eq!(s.accepted, 1, "{}", s.reason());
+    // A goal past the partition, given on the second leg, before the waypoints end.
+    watch.until("on the second leg", |w| w.xy().0 > 9.0);
+    let s = switch(&mut watch, goal(OrderKind::Goal, &[(17.0, 4.5)]));
+    assert!(
+        !watch
+            .statuses
+            .iter()
+            .any(|s| s.seq == seq && s.reason().contains("reached")),
+        "the waypoints were replaced before their end"
+    );
     let seq = s.seq;
+    trees.push(tree(&mut watch, "goal", [Some("planning"), None, None]));
     // Planning's whole path to it on planning/path, ending at the goal.
     watch.until("the planned path to the goal on planning/path", |_| {
         read_path(&mut path);
@@ -106,17 +206,15 @@ fn the_showcase_offers_a_wall_then_a_beacon_and_hng_order_reaches_the_beacon() {
     watch.until("follow wall right withdrawn away from the wall", |w| {
         !offers(w, OrderKind::FollowWall, SIDE_RIGHT)
     });
-    // Turn in place until a tracker finds beacon 3 by itself and attention offers it.
-    let s = watch.order(hng_runtime::msg::Order::new(OrderKind::Teleop));
+
+    // Turn under teleop until a tracker finds beacon 3 by itself and attention offers it.
+    let s = watch.order(Order::new(OrderKind::Teleop));
     assert_eq!(s.accepted, 1, "{}", s.reason());
-    watch.drive = Some(Twist {
-        angular_z: 0.6,
-        ..Default::default()
-    });
+    watch.drive = Some(twist(0.1, 0.6));
+    trees.push(tree(&mut watch, "teleop", [None, None, None]));
     watch.until("reach beacon 3 offered", |w| {
         offers(w, OrderKind::ReachBeacon, 3)
     });
-    watch.drive = None;
     let seen_from = dist(watch.xy(), BEACON);
     eprintln!("showcase: reach beacon 3 offered {seen_from:.2} m from it");
     // The list changed as the robot went: neither at first, then the wall, then the beacon
@@ -140,21 +238,142 @@ fn the_showcase_offers_a_wall_then_a_beacon_and_hng_order_reaches_the_beacon() {
         "{changes:?}"
     );
 
-    // `hng order reach-beacon 3`, the CLI: the reacher drives to it.
-    let collisions = watch.collisions();
-    let out = run.hng(&["order", "reach-beacon", "3"]);
-    assert!(out.status.success(), "{out:?}");
-    watch.until("the reacher contracted", |w| {
-        w.provider_of("interface", 5).as_deref() == Some("reacher")
+    // `hng order reach-beacon 3`, the CLI, while the robot still turns under teleop.
+    let v = speed(&watch);
+    assert!(v > 0.05, "teleop -> reach beacon: not moving ({v:.3} m/s)");
+    let mut cli = std::process::Command::new(HNG)
+        .args(["order", "reach-beacon", "3"])
+        .env("HNG_PREFIX", &prefix)
+        .env("HNG_LOG", "warn")
+        .stdin(std::process::Stdio::null())
+        .spawn()
+        .expect("hng order");
+    let mut cli_status = None;
+    watch.until("hng order reach-beacon 3 answered", |_| {
+        cli_status = cli.try_wait().expect("hng order");
+        cli_status.is_some()
     });
-    watch.until("the robot near the beacon", |w| dist(w.xy(), BEACON) < 1.0);
+    watch.drive = None;
+    assert!(cli_status.is_some_and(|s| s.success()), "{cli_status:?}");
+    trees.push(tree(
+        &mut watch,
+        "reach beacon",
+        [None, None, Some("reacher")],
+    ));
+    // On the way the robot crosses the dark zone (lighting 0.15): "Track beacon" moves from
+    // the colour tracker to the histogram tracker, and back once out of it. The contract log
+    // is (simulated time of the latest true pose when the test saw the change, tracker); the
+    // zone's entry and exit by the true pose.
+    let mut log: Vec<(f64, String)> = Vec::new();
+    let mut zone: (Option<f64>, Option<f64>) = (None, None);
+    let note = |w: &Watch, log: &mut Vec<(f64, String)>, zone: &mut (Option<f64>, Option<f64>)| {
+        let now = w.pose_t();
+        let tracker = w.provider_of("reacher", TRACK_NEED).unwrap_or_default();
+        if log.last().is_none_or(|l| l.1 != tracker) {
+            eprintln!(
+                "showcase: {now:.2} s at {:?}: Track beacon by {tracker:?}",
+                w.xy()
+            );
+            log.push((now, tracker));
+        }
+        let inside = dist(w.xy(), DARK.0) < DARK.1;
+        if inside && zone.0.is_none() {
+            eprintln!("showcase: {now:.2} s: into the dark at {:?}", w.xy());
+            zone.0 = Some(now);
+        }
+        if !inside && zone.0.is_some() && zone.1.is_none() {
+            zone.1 = Some(now);
+        }
+    };
+    watch.until("Track beacon contracted to the colour tracker", |w| {
+        note(w, &mut log, &mut zone);
+        w.provider_of("reacher", TRACK_NEED).as_deref() == Some("tracker_colour")
+    });
+    watch.until("the robot near the beacon", |w| {
+        note(w, &mut log, &mut zone);
+        dist(w.xy(), BEACON) < 1.0
+    });
     watch.until_still("the robot at rest at the beacon", 1.0);
     let d = dist(watch.xy(), BEACON);
     eprintln!(
         "showcase: hng order reach-beacon 3 from {seen_from:.2} m: at rest {d:.3} m from the beacon's centre"
     );
     assert!(d <= 0.5, "stopped {d:.3} m from the beacon");
-    assert_eq!(watch.collisions(), collisions, "a collision on the way");
+    watch.until(
+        "Track beacon back to the colour tracker out of the dark",
+        |w| {
+            note(w, &mut log, &mut zone);
+            log.iter().any(|l| l.1 == "tracker_histogram")
+                && log.last().is_some_and(|l| l.1 == "tracker_colour")
+        },
+    );
+    let (Some(t_in), Some(t_out)) = zone else {
+        panic!("the robot never crossed the dark zone: {zone:?}, contract log {log:?}");
+    };
+    eprintln!(
+        "showcase: dark zone from {t_in:.2} s to {t_out:.2} s; Track beacon contract log {log:?}"
+    );
+    let dark = log
+        .iter()
+        .find(|l| l.1 == "tracker_histogram" && l.0 >= t_in)
+        .map(|l| l.0 - t_in);
+    assert!(
+        dark.is_some_and(|d| d <= 1.0),
+        "moved to the histogram tracker {dark:?} s after entering the dark (must: within 1 s): {log:?}"
+    );
+    let back = log
+        .iter()
+        .rev()
+        .find(|l| l.1 == "tracker_colour" && l.0 >= t_out)
+        .map(|l| l.0 - t_out);
+    eprintln!(
+        "showcase: Track beacon to the histogram tracker {dark:?} s after entering the dark zone, back {back:?} s after leaving it"
+    );
+
+    // Teleop: turn to face west, then curve right toward the north wall; "follow wall right"
+    // ordered as soon as it is offered, while the robot moves.
+    let s = watch.order(Order::new(OrderKind::Teleop));
+    assert_eq!(s.accepted, 1, "{}", s.reason());
+    trees.push(tree(&mut watch, "teleop", [None, None, None]));
+    watch.drive = Some(twist(0.0, 0.6));
+    watch.until("facing west", |w| {
+        w.pose
+            .is_some_and(|(p, _)| wrap(p.theta - std::f64::consts::PI).abs() < 0.25)
+    });
+    watch.drive = Some(twist(0.25, -0.1));
+    watch.until("follow wall right offered by the north wall", |w| {
+        offers(w, OrderKind::FollowWall, SIDE_RIGHT)
+    });
+    let mut follow = Order::new(OrderKind::FollowWall);
+    follow.side = SIDE_RIGHT;
+    switch(&mut watch, follow);
+    watch.drive = None;
+    trees.push(tree(
+        &mut watch,
+        "follow wall",
+        [None, Some("wall_follower"), None],
+    ));
+    watch.until("the Wall follower's Detect wall contract with Walls", |w| {
+        w.provider_of(
+            "wall_follower",
+            hng_modules::wall_follower::DETECT_WALL_NEED,
+        )
+        .as_deref()
+            == Some("walls")
+    });
+    // Along the north wall (y = 10) for 3.5 m west: the set distance held at the end.
+    let x0 = watch.xy().0;
+    watch.until("3.5 m along the north wall", |w| w.xy().0 < x0 - 3.5);
+    let gap = 10.0 - watch.xy().1;
+    eprintln!("showcase: following the north wall, {gap:.3} m from it after 3.5 m");
+    assert!((gap - 0.6).abs() <= 0.15, "{gap:.3} m from the wall");
+
+    // Stop, while following.
+    switch(&mut watch, Order::new(OrderKind::Stop));
+    trees.push(tree(&mut watch, "stop", [None, None, None]));
+    watch.until_still("the robot stopped", 0.5);
+    eprintln!("showcase: the contract tree below the Interface at each order: {trees:?}");
+    assert_eq!(watch.collisions(), collisions, "a collision on the run");
 
     drop(watch);
     run.signal(Signal::SIGTERM);

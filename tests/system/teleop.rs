@@ -3,19 +3,14 @@
 //! infinite ones never move it and are counted (the Interface's report, `msgs_dropped`).
 
 use std::process::{Child, Command, Stdio};
-use std::time::{Duration, Instant};
 
-use hng_runtime::module::REPORT_CHANNEL;
-use hng_runtime::msg::{ModuleReport, PoseWithCovariance};
-use hng_runtime::wait::{WaitMode, Waiter};
-use hng_runtime::{Node, NodeOptions, Subscriber, shm};
-use hng_simulator::module::SimStatus;
+use hng_runtime::shm;
 use nix::sys::signal::Signal;
 
+use crate::common::{Watch, dist};
 use crate::signals::Run;
 
 const HNG: &str = env!("CARGO_BIN_EXE_hng");
-const TIMEOUT: Duration = Duration::from_secs(90);
 
 const LAUNCH: &str = r#"system = "teleop"
 clock = "sim"
@@ -57,81 +52,6 @@ manager = true
 goals = []
 "#;
 
-struct Watch {
-    truth: Subscriber<PoseWithCovariance>,
-    status: Subscriber<SimStatus>,
-    reports: Subscriber<ModuleReport>,
-    waiter: Waiter,
-    pose: Option<(f64, f64)>,
-    sim: Option<SimStatus>,
-    interface_dropped: u64,
-    _node: Node,
-}
-
-impl Watch {
-    fn new(prefix: &str) -> Watch {
-        let node = Node::new(NodeOptions::new("teleop-test").prefix(prefix)).expect("node");
-        let truth = node.subscriber("sim/ground_truth").expect("truth");
-        let status = node.subscriber("sim/status").expect("status");
-        let reports = node.subscriber(REPORT_CHANNEL).expect("reports");
-        let mut waiter = Waiter::new(WaitMode::Blocking {
-            max_spin: Duration::ZERO,
-        })
-        .expect("waiter");
-        waiter.attach(&truth).expect("attach");
-        waiter.attach(&status).expect("attach");
-        waiter.attach(&reports).expect("attach");
-        Watch {
-            truth,
-            status,
-            reports,
-            waiter,
-            pose: None,
-            sim: None,
-            interface_dropped: 0,
-            _node: node,
-        }
-    }
-
-    fn drain(&mut self) {
-        while let Some(p) = self.truth.receive().expect("truth") {
-            self.pose = Some((p.pose.x, p.pose.y));
-        }
-        while let Some(s) = self.status.receive().expect("status") {
-            self.sim = Some(*s);
-        }
-        while let Some(r) = self.reports.receive().expect("reports") {
-            if r.name() == "interface" {
-                self.interface_dropped = self.interface_dropped.max(r.msgs_dropped);
-            }
-        }
-    }
-
-    /// Waits until `pred` holds for what was read.
-    fn until(&mut self, what: &str, mut pred: impl FnMut(&Watch) -> bool) {
-        let deadline = Instant::now() + TIMEOUT;
-        loop {
-            self.drain();
-            if pred(self) {
-                return;
-            }
-            let left = deadline.saturating_duration_since(Instant::now());
-            assert!(
-                !left.is_zero(),
-                "{what} within {TIMEOUT:?}: pose {:?}, sim {:?}, interface dropped {}",
-                self.pose,
-                self.sim,
-                self.interface_dropped
-            );
-            self.waiter.wait(Some(left)).expect("wait");
-        }
-    }
-
-    fn sim_s(&self) -> f64 {
-        self.sim.map_or(0.0, |s| s.sim_time_ns as f64 * 1e-9)
-    }
-}
-
 /// `hng topic pub hng/teleop JSON --rate 20`, running until it is stopped.
 fn teleop(prefix: &str, json: &str, count: Option<u64>) -> Child {
     let mut c = Command::new(HNG);
@@ -151,10 +71,6 @@ fn stop(mut c: Child) {
     assert!(s.success(), "hng topic pub ends cleanly on SIGTERM: {s:?}");
 }
 
-fn dist(a: (f64, f64), b: (f64, f64)) -> f64 {
-    ((a.0 - b.0).powi(2) + (a.1 - b.1).powi(2)).sqrt()
-}
-
 #[test]
 fn non_finite_teleop_commands_never_move_the_robot_and_are_counted() {
     let _heavy = crate::common::heavy();
@@ -170,24 +86,15 @@ fn non_finite_teleop_commands_never_move_the_robot_and_are_counted() {
     });
 
     // Finite commands drive the robot: the path from `hng topic pub` to the base works.
-    let start = watch.pose.expect("pose");
+    let start = watch.xy();
     let go = teleop(&prefix, r#"{"linear_x": 0.3}"#, None);
     watch.until("the robot moving under teleoperation", |w| {
-        w.pose.is_some_and(|p| dist(p, start) > 0.1)
+        dist(w.xy(), start) > 0.1
     });
     stop(go);
     // Stopped: the Robot sends a stop when the operator's commands stop coming.
-    let mut last = watch.pose.expect("pose");
-    let mut still_since = watch.sim_s();
-    watch.until("the robot at rest", |w| {
-        let p = w.pose.expect("pose");
-        if dist(p, last) > 0.002 {
-            last = p;
-            still_since = w.sim_s();
-        }
-        w.sim_s() - still_since > 1.0
-    });
-    let rest = watch.pose.expect("pose");
+    watch.until_still("the robot at rest", 1.0);
+    let rest = watch.xy();
     let rejected_before = watch.sim.map_or(0, |s| s.rejected_commands);
     let dropped_before = watch.interface_dropped;
 
@@ -207,7 +114,7 @@ fn non_finite_teleop_commands_never_move_the_robot_and_are_counted() {
     });
     let t0 = watch.sim_s();
     watch.until("one more simulated second", |w| w.sim_s() > t0 + 1.0);
-    let moved = dist(watch.pose.expect("pose"), rest);
+    let moved = dist(watch.xy(), rest);
     assert!(
         moved < 0.01,
         "non-finite commands moved the robot by {moved:.3} m"

@@ -30,11 +30,19 @@ fn yard() -> World {
     w
 }
 
-#[test]
-fn the_colour_tracker_finds_rendered_beacons_within_2_degrees_and_10_percent() {
+/// The rendered scene both tests look at: the yard, a renderer with pixel noise of
+/// `noise_sigma`, and the camera model the trackers need for it.
+struct Scene {
+    world: World,
+    params: ImageParams,
+    renderer: Renderer,
+    camera: CameraModel,
+}
+
+fn scene(noise_sigma: f64) -> Scene {
     let world = yard();
     let params = ImageParams {
-        noise_sigma: 3.0,
+        noise_sigma,
         ..ImageParams::default()
     };
     let renderer = Renderer::new(&world, params).expect("renderer");
@@ -45,6 +53,22 @@ fn the_colour_tracker_finds_rendered_beacons_within_2_degrees_and_10_percent() {
         beacon_height: params.beacon_height,
         ..CameraModel::default()
     };
+    Scene {
+        world,
+        params,
+        renderer,
+        camera,
+    }
+}
+
+#[test]
+fn the_colour_tracker_finds_rendered_beacons_within_2_degrees_and_10_percent() {
+    let Scene {
+        world,
+        params,
+        renderer,
+        camera,
+    } = scene(3.0);
     let mut tracker = ColourTracker::new(ColourTrackerConfig::default(), camera);
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
     let mut img = vec![0u8; params.image_bytes()];
@@ -105,19 +129,12 @@ fn the_colour_tracker_finds_rendered_beacons_within_2_degrees_and_10_percent() {
 #[test]
 fn the_histogram_tracker_keeps_the_beacon_in_the_dark_the_colour_tracker_loses() {
     use hng_modules::tracker_hist::{HistogramTracker, HistogramTrackerConfig};
-    let world = yard();
-    let params = ImageParams {
-        noise_sigma: 2.0,
-        ..ImageParams::default()
-    };
-    let renderer = Renderer::new(&world, params).expect("renderer");
-    let camera = CameraModel {
-        width: params.width,
-        height: params.height,
-        fov: params.fov,
-        beacon_height: params.beacon_height,
-        ..CameraModel::default()
-    };
+    let Scene {
+        world,
+        params,
+        renderer,
+        camera,
+    } = scene(2.0);
     let mut colour = ColourTracker::new(ColourTrackerConfig::default(), camera);
     let mut hist = HistogramTracker::new(HistogramTrackerConfig::default(), camera);
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);

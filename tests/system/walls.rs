@@ -9,7 +9,8 @@ use hng_runtime::msg::{Order, OrderKind, SIDE_RIGHT, Twist};
 use hng_runtime::shm;
 use nix::sys::signal::Signal;
 
-use crate::orders::{Watch, launch, write_map};
+use crate::common::Watch;
+use crate::orders::{launch, write_map};
 use crate::signals::Run;
 
 /// A 20 x 10 m room (walls only).
@@ -40,7 +41,7 @@ to = [0.0, 0.0]
 fn seg_dist(p: (f64, f64), a: (f64, f64), b: (f64, f64)) -> f64 {
     let (dx, dy) = (b.0 - a.0, b.1 - a.1);
     let t = (((p.0 - a.0) * dx + (p.1 - a.1) * dy) / (dx * dx + dy * dy)).clamp(0.0, 1.0);
-    crate::orders::dist(p, (a.0 + t * dx, a.1 + t * dy))
+    crate::common::dist(p, (a.0 + t * dx, a.1 + t * dy))
 }
 
 /// Distance to the followed walls: the south wall and the east wall.
@@ -130,7 +131,7 @@ fn the_robot_follows_a_wall_round_a_corner_and_attention_offers_it_only_near_one
     watch.until("20 m of wall followed", |w| {
         for k in seen.max(from + 1)..w.track.len() {
             let (a, b) = (w.track[k - 1], w.track[k]);
-            travelled += crate::orders::dist((a.1, a.2), (b.1, b.2));
+            travelled += crate::common::dist((a.1, a.2), (b.1, b.2));
         }
         seen = w.track.len();
         travelled >= 20.0
@@ -138,7 +139,7 @@ fn the_robot_follows_a_wall_round_a_corner_and_attention_offers_it_only_near_one
     let (mut inside, mut total, mut worst) = (0.0, 0.0, 0.0f64);
     for k in from + 1..seen {
         let (a, b) = (watch.track[k - 1], watch.track[k]);
-        let step = crate::orders::dist((a.1, a.2), (b.1, b.2));
+        let step = crate::common::dist((a.1, a.2), (b.1, b.2));
         let d = followed_dist((b.1, b.2));
         total += step;
         worst = worst.max((d - 0.6).abs());
