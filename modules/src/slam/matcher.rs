@@ -247,7 +247,12 @@ struct Search<'a> {
     wr: f64,
     res: f64,
     inv_n: f64,
-    best: Option<Cand>,
+    /// The best leaves found, at most `keep`, pairwise farther apart than
+    /// `sep` cells or `sep_angle` angle steps; best first is not kept sorted.
+    top: Vec<Cand>,
+    keep: usize,
+    sep: i64,
+    sep_angle: usize,
     nodes: usize,
 }
 
@@ -282,14 +287,55 @@ impl Search<'_> {
         }
     }
 
+    /// Score a candidate must beat to matter: the worst kept leaf once
+    /// `keep` leaves are kept.
+    fn threshold(&self) -> f64 {
+        if self.top.len() < self.keep.max(1) {
+            f64::NEG_INFINITY
+        } else {
+            self.top
+                .iter()
+                .map(|c| c.score)
+                .fold(f64::INFINITY, f64::min)
+        }
+    }
+
+    /// Keeps leaf `c`: it replaces a kept leaf near it if it scores higher
+    /// (and is dropped if it does not), else it is added and the worst kept
+    /// leaf dropped beyond `keep`.
+    fn keep_leaf(&mut self, c: Cand) {
+        let near = self.top.iter().position(|t| {
+            (t.dx - c.dx).abs() <= self.sep
+                && (t.dy - c.dy).abs() <= self.sep
+                && t.angle.abs_diff(c.angle) <= self.sep_angle
+        });
+        match near {
+            Some(i) if self.top[i].score < c.score => self.top[i] = c,
+            Some(_) => {}
+            None => {
+                self.top.push(c);
+                if self.top.len() > self.keep.max(1)
+                    && let Some(w) = self
+                        .top
+                        .iter()
+                        .enumerate()
+                        .min_by(|a, b| a.1.score.total_cmp(&b.1.score))
+                        .map(|(i, _)| i)
+                {
+                    self.top.swap_remove(w);
+                }
+            }
+        }
+    }
+
     fn descend(&mut self, level: usize, mut cands: Vec<Cand>) {
         cands.sort_unstable_by(|a, b| b.score.total_cmp(&a.score));
         for c in cands {
-            if self.best.is_some_and(|b| c.score <= b.score) {
+            if c.score <= self.threshold() {
                 break;
             }
             if level == 0 {
-                self.best = Some(c);
+                self.keep_leaf(c);
                 continue;
             }
             let half = 1i64 << (level - 1);
@@ -315,8 +361,39 @@ pub fn match_scan(
     prior: &Isometry2<f64>,
     cfg: &MatcherConfig,
 ) -> Option<MatchResult> {
+    let (cands, nodes) = search_candidates(map, points, prior, cfg, 1, 0.0, 0.0);
+    let (csm_pose, csm_score) = cands.into_iter().next()?;
+    let (pose, covariance, information) =
+        refine_with_information(map, points, &csm_pose, cfg.refine_iterations);
+    let score = map.field.score(points, &pose);
+    Some(MatchResult {
+        pose,
+        score,
+        csm_score,
+        covariance,
+        information,
+        nodes,
+    })
+}
+
+/// The correlative search of [`match_scan`] keeping the `keep` best grid
+/// poses that lie pairwise more than `min_separation` metres or
+/// `min_angle` radians apart (non-maximum suppression), best first, with
+/// their penalised grid scores and the number of nodes scored. Exact for
+/// `keep = 1` (the branch-and-bound optimum); for more, the separation is
+/// judged against the leaves kept so far, so the set is a good, not a
+/// proven, set of distinct local optima.
+pub fn search_candidates(
+    map: &ReferenceMap,
+    points: &[Vector2<f64>],
+    prior: &Isometry2<f64>,
+    cfg: &MatcherConfig,
+    keep: usize,
+    min_separation: f64,
+    min_angle: f64,
+) -> (Vec<(Isometry2<f64>, f64)>, usize) {
     if points.is_empty() {
-        return None;
+        return (Vec::new(), 0);
     }
     let field = &map.field;
     let res = field.resolution;
@@ -358,7 +435,10 @@ pub fn match_scan(
         wr: cfg.rotation_weight,
         res,
         inv_n: 1.0 / points.len() as f64,
-        best: None,
+        top: Vec::new(),
+        keep: keep.max(1),
+        sep: (min_separation / res).floor() as i64,
+        sep_angle: (min_angle / step).floor() as usize,
         nodes: 0,
     };
     let top = 1i64 << depth;
@@ -375,23 +455,21 @@ pub fn match_scan(
         }
     }
     search.descend(depth, roots);
-    let best = search.best?;
-    let nodes = search.nodes;
-    let csm_pose = Isometry2::new(
-        t0 + Vector2::new(best.dx as f64, best.dy as f64) * res,
-        theta0 + angles[best.angle],
-    );
-    let (pose, covariance, information) =
-        refine_with_information(map, points, &csm_pose, cfg.refine_iterations);
-    let score = field.score(points, &pose);
-    Some(MatchResult {
-        pose,
-        score,
-        csm_score: best.score,
-        covariance,
-        information,
-        nodes,
-    })
+    let mut top = search.top;
+    top.sort_by(|a, b| b.score.total_cmp(&a.score));
+    let out = top
+        .iter()
+        .map(|c| {
+            (
+                Isometry2::new(
+                    t0 + Vector2::new(c.dx as f64, c.dy as f64) * res,
+                    theta0 + angles[c.angle],
+                ),
+                c.score,
+            )
+        })
+        .collect();
+    (out, search.nodes)
 }
 
 /// Normals of a scan's points (same frame as the points), from the line
