@@ -732,6 +732,35 @@ mod tests {
         );
     }
 
+    /// Keeping several coarse optima: the first is the single search's
+    /// optimum, the others are distinct and not better.
+    #[test]
+    fn top_k_candidates_are_distinct_and_start_with_the_optimum() {
+        let field = reference(3);
+        let truth = Isometry2::new(Vector2::new(0.27, -0.13), 0.11);
+        let scan = scan_from(&truth);
+        let prior = Isometry2::new(Vector2::new(0.1, 0.0), 0.05);
+        let cfg = MatcherConfig {
+            refine_iterations: 0,
+            ..Default::default()
+        };
+        let (one, _) = search_candidates(&field, &scan, &prior, &cfg, 1, 0.0, 0.0);
+        let (four, _) = search_candidates(&field, &scan, &prior, &cfg, 4, 0.2, 0.1);
+        assert_eq!(one.len(), 1);
+        assert_eq!(four.len(), 4);
+        assert!((four[0].1 - one[0].1).abs() < 1e-12, "{four:?} vs {one:?}");
+        for w in four.windows(2) {
+            assert!(w[0].1 >= w[1].1, "{four:?}");
+        }
+        for (i, a) in four.iter().enumerate() {
+            for b in &four[i + 1..] {
+                let d = (a.0.translation.vector - b.0.translation.vector).abs();
+                let da = (a.0.rotation.angle() - b.0.rotation.angle()).abs();
+                assert!(d.x > 0.2 || d.y > 0.2 || da > 0.1, "{a:?} {b:?}");
+            }
+        }
+    }
+
     #[test]
     fn normals_of_a_line() {
         let pts: Vec<Vector2<f64>> = (0..5)
