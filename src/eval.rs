@@ -173,6 +173,8 @@ fn slam_fields(e: &SlamEval, map: Option<&std::path::Path>) -> Map<String, Value
         "rot_err_p95_deg": e.rot_err_p95_deg,
         "trans_err_max_m": e.trans_err_max_m,
         "rot_err_max_deg": e.rot_err_max_deg,
+        "front_end_trans_err_mean_m": finite(e.front_end_trans_err_mean_m),
+        "front_end_rot_err_mean_deg": finite(e.front_end_rot_err_mean_deg),
         "odom_trans_err_mean_m": e.odom_trans_err_mean_m,
         "odom_rot_err_mean_deg": e.odom_rot_err_mean_deg,
         "ate_rmse_m": e.ate_rmse_m,
@@ -208,12 +210,12 @@ fn finite(v: f64) -> Value {
 
 fn print_table(rows: &[SlamEval]) {
     println!(
-        "{:<28} {:>5} {:>5} | {:>15} {:>15} | {:>20} {:>8} | {:>8} {:>6}",
+        "{:<28} {:>5} {:>5} | {:>23} {:>23} | {:>20} {:>8} | {:>8} {:>6}",
         "log",
         "beams",
         "scans",
-        "rel cm slam/odo",
-        "rel deg slam/odo",
+        "rel cm slam/front/odo",
+        "rel deg slam/front/odo",
         "ATE m lc/no-lc/odo",
         "closures",
         "scans/s",
@@ -226,13 +228,15 @@ fn print_table(rows: &[SlamEval]) {
             .map(|n| n.to_string_lossy().into_owned())
             .unwrap_or_default();
         println!(
-            "{:<28} {:>5} {:>5} | {:>7.2} {:>7.2} {:>7.3} {:>7.3} | {:>6.3} {:>6.3} {:>6.3} {:>8} | {:>8.1} {:>6.0}",
+            "{:<28} {:>5} {:>5} | {:>7.2} {:>7.2} {:>7.2} {:>7.3} {:>7.3} {:>7.3} | {:>6.3} {:>6.3} {:>6.3} {:>8} | {:>8.1} {:>6.0}",
             name,
             e.beams,
             e.scans,
             e.trans_err_mean_m * 100.0,
+            e.front_end_trans_err_mean_m * 100.0,
             e.odom_trans_err_mean_m * 100.0,
             e.rot_err_mean_deg,
+            e.front_end_rot_err_mean_deg,
             e.odom_rot_err_mean_deg,
             e.ate_rmse_m,
             e.ate_front_end_rmse_m,

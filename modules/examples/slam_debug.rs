@@ -5,8 +5,8 @@
 //!
 //! Front end alone (no loop closure). Parameters to try, from the environment: `WIDE_WEIGHT`,
 //! `MATCH_RANGE`, `FUSE` (1: fuse with odometry), `FUSE_SCALE`, `ODOM_NOISE`, `LOCAL`
-//! (local-map scans), `SIGMA` (field width), `TW` (prior penalty weights). Ends with the mean
-//! per-scan error.
+//! (local-map scans), `CANDS` (wide-search candidates), `SIGMA` (field width), `TW` (prior
+//! penalty weights). Ends with the mean per-scan error.
 
 use std::path::PathBuf;
 
@@ -40,6 +40,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     }
     if let Ok(v) = std::env::var("CV") {
         cfg.constant_velocity_hypothesis = v == "1";
+    }
+    if let Ok(v) = std::env::var("FREE") {
+        cfg.free_space_penalty = v.parse()?;
+    }
+    if let Ok(v) = std::env::var("CANDS") {
+        cfg.wide.candidates = v.parse()?;
     }
     if let Ok(v) = std::env::var("LOCAL") {
         cfg.local_map_scans = v.parse()?;

@@ -1,28 +1,85 @@
-//! Runs the SLAM evaluation on a CARMEN log and prints the figures.
+//! Runs the SLAM evaluation on CARMEN logs (files, or every log of a folder) and prints one
+//! line of figures per log (`-v`: every field).
 //!
-//! `cargo run --release -p hng-modules --example slam_eval -- <log> [map_base|-] [local_scans] [fov_deg]`
+//! `cargo run --release -p hng-modules --example slam_eval -- [-v] <log|dir>...`
+//!
+//! Parameters to try, from the environment (defaults otherwise): `LOCAL` (local-map scans),
+//! `MATCH_RANGE` (m), `CANDS` (wide-search candidates refined), `WIDE_BELOW` (score under
+//! which the wide search runs), `FREE` (free-space penalty), `FOV` (degrees, `FLASER` field of view), `NO_LC` (1: front
+//! end alone).
 
 use std::path::PathBuf;
 
-use hng_modules::slam::{EvalOptions, eval_slam_with};
+use hng_modules::slam::{EvalOptions, eval_slam_with, logs_in};
+
+fn env<T: std::str::FromStr>(name: &str) -> Option<T> {
+    std::env::var(name).ok().and_then(|v| v.parse().ok())
+}
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let mut args = std::env::args().skip(1);
-    let log = PathBuf::from(
-        args.next()
-            .ok_or("usage: slam_eval <log> [map_base|-] [local_scans] [fov_deg]")?,
-    );
-    let mut opts = EvalOptions {
-        map_out: args.next().filter(|s| s != "-").map(PathBuf::from),
-        ..EvalOptions::default()
-    };
-    if let Some(n) = args.next() {
-        opts.slam.local_map_scans = n.parse()?;
+    let mut verbose = false;
+    let mut logs: Vec<PathBuf> = Vec::new();
+    for a in std::env::args().skip(1) {
+        if a == "-v" {
+            verbose = true;
+            continue;
+        }
+        let p = PathBuf::from(a);
+        if p.is_dir() {
+            logs.extend(logs_in(&p)?);
+        } else {
+            logs.push(p);
+        }
     }
-    if let Some(d) = args.next() {
-        opts.log.fov = Some(d.parse::<f64>()?.to_radians());
+    if logs.is_empty() {
+        return Err("usage: slam_eval [-v] <log|dir>...".into());
     }
-    let eval = eval_slam_with(&log, &opts)?;
-    println!("{eval:#?}");
+    let mut opts = EvalOptions::default();
+    if let Some(n) = env("LOCAL") {
+        opts.slam.local_map_scans = n;
+    }
+    if let Some(r) = env("MATCH_RANGE") {
+        opts.slam.match_max_range = r;
+    }
+    if let Some(c) = env("CANDS") {
+        opts.slam.wide.candidates = c;
+    }
+    if let Some(f) = env("FREE") {
+        opts.slam.free_space_penalty = f;
+    }
+    if let Some(w) = env("WIDE_BELOW") {
+        opts.slam.wide_below_score = w;
+    }
+    if let Some(d) = env::<f64>("FOV") {
+        opts.log.fov = Some(d.to_radians());
+    }
+    if env::<u8>("NO_LC") == Some(1) {
+        opts.backend.loop_closure = false;
+    }
+    for log in logs {
+        let e = eval_slam_with(&log, &opts)?;
+        if verbose {
+            println!("{e:#?}");
+        }
+        println!(
+            "{:<28} rel {:5.2} cm {:.3} deg | front end {:5.2} cm {:.3} deg | odometry {:5.2} cm \
+             {:.3} deg | ATE {:.3} / {:.3} / {:.3} m | {} closures | {:.0} / {:.0} scans/s",
+            log.file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_default(),
+            e.trans_err_mean_m * 100.0,
+            e.rot_err_mean_deg,
+            e.front_end_trans_err_mean_m * 100.0,
+            e.front_end_rot_err_mean_deg,
+            e.odom_trans_err_mean_m * 100.0,
+            e.odom_rot_err_mean_deg,
+            e.ate_rmse_m,
+            e.ate_front_end_rmse_m,
+            e.odom_ate_rmse_m,
+            e.loop_closures,
+            e.scans_per_s,
+            e.front_end_scans_per_s,
+        );
+    }
     Ok(())
 }

@@ -97,6 +97,11 @@ pub struct SlamEval {
     pub trans_err_max_m: f64,
     /// Largest rotation error (deg).
     pub rot_err_max_deg: f64,
+    /// The same mean errors for the front end alone (no loop closure, no
+    /// optimisation): translation (m); NaN if not run.
+    pub front_end_trans_err_mean_m: f64,
+    /// Front end alone: mean rotation error (deg); NaN if not run.
+    pub front_end_rot_err_mean_deg: f64,
     /// The same errors for the odometry alone: mean translation (m).
     pub odom_trans_err_mean_m: f64,
     /// Odometry alone: mean rotation error (deg).
@@ -142,6 +147,19 @@ impl SlamEval {
 fn rel_err(a: &Isometry2<f64>, b: &Isometry2<f64>) -> (f64, f64) {
     let e = a.inverse() * b;
     (e.translation.vector.norm(), e.rotation.angle().abs())
+}
+
+/// Per pair of consecutive scans, the translation (m) and rotation (deg)
+/// error of the estimated motion against the reference motion.
+fn relative_errors(est: &[Isometry2<f64>], truth: &[Isometry2<f64>]) -> (Vec<f64>, Vec<f64>) {
+    let n = est.len().min(truth.len());
+    (1..n)
+        .map(|k| {
+            let gt = truth[k - 1].inverse() * truth[k];
+            let (t, r) = rel_err(&gt, &(est[k - 1].inverse() * est[k]));
+            (t, r.to_degrees())
+        })
+        .unzip()
 }
 
 fn mean(v: &[f64]) -> f64 {
@@ -237,32 +255,33 @@ pub fn eval_slam_with(log_path: &Path, opts: &EvalOptions) -> Result<SlamEval, S
     };
     let (slam, fallbacks, q, scans_per_s) = run(opts.backend);
     let est = slam.trajectory();
-    let (fe_ate, fe_rate) = if opts.compare_front_end && opts.backend.loop_closure {
+    let (fe_ate, fe_rate, fe_rel) = if opts.compare_front_end && opts.backend.loop_closure {
         let (fe, _, _, rate) = run(BackendConfig {
             loop_closure: false,
             ..opts.backend
         });
-        (ate_rmse(&fe.trajectory(), &truth), rate)
+        let fe_est = fe.trajectory();
+        (
+            ate_rmse(&fe_est, &truth),
+            rate,
+            relative_errors(&fe_est, &truth),
+        )
     } else if !opts.backend.loop_closure {
-        (ate_rmse(&est, &truth), scans_per_s)
+        (
+            ate_rmse(&est, &truth),
+            scans_per_s,
+            relative_errors(&est, &truth),
+        )
     } else {
-        (f64::NAN, f64::NAN)
+        (f64::NAN, f64::NAN, (vec![f64::NAN], vec![f64::NAN]))
     };
     let mut odom = vec![truth[0]];
     for d in &deltas[1..] {
         let last = odom[odom.len() - 1];
         odom.push(last * d);
     }
-    let (mut te, mut re, mut ote, mut ore) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
-    for k in 1..scans.len() {
-        let gt = truth[k - 1].inverse() * truth[k];
-        let (t, r) = rel_err(&gt, &(est[k - 1].inverse() * est[k]));
-        te.push(t);
-        re.push(r.to_degrees());
-        let (t, r) = rel_err(&gt, &deltas[k]);
-        ote.push(t);
-        ore.push(r.to_degrees());
-    }
+    let (te, re) = relative_errors(&est, &truth);
+    let (ote, ore) = relative_errors(&odom, &truth);
     if let (Some(base), Some(grid)) = (&opts.map_out, slam.map().to_occupancy_grid()) {
         write_pgm_yaml(&grid, base)?;
     }
@@ -282,6 +301,8 @@ pub fn eval_slam_with(log_path: &Path, opts: &EvalOptions) -> Result<SlamEval, S
         rot_err_p95_deg: p95(&re),
         trans_err_max_m: te.iter().copied().fold(0.0, f64::max),
         rot_err_max_deg: re.iter().copied().fold(0.0, f64::max),
+        front_end_trans_err_mean_m: mean(&fe_rel.0),
+        front_end_rot_err_mean_deg: mean(&fe_rel.1),
         odom_trans_err_mean_m: mean(&ote),
         odom_rot_err_mean_deg: mean(&ore),
         ate_rmse_m: ate_rmse(&est, &truth),

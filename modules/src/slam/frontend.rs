@@ -7,7 +7,9 @@ use nalgebra::{Isometry2, Matrix3, Point2, Vector2};
 
 use super::carmen::LaserConfig;
 use super::mapping::{LogOddsMap, MapperConfig};
-use super::matcher::{MatchResult, MatcherConfig, ReferenceMap, match_scan, scan_normals};
+use super::matcher::{
+    MatchResult, MatcherConfig, ReferenceMap, match_scan, scan_normals, search_candidates,
+};
 
 /// A local-map point in the map frame with its normal, if any.
 type MapPoint = (Vector2<f64>, Option<Vector2<f64>>);
@@ -52,7 +54,18 @@ pub struct SlamConfig {
     /// repeated (a constant-velocity hypothesis) and keep the better score.
     /// Default true.
     pub constant_velocity_hypothesis: bool,
+    /// Matches are ranked by score minus this times the fraction of the
+    /// scan's points that land in space the map has seen free (log-odds at
+    /// most [`FREE_LOG_ODDS`] in a 3×3 cell neighbourhood): a pose that puts
+    /// end points where earlier beams passed is contradicted by the data.
+    /// Ranks the prior's match, the wide search's candidates and the
+    /// constant-velocity match; 0 disables. Default 0.
+    pub free_space_penalty: f64,
 }
+
+/// Log-odds at or below which a cell counts as seen free (about four misses
+/// more than hits with the default mapper).
+pub const FREE_LOG_ODDS: f32 = -1.5;
 
 /// The information-weighted mean of a match (information `h`, from the scan
 /// alone) and the odometry prior (covariance `prior_cov`), linearised at the
@@ -99,6 +112,14 @@ pub struct WideSearch {
     pub depth: usize,
     /// Penalty weights on the distance from the prior (1/m², 1/rad²). Default 0.02.
     pub weight: f64,
+    /// Distinct coarse optima refined by the fine matcher; the best fine
+    /// score wins. Default 1.
+    pub candidates: usize,
+    /// Coarse optima closer than this (m) and [`WideSearch::candidate_angle`]
+    /// count as one. Default 0.5.
+    pub candidate_separation: f64,
+    /// See [`WideSearch::candidate_separation`] (rad). Default 10°.
+    pub candidate_angle: f64,
 }
 
 impl Default for WideSearch {
@@ -109,6 +130,9 @@ impl Default for WideSearch {
             resolution: 0.1,
             depth: 5,
             weight: 0.02,
+            candidates: 1,
+            candidate_separation: 0.5,
+            candidate_angle: 10f64.to_radians(),
         }
     }
 }
@@ -143,6 +167,31 @@ pub fn match_robust(
     wide: &WideSearch,
     wide_below: f64,
 ) -> Option<MatchResult> {
+    match_robust_ranked(
+        points,
+        normals,
+        pts,
+        prior,
+        fine,
+        wide,
+        wide_below,
+        &|m: &MatchResult| m.score,
+    )
+}
+
+/// [`match_robust`], choosing between matches by `rank` (higher is better)
+/// rather than by their fine score.
+#[allow(clippy::too_many_arguments)]
+pub fn match_robust_ranked(
+    points: Vec<Vector2<f64>>,
+    normals: Vec<Option<Vector2<f64>>>,
+    pts: &[Vector2<f64>],
+    prior: &Isometry2<f64>,
+    fine: &MatcherConfig,
+    wide: &WideSearch,
+    wide_below: f64,
+    rank: &dyn Fn(&MatchResult) -> f64,
+) -> Option<MatchResult> {
     let coarse_pts = (wide_below > 0.0).then(|| points.clone());
     let reference = ReferenceMap::build(points, normals, fine)?;
     let first = match_scan(&reference, pts, prior, fine)?;
@@ -153,17 +202,31 @@ pub fn match_robust(
     let wcfg = wide.matcher();
     let coarse_normals = vec![None; coarse_pts.len()];
     let coarse = ReferenceMap::build(coarse_pts, coarse_normals, &wcfg)
-        .and_then(|c| match_scan(&c, pts, prior, &wcfg));
-    let second = coarse.and_then(|c| {
-        let local = MatcherConfig {
-            linear_window: 2.0 * wide.resolution,
-            angular_window: 2f64.to_radians().max(fine.angular_window / 4.0),
-            ..*fine
-        };
-        match_scan(&reference, pts, &c.pose, &local)
-    });
+        .map(|c| {
+            search_candidates(
+                &c,
+                pts,
+                prior,
+                &wcfg,
+                wide.candidates,
+                wide.candidate_separation,
+                wide.candidate_angle,
+            )
+            .0
+        })
+        .unwrap_or_default();
+    let local = MatcherConfig {
+        linear_window: 2.0 * wide.resolution,
+        angular_window: 2f64.to_radians().max(fine.angular_window / 4.0),
+        ..*fine
+    };
+    let second = coarse
+        .iter()
+        .filter_map(|(p, _)| match_scan(&reference, pts, p, &local))
+        .map(|m| (rank(&m), m))
+        .max_by(|a, b| a.0.total_cmp(&b.0));
     match second {
-        Some(s) if s.score > first.score => Some(s),
+        Some((r, s)) if r > rank(&first) => Some(s),
         _ => Some(first),
     }
 }
@@ -185,6 +248,7 @@ impl Default for SlamConfig {
             fuse_odometry: false,
             match_information_scale: 0.01,
             constant_velocity_hypothesis: true,
+            free_space_penalty: 0.0,
         }
     }
 }
@@ -342,10 +406,22 @@ impl SlamFrontEnd {
             seeds.push(self.pose * self.last_step);
         }
         seeds.retain(|p| (p.translation.vector - prior.translation.vector).norm() > 0.5);
+        let penalty = self.cfg.free_space_penalty;
+        let map = &self.map;
+        let rank = |m: &MatchResult| -> f64 {
+            if penalty <= 0.0 || pts.is_empty() {
+                return m.score;
+            }
+            let free = pts
+                .iter()
+                .filter(|p| map.is_free(&(m.pose * Point2::from(**p)).coords, FREE_LOG_ODDS))
+                .count();
+            m.score - penalty * free as f64 / pts.len() as f64
+        };
         let second = seeds
             .iter()
             .filter_map(|p| {
-                match_robust(
+                match_robust_ranked(
                     local_pts.clone(),
                     local_normals.clone(),
                     &pts,
@@ -353,10 +429,11 @@ impl SlamFrontEnd {
                     &self.cfg.matcher,
                     &self.cfg.wide,
                     wide_below,
+                    &rank,
                 )
             })
-            .max_by(|a, b| a.score.total_cmp(&b.score));
-        let matched = match_robust(
+            .max_by(|a, b| rank(a).total_cmp(&rank(b)));
+        let matched = match_robust_ranked(
             local_pts,
             local_normals,
             &pts,
@@ -364,9 +441,10 @@ impl SlamFrontEnd {
             &self.cfg.matcher,
             &self.cfg.wide,
             wide_below,
+            &rank,
         );
         let matched = match (matched, second) {
-            (Some(a), Some(b)) if b.score > a.score => Some(b),
+            (Some(a), Some(b)) if rank(&b) > rank(&a) => Some(b),
             (a, None) => a,
             (a, b) => a.or(b),
         };

@@ -141,6 +141,24 @@ impl LogOddsMap {
         (u.x.floor() as i64, u.y.floor() as i64)
     }
 
+    /// Log-odds of the cell at `(x, y)`; 0 (unknown) outside the grid.
+    #[inline]
+    fn at(&self, x: i64, y: i64) -> f32 {
+        if x >= 0 && y >= 0 && (x as usize) < self.width && (y as usize) < self.height {
+            self.cells[y as usize * self.width + x as usize]
+        } else {
+            0.0
+        }
+    }
+
+    /// Whether the map-frame point `p` lies in confidently free space: its
+    /// cell and the 8 around it all have log-odds at or below `threshold`
+    /// (negative), so a point a cell away from a wall is never judged free.
+    pub fn is_free(&self, p: &Vector2<f64>, threshold: f32) -> bool {
+        let (cx, cy) = self.cell(p);
+        (-1..=1).all(|dy| (-1..=1).all(|dx| self.at(cx + dx, cy + dy) <= threshold))
+    }
+
     #[inline]
     fn update(&mut self, x: i64, y: i64, delta: f32) {
         if x >= 0 && y >= 0 && (x as usize) < self.width && (y as usize) < self.height {

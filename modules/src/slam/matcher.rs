@@ -247,7 +247,12 @@ struct Search<'a> {
     wr: f64,
     res: f64,
     inv_n: f64,
-    best: Option<Cand>,
+    /// The best leaves found, at most `keep`, pairwise farther apart than
+    /// `sep` cells or `sep_angle` angle steps; best first is not kept sorted.
+    top: Vec<Cand>,
+    keep: usize,
+    sep: i64,
+    sep_angle: usize,
     nodes: usize,
 }
 
@@ -282,14 +287,55 @@ impl Search<'_> {
         }
     }
 
+    /// Score a candidate must beat to matter: the worst kept leaf once
+    /// `keep` leaves are kept.
+    fn threshold(&self) -> f64 {
+        if self.top.len() < self.keep.max(1) {
+            f64::NEG_INFINITY
+        } else {
+            self.top
+                .iter()
+                .map(|c| c.score)
+                .fold(f64::INFINITY, f64::min)
+        }
+    }
+
+    /// Keeps leaf `c`: it replaces a kept leaf near it if it scores higher
+    /// (and is dropped if it does not), else it is added and the worst kept
+    /// leaf dropped beyond `keep`.
+    fn keep_leaf(&mut self, c: Cand) {
+        let near = self.top.iter().position(|t| {
+            (t.dx - c.dx).abs() <= self.sep
+                && (t.dy - c.dy).abs() <= self.sep
+                && t.angle.abs_diff(c.angle) <= self.sep_angle
+        });
+        match near {
+            Some(i) if self.top[i].score < c.score => self.top[i] = c,
+            Some(_) => {}
+            None => {
+                self.top.push(c);
+                if self.top.len() > self.keep.max(1)
+                    && let Some(w) = self
+                        .top
+                        .iter()
+                        .enumerate()
+                        .min_by(|a, b| a.1.score.total_cmp(&b.1.score))
+                        .map(|(i, _)| i)
+                {
+                    self.top.swap_remove(w);
+                }
+            }
+        }
+    }
+
     fn descend(&mut self, level: usize, mut cands: Vec<Cand>) {
         cands.sort_unstable_by(|a, b| b.score.total_cmp(&a.score));
         for c in cands {
-            if self.best.is_some_and(|b| c.score <= b.score) {
+            if c.score <= self.threshold() {
                 break;
             }
             if level == 0 {
-                self.best = Some(c);
+                self.keep_leaf(c);
                 continue;
             }
             let half = 1i64 << (level - 1);
@@ -315,8 +361,39 @@ pub fn match_scan(
     prior: &Isometry2<f64>,
     cfg: &MatcherConfig,
 ) -> Option<MatchResult> {
+    let (cands, nodes) = search_candidates(map, points, prior, cfg, 1, 0.0, 0.0);
+    let (csm_pose, csm_score) = cands.into_iter().next()?;
+    let (pose, covariance, information) =
+        refine_with_information(map, points, &csm_pose, cfg.refine_iterations);
+    let score = map.field.score(points, &pose);
+    Some(MatchResult {
+        pose,
+        score,
+        csm_score,
+        covariance,
+        information,
+        nodes,
+    })
+}
+
+/// The correlative search of [`match_scan`] keeping the `keep` best grid
+/// poses that lie pairwise more than `min_separation` metres or
+/// `min_angle` radians apart (non-maximum suppression), best first, with
+/// their penalised grid scores and the number of nodes scored. Exact for
+/// `keep = 1` (the branch-and-bound optimum); for more, the separation is
+/// judged against the leaves kept so far, so the set is a good, not a
+/// proven, set of distinct local optima.
+pub fn search_candidates(
+    map: &ReferenceMap,
+    points: &[Vector2<f64>],
+    prior: &Isometry2<f64>,
+    cfg: &MatcherConfig,
+    keep: usize,
+    min_separation: f64,
+    min_angle: f64,
+) -> (Vec<(Isometry2<f64>, f64)>, usize) {
     if points.is_empty() {
-        return None;
+        return (Vec::new(), 0);
     }
     let field = &map.field;
     let res = field.resolution;
@@ -358,7 +435,10 @@ pub fn match_scan(
         wr: cfg.rotation_weight,
         res,
         inv_n: 1.0 / points.len() as f64,
-        best: None,
+        top: Vec::new(),
+        keep: keep.max(1),
+        sep: (min_separation / res).floor() as i64,
+        sep_angle: (min_angle / step).floor() as usize,
         nodes: 0,
     };
     let top = 1i64 << depth;
@@ -375,23 +455,21 @@ pub fn match_scan(
         }
     }
     search.descend(depth, roots);
-    let best = search.best?;
-    let nodes = search.nodes;
-    let csm_pose = Isometry2::new(
-        t0 + Vector2::new(best.dx as f64, best.dy as f64) * res,
-        theta0 + angles[best.angle],
-    );
-    let (pose, covariance, information) =
-        refine_with_information(map, points, &csm_pose, cfg.refine_iterations);
-    let score = field.score(points, &pose);
-    Some(MatchResult {
-        pose,
-        score,
-        csm_score: best.score,
-        covariance,
-        information,
-        nodes,
-    })
+    let mut top = search.top;
+    top.sort_by(|a, b| b.score.total_cmp(&a.score));
+    let out = top
+        .iter()
+        .map(|c| {
+            (
+                Isometry2::new(
+                    t0 + Vector2::new(c.dx as f64, c.dy as f64) * res,
+                    theta0 + angles[c.angle],
+                ),
+                c.score,
+            )
+        })
+        .collect();
+    (out, search.nodes)
 }
 
 /// Normals of a scan's points (same frame as the points), from the line
@@ -652,6 +730,35 @@ mod tests {
             m.nodes,
             b.nodes
         );
+    }
+
+    /// Keeping several coarse optima: the first is the single search's
+    /// optimum, the others are distinct and not better.
+    #[test]
+    fn top_k_candidates_are_distinct_and_start_with_the_optimum() {
+        let field = reference(3);
+        let truth = Isometry2::new(Vector2::new(0.27, -0.13), 0.11);
+        let scan = scan_from(&truth);
+        let prior = Isometry2::new(Vector2::new(0.1, 0.0), 0.05);
+        let cfg = MatcherConfig {
+            refine_iterations: 0,
+            ..Default::default()
+        };
+        let (one, _) = search_candidates(&field, &scan, &prior, &cfg, 1, 0.0, 0.0);
+        let (four, _) = search_candidates(&field, &scan, &prior, &cfg, 4, 0.2, 0.1);
+        assert_eq!(one.len(), 1);
+        assert_eq!(four.len(), 4);
+        assert!((four[0].1 - one[0].1).abs() < 1e-12, "{four:?} vs {one:?}");
+        for w in four.windows(2) {
+            assert!(w[0].1 >= w[1].1, "{four:?}");
+        }
+        for (i, a) in four.iter().enumerate() {
+            for b in &four[i + 1..] {
+                let d = (a.0.translation.vector - b.0.translation.vector).abs();
+                let da = (a.0.rotation.angle() - b.0.rotation.angle()).abs();
+                assert!(d.x > 0.2 || d.y > 0.2 || da > 0.1, "{a:?} {b:?}");
+            }
+        }
     }
 
     #[test]

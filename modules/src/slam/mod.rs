@@ -79,7 +79,8 @@ pub use eval::{
     EvalOptions, SlamEval, SlamEvalError, ate_rmse, eval_slam, eval_slam_with, logs_in,
 };
 pub use frontend::{
-    EstimateSource, PoseEstimate, SlamConfig, SlamFrontEnd, WideSearch, match_robust,
+    EstimateSource, FREE_LOG_ODDS, PoseEstimate, SlamConfig, SlamFrontEnd, WideSearch,
+    match_robust, match_robust_ranked,
 };
 pub use mapping::{
     LogOddsMap, MapWriteError, MapperConfig, PGM_FREE_THRESHOLD, PGM_OCCUPIED_THRESHOLD,
@@ -87,5 +88,6 @@ pub use mapping::{
 };
 pub use matcher::{
     LikelihoodField, MatchResult, MatcherConfig, ReferenceMap, match_scan, refine, scan_normals,
+    search_candidates,
 };
 pub use posegraph::{Edge, Optimised, PoseGraphError, optimise};
