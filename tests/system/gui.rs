@@ -525,8 +525,8 @@ fn a_beacon_clicked_in_the_camera_image_is_designated_with_the_cameras_field_of_
     let feeder = {
         let (prefix, stop) = (prefix.clone(), std::sync::Arc::clone(&stop));
         std::thread::spawn(move || {
-            let node = Node::new(NodeOptions::new("gui-test-tracker").prefix(&prefix))
-                .expect("node");
+            let node =
+                Node::new(NodeOptions::new("gui-test-tracker").prefix(&prefix)).expect("node");
             let (w, h) = (320u32, 240u32);
             let images = node
                 .slice_publisher::<ImageInfo>("camera/image", (w * h * 3) as usize)
@@ -592,13 +592,19 @@ fn a_beacon_clicked_in_the_camera_image_is_designated_with_the_cameras_field_of_
         out.status.success() && log.iter().any(|e| e["event"] == "done"),
         "the browser driver failed: {text}"
     );
-    let tracked = log.iter().find(|e| e["event"] == "tracked").expect("tracked");
+    let tracked = log
+        .iter()
+        .find(|e| e["event"] == "tracked")
+        .expect("tracked");
     assert_eq!(tracked["hfov"].as_f64(), Some(hfov), "{tracked}");
     let hit_answer = log.iter().find(|e| e["event"] == "hit").expect("hit");
     assert_eq!(hit_answer["answer"]["status"], 200, "{hit_answer}");
     assert_eq!(hit_answer["answer"]["body"]["beacon_id"], 4, "{hit_answer}");
     let missed = log.iter().find(|e| e["event"] == "miss").expect("miss");
-    assert_eq!(missed["answers"], 1, "a click beside every beacon sent nothing: {missed}");
+    assert_eq!(
+        missed["answers"], 1,
+        "a click beside every beacon sent nothing: {missed}"
+    );
     // On the data plane: beacon 4 designated, once; the click beside them published nothing.
     assert_eq!(got, vec![(4, 1)], "designations published: {text}");
     assert!(artefacts.join("gui-camera.png").exists());
@@ -678,7 +684,10 @@ fn a_busy_page_address_is_reported_and_the_run_goes_on_without_the_page() {
             && said.contains("the run goes on without it"),
         "{said}"
     );
-    assert!(seen.len() <= 3, "among the first lines: {seen:?} then {said}");
+    assert!(
+        seen.len() <= 3,
+        "among the first lines: {seen:?} then {said}"
+    );
     assert_eq!(running, Some(Value::from("running")), "the run went on");
     assert!(status.success(), "an orderly stop: {status:?}");
     assert!(files.is_empty(), "left {files:?}");

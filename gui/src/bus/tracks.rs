@@ -103,9 +103,12 @@ pub(super) fn tracks(tr: &Tracks, st: &State) -> Value {
                     provider = Some(name(e.peer));
                 }
             }
-            let tracker =
-                provider.unwrap_or_else(|| ch.split('/').next().unwrap_or(ch).to_owned());
-            let age = newest.get(i).copied().unwrap_or(0).saturating_sub(t.header.stamp_ns);
+            let tracker = provider.unwrap_or_else(|| ch.split('/').next().unwrap_or(ch).to_owned());
+            let age = newest
+                .get(i)
+                .copied()
+                .unwrap_or(0)
+                .saturating_sub(t.header.stamp_ns);
             json!({
                 "channel": ch,
                 "tracker": tracker,
