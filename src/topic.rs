@@ -223,6 +223,12 @@ fn dispatch(prefix: &str, name: &str, mode: Mode) -> Result<()> {
         msg::Waypoint,
         msg::Clock,
         msg::ModuleReport,
+        msg::BeaconTrack,
+        msg::Designation,
+        msg::Order,
+        msg::OrderStatus,
+        msg::Behaviours,
+        msg::Walls,
         system::SupervisorCommand,
         system::ModuleEvent,
         system::ResourceCosts,
@@ -234,6 +240,11 @@ fn dispatch(prefix: &str, name: &str, mode: Mode) -> Result<()> {
         hng_modules::msgs::Mission,
         hng_modules::msgs::MissionStatus
     );
+    // A path's poses are printed too (an image's or a grid's bytes are not: only their
+    // header and length).
+    if info.r#type == type_name::<msg::PathInfo>() {
+        return watch_path(&node, name, mode);
+    }
     slice!(
         msg::GridInfo,
         msg::ImageInfo,
@@ -379,6 +390,18 @@ fn watch_fixed<T: Message>(node: &Node, name: &str, mode: Mode) -> Result<()> {
         .subscriber::<T>(name)
         .with_context(|| format!("subscribing to {name}"))?;
     watch(&sub, name, mode, |s, json| print_json(&**s, json))
+}
+
+fn watch_path(node: &Node, name: &str, mode: Mode) -> Result<()> {
+    let sub = node
+        .slice_subscriber::<msg::PathInfo>(name)
+        .with_context(|| format!("subscribing to {name}"))?;
+    watch(&sub, name, mode, |s, json| {
+        print_json(
+            &serde_json::json!({"header": s.header(), "len": s.data().len(), "poses": s.data()}),
+            json,
+        )
+    })
 }
 
 fn watch_slice<H: SliceMessage>(node: &Node, name: &str, mode: Mode) -> Result<()> {

@@ -57,6 +57,7 @@ function connect() {
     state[m.t] = m.v;
     if (m.t === "map" || m.t === "slam_map") gridImage(m.t, m.v);
     if (m.t === "image") cameraImage(m.v);
+    if (m.t === "tracks") drawCamera();
     if (m.t === "hello") $("prefix").textContent = m.v.prefix;
     if (m.t === "clock") pace.sample(m.v.sim_s);
     if (m.t === "error") { $("answer").textContent = "stream: " + m.v; $("answer").className = "bar bad"; }
@@ -186,13 +187,16 @@ function drawMap() {
       mctx.fillRect(cx - 1, cy - 1, 2, 2);
     });
   }
-  // Beacons seen (camera frame = robot heading).
-  if (state.beacons && pose) {
-    for (const b of state.beacons.beacons.slice(0, state.beacons.count)) {
+  // Beacons seen (camera frame = robot heading): the trackers' tracks, yellow when a client
+  // holds a contract with the tracker (the one the reacher follows), dashed when predicted.
+  if (pose) {
+    for (const b of seenBeacons()) {
       const a = pose.theta + b.bearing;
       const [cx, cy] = view.toCanvas(pose.x + b.range * Math.cos(a), pose.y + b.range * Math.sin(a));
-      mctx.strokeStyle = "#0ff"; mctx.strokeRect(cx - 4, cy - 4, 8, 8);
-      mctx.fillStyle = "#0ff"; mctx.fillText("b" + b.id, cx + 6, cy + 4);
+      const col = b.contracted ? "#fc3" : "#0ff";
+      mctx.strokeStyle = col; mctx.setLineDash(b.state === "predicted" ? [2, 2] : []);
+      mctx.strokeRect(cx - 5, cy - 5, 10, 10); mctx.setLineDash([]);
+      mctx.fillStyle = col; mctx.fillText("b" + b.id, cx + 7, cy + 4);
     }
   }
   if (state.truth) drawPose(state.truth.pose, "rgba(120,255,120,0.5)", null);
@@ -298,7 +302,16 @@ for (const b of document.querySelectorAll("#teleop button")) {
 }
 
 // ---- camera, beacons, designation -------------------------------------------------------
-const CAMERA_FOV = 1.2; // rad: the simulator's default horizontal field of view
+// The camera's horizontal field of view comes with each image (ImageInfo v2 `hfov`); a camera
+// that does not give it (0) cannot be clicked (the "designate N" buttons still work).
+function cameraFocal() {
+  const hfov = state.image && state.image.hfov;
+  return hfov > 0 ? camCanvas.width / 2 / Math.tan(hfov / 2) : null;
+}
+// The column of a bearing (rad, counter-clockwise from the camera's axis), and back.
+function bearingColumn(bearing) { const f = cameraFocal(); return f && camCanvas.width / 2 - f * Math.tan(bearing); }
+function columnBearing(u) { const f = cameraFocal(); return f && Math.atan2(camCanvas.width / 2 - u, f); }
+let cameraPixels = null;
 function cameraImage(im) {
   const bytes = Uint8Array.from(atob(im.data), (c) => c.charCodeAt(0));
   if (camCanvas.width !== im.width) { camCanvas.width = im.width; camCanvas.height = im.height; }
@@ -310,21 +323,66 @@ function cameraImage(im) {
       img.data[o] = bytes[i]; img.data[o + 1] = bytes[rgb ? i + 1 : i]; img.data[o + 2] = bytes[rgb ? i + 2 : i]; img.data[o + 3] = 255;
     }
   }
-  cctx.putImageData(img, 0, 0);
+  cameraPixels = img;
+  drawCamera();
 }
-function seenBeacons() { return state.beacons ? state.beacons.beacons.slice(0, state.beacons.count) : []; }
+// The image and, over it, a mark at the column of each beacon tracked.
+function drawCamera() {
+  if (!cameraPixels) return;
+  cctx.putImageData(cameraPixels, 0, 0);
+  for (const b of seenBeacons()) {
+    const u = bearingColumn(b.bearing);
+    if (u == null || u < 0 || u > camCanvas.width) continue;
+    const col = b.contracted ? "#fc3" : "#0ff";
+    cctx.strokeStyle = col; cctx.lineWidth = 2; cctx.setLineDash(b.state === "predicted" ? [3, 3] : []);
+    cctx.strokeRect(u - 8, 6, 16, camCanvas.height - 12); cctx.setLineDash([]); cctx.lineWidth = 1;
+    cctx.fillStyle = col; cctx.font = "12px sans-serif"; cctx.fillText("b" + b.id, u + 10, 18);
+  }
+}
+// The beacons seen now: the trackers' tracks (seen or predicted; for each beacon the best of
+// the contracted tracker's, else the best quality), and a beacon camera's observations when
+// the page reads one (Channels::beacons).
+function seenBeacons() {
+  const by = new Map();
+  for (const t of (state.tracks && state.tracks.tracks) || []) {
+    if (t.state === "lost") continue;
+    const b = { id: t.beacon_id, bearing: t.bearing, range: t.range, state: t.state, quality: t.quality, tracker: t.tracker, contracted: t.contracted_by.length > 0 };
+    const old = by.get(b.id);
+    if (!old || (b.contracted && !old.contracted) || (b.contracted === old.contracted && b.quality > old.quality)) by.set(b.id, b);
+  }
+  if (state.beacons) {
+    for (const o of state.beacons.beacons.slice(0, state.beacons.count)) {
+      if (!by.has(o.id)) by.set(o.id, { id: o.id, bearing: o.bearing, range: o.range, state: "seen", quality: null, tracker: "camera", contracted: false });
+    }
+  }
+  return [...by.values()].sort((a, b) => a.id - b.id);
+}
+window.hng.seenBeacons = seenBeacons;
+function drawTracks() {
+  const list = (state.tracks && state.tracks.tracks) || [];
+  $("tracks").innerHTML = list.length ? list.map((t) =>
+    `<li class="${t.state}">beacon ${t.beacon_id}: ${t.state} by ${t.tracker}` +
+    (t.state === "lost" ? "" : `, ${t.range.toFixed(2)} m, ${t.bearing.toFixed(2)} rad`) +
+    `, Q ${t.quality.toFixed(2)}` +
+    (t.contracted_by.length ? ` <b>(tracker of ${t.contracted_by.join(", ")})</b>` : "") + `</li>`).join("")
+    : "<li><em>no beacon tracked</em></li>";
+}
 function designate(id) {
   post("/api/designate", { beacon_id: id }).then((r) => showAnswer(`designate beacon ${id}`, r));
 }
 camCanvas.addEventListener("click", (ev) => {
   const r = camCanvas.getBoundingClientRect();
   const u = (ev.clientX - r.left) * camCanvas.width / r.width;
-  const f = camCanvas.width / 2 / Math.tan(CAMERA_FOV / 2);
-  const bearing = Math.atan2(camCanvas.width / 2 - u, f);
+  const bearing = columnBearing(u);
+  if (bearing == null) {
+    $("answer").textContent = "this camera does not give its field of view: use the designate buttons";
+    $("answer").className = "bar bad";
+    return;
+  }
   let best = null;
   for (const b of seenBeacons()) if (!best || Math.abs(b.bearing - bearing) < Math.abs(best.bearing - bearing)) best = b;
   if (best && Math.abs(best.bearing - bearing) < 0.12) designate(best.id);
-  else { $("answer").textContent = "no beacon there"; $("answer").className = "bar bad"; }
+  else { $("answer").textContent = `no beacon there (bearing ${bearing.toFixed(2)} rad)`; $("answer").className = "bar bad"; }
 });
 
 // ---- panels -----------------------------------------------------------------------------
@@ -460,7 +518,7 @@ function frame(t) {
     dirty = false;
     drawMap();
     drawHeader();
-    if (t - lastPanels > 250) { lastPanels = t; drawModules(); drawContracts(); drawTimeline(); drawBehaviours(); }
+    if (t - lastPanels > 250) { lastPanels = t; drawModules(); drawContracts(); drawTimeline(); drawBehaviours(); drawTracks(); }
   }
   requestAnimationFrame(frame);
 }

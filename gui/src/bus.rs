@@ -25,6 +25,9 @@ use serde_json::{Value, json};
 
 use crate::hub::{Hub, TOPICS};
 
+mod tracks;
+use tracks::{Tracks, tracks};
+
 /// The channels the page reads (configurable for other systems).
 #[derive(Debug, Clone)]
 pub struct Channels {
@@ -48,10 +51,12 @@ pub struct Channels {
     pub goal: String,
     /// The Manager's mission (JSON).
     pub mission: String,
-    /// Beacons seen by the camera.
+    /// Beacons seen by a beacon camera (`BeaconObservation`; empty: none, the default: the
+    /// robot's camera gives images, and its beacons are the trackers' tracks).
     pub beacons: String,
-    /// The tracked beacon.
-    pub track: String,
+    /// The trackers' `BeaconTrack` channels ("Track beacon" offers); each beacon tracked is
+    /// shown with the tracker that tracks it and the clients contracted to that tracker.
+    pub tracks: Vec<String>,
     /// Camera images.
     pub image: String,
 }
@@ -69,8 +74,11 @@ impl Default for Channels {
             path: PLANNED_PATH_CHANNEL.into(),
             goal: "manager/goal".into(),
             mission: "manager/mission".into(),
-            beacons: "camera/beacons".into(),
-            track: "tracker/track".into(),
+            beacons: String::new(),
+            tracks: vec![
+                "tracker_colour/track".into(),
+                "tracker_histogram/track".into(),
+            ],
             image: "camera/image".into(),
         }
     }
@@ -81,7 +89,7 @@ pub fn min_interval(topic: &str) -> Duration {
     Duration::from_millis(match topic {
         "order_status" | "events" | "designation" => 0,
         "pose" | "truth" | "odom" | "scan" => 50,
-        "clock" | "waypoint" | "path" | "goal" | "beacons" | "track" | "behaviours" => 100,
+        "clock" | "waypoint" | "path" | "goal" | "beacons" | "tracks" | "behaviours" => 100,
         "image" => 200,
         "status" | "mission" => 250,
         "contracts" => 500,
@@ -192,7 +200,7 @@ struct Sources {
     goal: Option<Fixed<Goal>>,
     mission: Option<Sliced<JsonInfo>>,
     beacons: Option<Fixed<BeaconObservation>>,
-    track: Option<Fixed<BeaconTrack>>,
+    tracks: Tracks,
     image: Option<Sliced<ImageInfo>>,
     order_status: Option<Fixed<OrderStatus>>,
     behaviours: Option<Fixed<Behaviours>>,
@@ -276,8 +284,18 @@ pub fn run(opts: &BusOptions, hub: &Arc<Hub>, stop: &AtomicBool) -> Result<(), c
         path: sliced(&node, &mut w, &c.path),
         goal: fixed(&node, &mut w, &c.goal),
         mission: sliced(&node, &mut w, &c.mission),
-        beacons: fixed(&node, &mut w, &c.beacons),
-        track: fixed(&node, &mut w, &c.track),
+        beacons: (!c.beacons.is_empty())
+            .then(|| fixed(&node, &mut w, &c.beacons))
+            .flatten(),
+        tracks: Tracks::new(
+            c.tracks
+                .iter()
+                .filter_map(|ch| {
+                    let f: Fixed<BeaconTrack> = fixed(&node, &mut w, ch)?;
+                    Some((ch.clone(), f.sub))
+                })
+                .collect(),
+        ),
         image: sliced(&node, &mut w, &c.image),
         order_status: fixed(&node, &mut w, ORDER_STATUS_CHANNEL),
         behaviours: fixed(&node, &mut w, BEHAVIOURS_CHANNEL),
@@ -364,7 +382,9 @@ fn poll_all(src: &mut Sources, st: &mut State) {
     take!(goal, "goal");
     take!(mission, "mission");
     take!(beacons, "beacons");
-    take!(track, "track");
+    if src.tracks.poll() {
+        st.mark("tracks");
+    }
     take!(image, "image");
     take!(behaviours, "behaviours");
     take!(designation, "designation");
@@ -644,7 +664,7 @@ fn encode(topic: &str, src: &Sources, st: &State) -> Option<(Value, u64)> {
         }
         "goal" => plain(&src.goal),
         "beacons" => plain(&src.beacons),
-        "track" => plain(&src.track),
+        "tracks" => Some((tracks(&src.tracks, st), 0)),
         "behaviours" => plain(&src.behaviours),
         "designation" => plain(&src.designation),
         "order_status" => {
@@ -673,6 +693,7 @@ fn encode(topic: &str, src: &Sources, st: &State) -> Option<(Value, u64)> {
                 json!({
                     "width": info.width, "height": info.height, "step": info.step,
                     "encoding": info.encoding, "stamp_ns": info.header.stamp_ns,
+                    "hfov": (info.hfov.is_finite() && info.hfov > 0.0).then_some(info.hfov),
                     "data": b64(data),
                 }),
                 info.header.stamp_ns,

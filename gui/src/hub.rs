@@ -38,7 +38,7 @@ pub const TOPICS: &[&str] = &[
     "path",
     "goal",
     "beacons",
-    "track",
+    "tracks",
     "behaviours",
     "designation",
     "mission",

@@ -147,27 +147,51 @@ async fn info(State(app): State<Arc<App>>, headers: HeaderMap, q: RawQuery) -> R
     axum::Json(json!({ "prefix": app.prefix, "stream": app.hub.stats() })).into_response()
 }
 
+/// Every request that gives an order: the token checked, then the body parsed and checked
+/// by `parse` ([`crate::orders`]); a refusal is the response to send, and nothing is
+/// published for it.
+#[allow(clippy::result_large_err)]
+fn checked<T>(
+    app: &App,
+    headers: &HeaderMap,
+    q: &RawQuery,
+    body: &[u8],
+    parse: impl FnOnce(&[u8]) -> Result<T, Invalid>,
+) -> Result<T, Response> {
+    app.auth(headers, q.0.as_deref())?;
+    parse(body).map_err(|e| invalid(&e))
+}
+
+/// Hands a checked order to the orders thread, which publishes it at once.
+#[allow(clippy::result_large_err)]
+fn publish(app: &App, out: Outgoing) -> Result<(), Response> {
+    app.senders.out.send(out).map_err(|_| stopping())
+}
+
+fn stopping() -> Response {
+    error(
+        StatusCode::SERVICE_UNAVAILABLE,
+        "the operator station is stopping",
+    )
+}
+
 async fn order(
     State(app): State<Arc<App>>,
     headers: HeaderMap,
     q: RawQuery,
     body: Bytes,
 ) -> Response {
-    if let Err(r) = app.auth(&headers, q.0.as_deref()) {
-        return r;
-    }
-    let seq = app.seq.fetch_add(1, Ordering::Relaxed);
-    let o = match orders::order(&body, seq) {
+    let o = match checked(&app, &headers, &q, &body, |b| {
+        orders::order(b, app.seq.fetch_add(1, Ordering::Relaxed))
+    }) {
         Ok(o) => o,
-        Err(e) => return invalid(&e),
+        Err(r) => return r,
     };
+    let seq = o.seq;
     let mut answers = app.hub.answers();
     answers.mark_unchanged();
-    if app.senders.out.send(Outgoing::Order(Box::new(o))).is_err() {
-        return error(
-            StatusCode::SERVICE_UNAVAILABLE,
-            "the operator station is stopping",
-        );
+    if let Err(r) = publish(&app, Outgoing::Order(Box::new(o))) {
+        return r;
     }
     let wait = async {
         loop {
@@ -195,39 +219,35 @@ async fn order(
     }
 }
 
+// The refusal is the response itself (an axum `Response`, large by nature).
+#[allow(clippy::result_large_err)]
 async fn teleop(
     State(app): State<Arc<App>>,
     headers: HeaderMap,
     q: RawQuery,
     body: Bytes,
 ) -> Response {
-    if let Err(r) = app.auth(&headers, q.0.as_deref()) {
-        return r;
-    }
-    match orders::teleop(&body) {
-        Ok(t) => {
-            let _ = app.senders.out.send(Outgoing::Teleop(t));
-            axum::Json(json!({ "sent": true })).into_response()
-        }
-        Err(e) => invalid(&e),
+    match checked(&app, &headers, &q, &body, orders::teleop)
+        .and_then(|t| publish(&app, Outgoing::Teleop(t)))
+    {
+        Ok(()) => axum::Json(json!({ "sent": true })).into_response(),
+        Err(r) => r,
     }
 }
 
+// The refusal is the response itself (an axum `Response`, large by nature).
+#[allow(clippy::result_large_err)]
 async fn designate(
     State(app): State<Arc<App>>,
     headers: HeaderMap,
     q: RawQuery,
     body: Bytes,
 ) -> Response {
-    if let Err(r) = app.auth(&headers, q.0.as_deref()) {
-        return r;
-    }
-    match orders::designation(&body) {
-        Ok(d) => {
-            let _ = app.senders.out.send(Outgoing::Designate(d));
-            axum::Json(json!({ "sent": true, "beacon_id": d.beacon_id })).into_response()
-        }
-        Err(e) => invalid(&e),
+    match checked(&app, &headers, &q, &body, orders::designation)
+        .and_then(|d| publish(&app, Outgoing::Designate(d)).map(|()| d.beacon_id))
+    {
+        Ok(id) => axum::Json(json!({ "sent": true, "beacon_id": id })).into_response(),
+        Err(r) => r,
     }
 }
 
@@ -237,12 +257,9 @@ async fn module(
     q: RawQuery,
     body: Bytes,
 ) -> Response {
-    if let Err(r) = app.auth(&headers, q.0.as_deref()) {
-        return r;
-    }
-    let (req, signal) = match orders::module_command(&body) {
+    let (req, signal) = match checked(&app, &headers, &q, &body, orders::module_command) {
         Ok(r) => r,
-        Err(e) => return invalid(&e),
+        Err(r) => return r,
     };
     let (reply, answer) = tokio::sync::oneshot::channel();
     let cmd = ModuleCommand {
@@ -252,10 +269,7 @@ async fn module(
         reply,
     };
     if app.senders.control.send(cmd).is_err() {
-        return error(
-            StatusCode::SERVICE_UNAVAILABLE,
-            "the operator station is stopping",
-        );
+        return stopping();
     }
     match tokio::time::timeout(Duration::from_secs(10), answer).await {
         Ok(Ok(Ok(done))) => axum::Json(json!({ "done": done })).into_response(),

@@ -1,6 +1,6 @@
 //! Camera: the camera driver (Table 1: provides "Video"). Backed here by the simulator's
 //! rendered camera (`sim/camera/image`, RGB8 `ImageInfo` + bytes), relayed on `image_out`
-//! (`camera/image`), the data channel of its "Video" offer (type `hng/ImageInfo/v1`). The
+//! (`camera/image`), the data channel of its "Video" offer (type `hng/ImageInfo/v2`). The
 //! relay is one copy of each frame from the device's sample into the Camera's own loaned
 //! sample; its clients read that sample in place.
 //!

@@ -14,7 +14,7 @@ use hng_runtime::msg::ImageInfo;
 use hng_runtime::{Context, Error, SliceSubscriber};
 
 /// The "Video" offer's data type.
-pub const VIDEO_TYPE: &str = "hng/ImageInfo/v1";
+pub const VIDEO_TYPE: &str = hng_runtime::msg::IMAGE_INFO_TYPE;
 
 /// Why a frame is not a usable RGB8 image, or `None` when it is.
 #[must_use]

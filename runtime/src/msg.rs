@@ -593,9 +593,13 @@ pub struct GridInfo {
 crate::impl_slice_message!(GridInfo, i8, ChannelKind::StateBulk);
 
 /// User header of an image; the payload is `step * height` bytes.
+///
+/// v2 added `hfov`: what a client needs to turn a pixel column into a bearing (a pinhole
+/// camera, principal point at the image's centre: column `u` looks at
+/// `atan((width / 2 - u) / (width / 2 / tan(hfov / 2)))`, counter-clockwise positive).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize)]
-#[type_name("hng/ImageInfo/v1")]
+#[type_name("hng/ImageInfo/v2")]
 pub struct ImageInfo {
     /// Header; `frame_id` is the camera's frame.
     pub header: Header,
@@ -607,7 +611,12 @@ pub struct ImageInfo {
     pub step: u32,
     /// Encoding, e.g. `mono8`, `rgb8` (NUL-padded).
     pub encoding: FrameId,
+    /// Horizontal field of view, rad (0: unknown).
+    pub hfov: f64,
 }
+
+/// The type name of [`ImageInfo`] (what a "Video" offer names as its data type).
+pub const IMAGE_INFO_TYPE: &str = "hng/ImageInfo/v2";
 crate::impl_slice_message!(ImageInfo, u8, ChannelKind::Bulk);
 
 /// User header of a raw byte payload (benchmarks, opaque data).
@@ -623,6 +632,13 @@ crate::impl_slice_message!(BytesInfo, u8, ChannelKind::Bulk);
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_image_type_constant_is_the_type_name() {
+        // SAFETY: only unsafe because implementors may lie; this one is derived.
+        let name = unsafe { <ImageInfo as iceoryx2::prelude::ZeroCopySend>::type_name() };
+        assert_eq!(name, IMAGE_INFO_TYPE);
+    }
 
     #[test]
     fn frame_ids_round_trip_and_reject_long_names() {

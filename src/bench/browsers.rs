@@ -5,28 +5,30 @@
 //! browser test uses them). [`Watchers::start`] says why when the machine has no browser.
 
 use std::io::{BufRead as _, BufReader, Write as _};
-use std::net::TcpListener;
 use std::path::{Path, PathBuf};
 use std::process::{Child, ChildStdin, Command, Stdio};
 use std::sync::mpsc;
 use std::time::Duration;
 
 use anyhow::{Context as _, Result, bail};
-use hng_gui::{Channels, Options, Server};
+use hng_gui::{Channels, Server};
 use serde_json::Value;
 
-/// The folder of the browser driver (the repository's tests/system/js).
-fn js_dir() -> PathBuf {
+/// The folder of the browser drivers (the repository's tests/system/js).
+pub fn js_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/system/js")
 }
 
-/// Why browsers cannot watch on this machine, if they cannot.
+/// Why no headless browser can be driven on this machine, if none can: the one check of the
+/// bench's browsers and of the real-browser tests (tests/system/gui.rs). It needs Chromium
+/// (`/usr/bin/chromium`, or the one `CHROMIUM` names), node, and the npm package
+/// playwright-core in [`js_dir`]; `.ci/run` installs all three when it can.
 pub fn missing() -> Option<String> {
     let chromium = std::env::var_os("CHROMIUM")
         .map_or_else(|| PathBuf::from("/usr/bin/chromium"), PathBuf::from);
     if !chromium.exists() {
         return Some(format!(
-            "no {} (CHROMIUM names another)",
+            "no {} (CHROMIUM names another; .ci/run installs Debian's chromium with apt-get as root)",
             chromium.display()
         ));
     }
@@ -35,12 +37,12 @@ pub fn missing() -> Option<String> {
         .output()
         .is_ok_and(|o| o.status.success());
     if !node_ok {
-        return Some("no node".into());
+        return Some("no node (.ci/run installs nodejs and npm with apt-get as root)".into());
     }
     let js = js_dir();
     if !js.join("node_modules/playwright-core").exists() {
         return Some(format!(
-            "no {}/node_modules/playwright-core (npm ci there installs it)",
+            "no {}/node_modules/playwright-core (npm ci there installs it; .ci/run runs it)",
             js.display()
         ));
     }
@@ -61,16 +63,11 @@ impl Watchers {
     /// Serves the page for `prefix` (the scan shown read from `scan`) and opens it in
     /// `browsers` headless Chromium instances; returns once every page is connected to the live stream.
     pub fn start(prefix: &str, scan: &str, browsers: usize) -> Result<Watchers> {
-        let listener = TcpListener::bind("127.0.0.1:0")?;
-        let server = Server::start(
-            listener,
-            Options {
-                prefix: prefix.to_owned(),
-                token: None,
-                channels: Channels {
-                    scan: scan.to_owned(),
-                    ..Channels::default()
-                },
+        let server = super::gui::serve_page(
+            prefix,
+            Channels {
+                scan: scan.to_owned(),
+                ..Channels::default()
             },
         )?;
         let url = format!("http://{}/", server.local_addr());

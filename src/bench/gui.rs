@@ -66,16 +66,22 @@ fn reader(
     }))
 }
 
-fn case(prefix: &str, clients: usize, scans: u32) -> Result<BenchRow> {
-    let listener = TcpListener::bind("127.0.0.1:0")?;
-    let server = Server::start(
+/// The operator page, in this process, for the system under `prefix`, on a free loopback
+/// port without a token (the benchmarks' page, and the browser tests' without a mission).
+pub fn serve_page(prefix: &str, channels: Channels) -> Result<Server> {
+    let listener = TcpListener::bind("127.0.0.1:0").context("a free loopback port")?;
+    Ok(Server::start(
         listener,
         Options {
             prefix: prefix.to_owned(),
             token: None,
-            channels: Channels::default(),
+            channels,
         },
-    )?;
+    )?)
+}
+
+fn case(prefix: &str, clients: usize, scans: u32) -> Result<BenchRow> {
+    let server = serve_page(prefix, Channels::default())?;
     let node = Node::new(NodeOptions::new("bench-gui-laser").prefix(prefix))?;
     let publisher = node.publisher::<LaserScan>("laser/scan")?;
     let stop = Arc::new(AtomicBool::new(false));

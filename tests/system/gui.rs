@@ -1,7 +1,8 @@
 //! The operator page (hng-gui, docs/operator.md) against the built-in mission: bad input and
 //! wrong tokens are refused with a 4xx and publish nothing; a client that stops reading is
-//! dropped without slowing anything; and a real browser (headless Chromium driven by the npm
-//! package playwright-core) sees the robot, sends it to a goal and stops it.
+//! dropped without slowing anything; a real browser (headless Chromium driven by the npm
+//! package playwright-core) sees the robot, sends it to a goal and stops it; and a beacon
+//! clicked in the camera image is designated, with the field of view the images carry.
 
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::TcpStream;
@@ -11,7 +12,10 @@ use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 use hng_runtime::clock::CLOCK_CHANNEL;
-use hng_runtime::msg::{Clock, LaserScan, ORDER_CHANNEL, Order, OrderKind, PoseWithCovariance};
+use hng_runtime::msg::{
+    BeaconTrack, Clock, DESIGNATION_CHANNEL, Designation, FrameId, ImageInfo, LaserScan,
+    ORDER_CHANNEL, Order, OrderKind, PoseWithCovariance, TRACK_SEEN,
+};
 use hng_runtime::wait::{WaitMode, Waiter};
 use hng_runtime::{Node, NodeOptions, shm};
 use serde_json::Value;
@@ -340,30 +344,10 @@ fn a_client_that_stops_reading_is_dropped_and_never_slows_the_robot() {
     );
 }
 
-/// Why the browser test cannot run here, if it cannot.
-fn browser_missing(js: &Path) -> Option<String> {
-    if !Path::new("/usr/bin/chromium").exists() && std::env::var_os("CHROMIUM").is_none() {
-        return Some("no /usr/bin/chromium (.ci/run installs it with apt-get as root)".into());
-    }
-    let node_ok = Command::new("node")
-        .arg("--version")
-        .output()
-        .is_ok_and(|o| o.status.success());
-    if !node_ok {
-        return Some("no node".into());
-    }
-    if !js.join("node_modules/playwright-core").exists() {
-        return Some(
-            "no tests/system/js/node_modules/playwright-core (.ci/run runs npm ci)".into(),
-        );
-    }
-    None
-}
-
 #[test]
 fn a_real_browser_sees_the_robot_sends_it_to_a_goal_and_stops_it() {
-    let js = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/system/js");
-    if let Some(why) = browser_missing(&js) {
+    let js = hng::bench::browsers::js_dir();
+    if let Some(why) = hng::bench::browsers::missing() {
         crate::common::skip(
             "a_real_browser_sees_the_robot_sends_it_to_a_goal_and_stops_it",
             &why,
@@ -504,4 +488,207 @@ fn a_real_browser_sees_the_robot_sends_it_to_a_goal_and_stops_it() {
         "stopped {stopped} s of simulated time after STOP: {text}"
     );
     assert!(artefacts.join("gui-stop.png").exists());
+}
+
+/// The column (fraction of the image's width) where a pinhole camera of horizontal field of
+/// view `hfov` sees `bearing` (counter-clockwise positive): the test's own arithmetic, not
+/// the page's.
+fn column_of(bearing: f64, hfov: f64) -> f64 {
+    let focal_in_widths = 0.5 / (hfov / 2.0).tan();
+    0.5 - focal_in_widths * bearing.tan()
+}
+
+#[test]
+fn a_beacon_clicked_in_the_camera_image_is_designated_with_the_cameras_field_of_view() {
+    if let Some(why) = hng::bench::browsers::missing() {
+        crate::common::skip(
+            "a_beacon_clicked_in_the_camera_image_is_designated_with_the_cameras_field_of_view",
+            &why,
+        );
+        return;
+    }
+    let js = hng::bench::browsers::js_dir();
+    let artefacts = Path::new(env!("CARGO_MANIFEST_DIR")).join("target/gui-artefacts");
+    let prefix = shm::unique_prefix("gui_designate");
+    // No mission: this test is the camera and a tracker. The images say their field of view
+    // is 1.0 rad; two beacons are tracked 0.1 rad apart, so a page that assumed another field
+    // of view (the simulator's default 1.2 rad) would designate the wrong one.
+    let hfov = 1.0;
+    let (hit, other, miss) = (0.30, 0.40, -0.40);
+    let server =
+        hng::bench::gui::serve_page(&prefix, hng_gui::Channels::default()).expect("page server");
+    let node = Node::new(NodeOptions::new("gui-test-camera").prefix(&prefix)).expect("node");
+    let designations = node
+        .subscriber::<Designation>(DESIGNATION_CHANNEL)
+        .expect("designations");
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let feeder = {
+        let (prefix, stop) = (prefix.clone(), std::sync::Arc::clone(&stop));
+        std::thread::spawn(move || {
+            let node =
+                Node::new(NodeOptions::new("gui-test-tracker").prefix(&prefix)).expect("node");
+            let (w, h) = (320u32, 240u32);
+            let images = node
+                .slice_publisher::<ImageInfo>("camera/image", (w * h * 3) as usize)
+                .expect("images");
+            let tracks = node
+                .publisher::<BeaconTrack>("tracker_colour/track")
+                .expect("tracks");
+            let pixels: Vec<u8> = (0..w * h * 3).map(|i| (i % 251) as u8).collect();
+            let info = ImageInfo {
+                width: w,
+                height: h,
+                step: w * 3,
+                encoding: FrameId::new("rgb8").expect("encoding"),
+                hfov,
+                ..Default::default()
+            };
+            while !stop.load(std::sync::atomic::Ordering::Acquire) {
+                images.publish_copy(info, &pixels).expect("image");
+                for (id, bearing) in [(4, hit), (7, other)] {
+                    tracks
+                        .publish(BeaconTrack {
+                            beacon_id: id,
+                            state: TRACK_SEEN,
+                            bearing,
+                            range: 3.0,
+                            quality: 0.8,
+                            ..Default::default()
+                        })
+                        .expect("track");
+                }
+                // A camera's pace: one image and its tracks every 100 ms.
+                std::thread::sleep(Duration::from_millis(100));
+            }
+        })
+    };
+    let url = format!("http://{}/", server.local_addr());
+    let out = Command::new("node")
+        .arg(js.join("designate.mjs"))
+        .arg(&url)
+        .arg(&artefacts)
+        .arg(column_of(hit, hfov).to_string())
+        .arg(column_of(miss, hfov).to_string())
+        .current_dir(&js)
+        .stderr(Stdio::inherit())
+        .output()
+        .expect("node designate.mjs");
+    stop.store(true, std::sync::atomic::Ordering::Release);
+    feeder.join().expect("feeder");
+    let log: Vec<Value> = String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap_or(Value::String(l.to_owned())))
+        .collect();
+    let mut got = Vec::new();
+    while let Some(d) = designations.receive().expect("designation") {
+        got.push((d.beacon_id, d.active));
+    }
+    server.stop();
+    drop(designations);
+    drop(node);
+    shm::remove_prefix_files(&prefix);
+    let text = format!("{log:#?}");
+    assert!(
+        out.status.success() && log.iter().any(|e| e["event"] == "done"),
+        "the browser driver failed: {text}"
+    );
+    let tracked = log
+        .iter()
+        .find(|e| e["event"] == "tracked")
+        .expect("tracked");
+    assert_eq!(tracked["hfov"].as_f64(), Some(hfov), "{tracked}");
+    let hit_answer = log.iter().find(|e| e["event"] == "hit").expect("hit");
+    assert_eq!(hit_answer["answer"]["status"], 200, "{hit_answer}");
+    assert_eq!(hit_answer["answer"]["body"]["beacon_id"], 4, "{hit_answer}");
+    let missed = log.iter().find(|e| e["event"] == "miss").expect("miss");
+    assert_eq!(
+        missed["answers"], 1,
+        "a click beside every beacon sent nothing: {missed}"
+    );
+    // On the data plane: beacon 4 designated, once; the click beside them published nothing.
+    assert_eq!(got, vec![(4, 1)], "designations published: {text}");
+    assert!(artefacts.join("gui-camera.png").exists());
+}
+
+#[test]
+fn a_busy_page_address_is_reported_and_the_run_goes_on_without_the_page() {
+    // Something else holds the port: the run says so among its first lines and goes on.
+    let taken = std::net::TcpListener::bind("127.0.0.1:0").expect("a port");
+    let addr = taken.local_addr().expect("address");
+    let prefix = shm::unique_prefix("gui_busy");
+    let dir = std::env::temp_dir().join(format!("hng-test-{}", prefix.trim_end_matches('_')));
+    std::fs::create_dir_all(&dir).expect("test dir");
+    let file = dir.join("launch.toml");
+    std::fs::write(
+        &file,
+        "system = \"busy\"\n[[module]]\nname = \"probe\"\ncommand = [\"hng\", \"module\", \"heartbeat-probe\"]\n",
+    )
+    .expect("launch file");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_hng"))
+        .env("HNG_LOG", "warn")
+        .args(["--prefix", &prefix, "run", "--no-rm"])
+        .arg("--run-dir")
+        .arg(dir.join("run"))
+        .arg("--gui")
+        .arg(addr.to_string())
+        .arg(&file)
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .spawn()
+        .expect("hng run");
+    let stdout = child.stdout.take().expect("stdout");
+    let (tx, lines) = mpsc::channel();
+    std::thread::spawn(move || {
+        for l in BufReader::new(stdout).lines().map_while(Result::ok) {
+            if tx.send(l).is_err() {
+                break;
+            }
+        }
+    });
+    let mut seen = Vec::new();
+    let said = loop {
+        match lines.recv_timeout(Duration::from_secs(30)) {
+            Ok(l) if l.starts_with("operator page:") => break l,
+            Ok(l) => seen.push(l),
+            Err(e) => panic!("no word of the operator page ({e}): {seen:?}"),
+        }
+    };
+    // The run goes on: its module runs (the supervisor's status, as `hng ps --json` reads it).
+    let deadline = Instant::now() + Duration::from_secs(30);
+    let running = loop {
+        let ps = Command::new(env!("CARGO_BIN_EXE_hng"))
+            .args(["--prefix", &prefix, "ps", "--json"])
+            .output()
+            .expect("hng ps");
+        let doc: Value = serde_json::from_slice(&ps.stdout).unwrap_or(Value::Null);
+        let state = doc["modules"]
+            .as_array()
+            .and_then(|ms| ms.iter().find(|m| m["name"] == "probe"))
+            .map(|m| m["state"].clone());
+        if state.as_ref().is_some_and(|s| s == "running") || Instant::now() > deadline {
+            break state;
+        }
+        // Waiting for the module's start: the supervisor's status, polled.
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    let pid = nix::unistd::Pid::from_raw(child.id() as i32);
+    let _ = nix::sys::signal::kill(pid, nix::sys::signal::Signal::SIGTERM);
+    let status = child.wait().expect("wait");
+    drop(taken);
+    let files = shm::prefix_files(&prefix);
+    shm::remove_prefix_files(&prefix);
+    let _ = std::fs::remove_dir_all(&dir);
+    assert!(
+        said.starts_with("operator page: not served: cannot listen on")
+            && said.contains(&addr.to_string())
+            && said.contains("the run goes on without it"),
+        "{said}"
+    );
+    assert!(
+        seen.len() <= 3,
+        "among the first lines: {seen:?} then {said}"
+    );
+    assert_eq!(running, Some(Value::from("running")), "the run went on");
+    assert!(status.success(), "an orderly stop: {status:?}");
+    assert!(files.is_empty(), "left {files:?}");
 }

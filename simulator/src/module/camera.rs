@@ -134,6 +134,7 @@ impl ImageCamera {
             height: p.height,
             step: p.width * 3,
             encoding: FrameId::new("rgb8").unwrap_or_default(),
+            hfov: p.fov,
         };
         self.renderer.set_script_boxes(script_boxes);
         let lighting = script_lighting * self.lighting;

@@ -9,7 +9,7 @@
 //     page's pose is within 0.5 m of it;
 //   - waits until the robot moves again (the mission's next goal), presses STOP, waits until
 //     the page shows it stopped;
-//   - saves screenshots in ARTEFACT_DIR.
+//   - saves screenshots in ARTEFACT_DIR (gui-contracts, gui-path, gui-goal, gui-stop .png).
 import { chromium } from "playwright-core";
 import path from "node:path";
 import fs from "node:fs";
@@ -72,6 +72,8 @@ try {
     return Math.hypot(l[0] - g.x, l[1] - g.y) < 0.3;
   }, goal, { timeout: 60000, polling: 50 }).then(async () => {
     say({ event: "path_drawn", drawn: await page.evaluate(() => window.hng.drawn.path), path: await page.evaluate(() => window.hng.state.path) });
+    // The page on its way: map, laser, path, camera and panels (docs/img/operator-page.png).
+    await page.screenshot({ path: path.join(dir, "gui-path.png") });
   });
   await page.waitForFunction((g) => {
     const p = window.hng.state.pose && window.hng.state.pose.pose;
