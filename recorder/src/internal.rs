@@ -245,9 +245,7 @@ impl Internal {
             let Some(t) = self.tails.get_mut(module) else {
                 return Ok(());
             };
-            t.file
-                .read_to_end(&mut buf)
-                .map_err(|e| io_err(&path, e))?;
+            t.file.read_to_end(&mut buf).map_err(|e| io_err(&path, e))?;
             // Rotated: the old file (now `.log.1`) was read to its end; go on with the new.
             match std::fs::metadata(&path) {
                 Ok(m) if m.ino() != t.ino => {
@@ -255,9 +253,8 @@ impl Internal {
                     // Rotated twice since the last read: the middle file's bytes are lost.
                     let rotated = hng_rotated(&path);
                     if std::fs::metadata(&rotated).is_ok_and(|r| r.ino() != t.ino) {
-                        self.report.log_bytes_lost += std::fs::metadata(&rotated)
-                            .map(|r| r.len())
-                            .unwrap_or(0);
+                        self.report.log_bytes_lost +=
+                            std::fs::metadata(&rotated).map(|r| r.len()).unwrap_or(0);
                     }
                     t.file = f;
                     t.ino = m.ino();
@@ -285,7 +282,8 @@ impl Internal {
     }
 
     fn write_line(&mut self, out: &mut McapOut, module: &str, line: &[u8]) -> Result<(), Error> {
-        let text = strip_ansi(String::from_utf8_lossy(&line[..line.len().min(MAX_LINE)]).trim_end());
+        let text =
+            strip_ansi(String::from_utf8_lossy(&line[..line.len().min(MAX_LINE)]).trim_end());
         if text.is_empty() {
             return Ok(());
         }
@@ -394,7 +392,9 @@ impl Internal {
                 continue; // replaced meanwhile: the next look takes the new one
             };
             let crc = crc32fast::hash(&data);
-            if c.stored.is_some_and(|s| s.2 == crc && s.0 == data.len() as u64) {
+            if c.stored
+                .is_some_and(|s| s.2 == crc && s.0 == data.len() as u64)
+            {
                 c.stored = Some((key.0, key.1, crc));
                 continue;
             }
@@ -512,7 +512,11 @@ mod tests {
         // A rotation: the rest of the old file, then the new one.
         writeln!(f, "  INFO old: just before the rotation").unwrap();
         std::fs::rename(logs.join("old.log"), logs.join("old.log.1")).unwrap();
-        std::fs::write(logs.join("old.log"), "  ERROR old: after the rotation\npartial").unwrap();
+        std::fs::write(
+            logs.join("old.log"),
+            "  ERROR old: after the rotation\npartial",
+        )
+        .unwrap();
         std::fs::write(logs.join("new.log"), "hello\n").unwrap();
         std::fs::write(ckpts.join("slam.ckpt"), b"state 1").unwrap();
         std::fs::write(ckpts.join("slam.prev.ckpt"), b"state 0").unwrap();

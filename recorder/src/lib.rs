@@ -22,12 +22,12 @@
 pub mod codec;
 pub mod compare;
 pub mod info;
+pub mod internal;
 pub mod live;
 pub mod lockstep;
 pub mod read;
 pub mod record;
 pub mod registry;
-pub mod internal;
 pub mod replay;
 mod replay_lockstep;
 pub mod writer;

@@ -15,7 +15,6 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use hng_runtime::channel::{Node, NodeOptions, Service, iceoryx_config};
-use hng_runtime::msg::Header;
 use hng_runtime::wait::{WaitMode, Waiter, Wake};
 use iceoryx2::prelude::*;
 use serde::Serialize;

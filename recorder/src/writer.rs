@@ -345,7 +345,7 @@ fn writer_thread(
     let mut out = Some(out);
     let mut ids: Vec<u16> = Vec::new();
     let mut internal = Internal::new(internal);
-    let mut fail = |e: Error, out: &mut Option<McapOut>| {
+    let fail = |e: Error, out: &mut Option<McapOut>| {
         tracing::error!("recording stopped: {e}");
         if let Ok(mut slot) = shared.error.lock() {
             slot.get_or_insert_with(|| e.to_string());
@@ -392,9 +392,7 @@ fn writer_thread(
                 (Job::Metadata(name, kv), Some(o)) => o.metadata(name, kv.clone()),
             };
             if let Job::Message { data, .. } = &job {
-                shared
-                    .queued_bytes
-                    .fetch_sub(data.len(), Ordering::AcqRel);
+                shared.queued_bytes.fetch_sub(data.len(), Ordering::AcqRel);
             }
             if let Err(e) = r {
                 fail(e, &mut out);

@@ -209,8 +209,7 @@ impl ChannelLimits {
     /// channel/name.record_buffer=N,...` (whitespace and empty items are ignored; a channel
     /// name has a `/`); the error names the item and what is wrong with it.
     pub fn parse(spec: &str) -> Result<ChannelLimits, String> {
-        const FORM: &str =
-            "expected KIND.publishers=N, KIND.subscribers=N, KIND.record_buffer=N or CHANNEL.record_buffer=N";
+        const FORM: &str = "expected KIND.publishers=N, KIND.subscribers=N, KIND.record_buffer=N or CHANNEL.record_buffer=N";
         let mut out = ChannelLimits::default();
         for item in spec
             .split([',', ';'])
@@ -230,11 +229,7 @@ impl ChannelLimits {
             } else {
                 MAX_LIMIT
             };
-            let n: Option<usize> = value
-                .trim()
-                .parse()
-                .ok()
-                .filter(|n| (1..=max).contains(n));
+            let n: Option<usize> = value.trim().parse().ok().filter(|n| (1..=max).contains(n));
             let idx = ChannelKind::ALL.iter().position(|k| k.name() == kind);
             if idx.is_none() && kind.contains('/') {
                 // A channel's own recorder's buffer.
@@ -355,10 +350,19 @@ mod tests {
         let l = ChannelLimits::parse("sensor.record_buffer=256, laser/scan.record_buffer=1024")
             .unwrap();
         assert_eq!(l.qos(ChannelKind::Sensor).record_buffer, 256);
-        assert_eq!(l.qos_of(ChannelKind::Sensor, "robot/odom").record_buffer, 256);
-        assert_eq!(l.qos_of(ChannelKind::Sensor, "laser/scan").record_buffer, 1024);
+        assert_eq!(
+            l.qos_of(ChannelKind::Sensor, "robot/odom").record_buffer,
+            256
+        );
+        assert_eq!(
+            l.qos_of(ChannelKind::Sensor, "laser/scan").record_buffer,
+            1024
+        );
         assert_eq!(l.qos_of(ChannelKind::Sensor, "laser/scan").buffer, 8);
-        assert_eq!(l.qos_of(ChannelKind::Sensor, "laser/scan").max_buffer(), 1024);
+        assert_eq!(
+            l.qos_of(ChannelKind::Sensor, "laser/scan").max_buffer(),
+            1024
+        );
         let d = ChannelLimits::default();
         for k in ChannelKind::ALL {
             let q = d.qos(k);

@@ -137,7 +137,14 @@ fn bench_case(dir: &std::path::Path, case: &str, size: usize, n: u64) -> Result<
         Ok(BenchRow::new("record", case, Percentiles::of(&mut samples))
             .with("messages", summary.messages)
             .with("dropped", summary.dropped)
-            .with("queue_dropped", summary.channels.iter().map(|c| c.queue_dropped).sum::<u64>())
+            .with(
+                "queue_dropped",
+                summary
+                    .channels
+                    .iter()
+                    .map(|c| c.queue_dropped)
+                    .sum::<u64>(),
+            )
             .with("window", window)
             .with("messages_per_s", summary.messages as f64 / elapsed)
             .with("payload_mb_s", payload_mb / elapsed)

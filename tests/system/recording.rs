@@ -63,6 +63,7 @@ fn info_json(file: &Path) -> (Output, Value) {
 /// The default mission, run once with `--record` and shared by the tests that read it.
 struct Recorded {
     file: PathBuf,
+    run_dir: PathBuf,
     info: Value,
     run_output: String,
 }
@@ -95,6 +96,7 @@ fn recorded_mission() -> &'static Recorded {
         assert!(iout.status.success(), "{}", text(&iout));
         Recorded {
             file,
+            run_dir: dir.join("run"),
             info,
             run_output,
         }
@@ -202,12 +204,43 @@ fn a_recorded_mission_holds_every_channel_with_foxglove_schemas_and_its_drops() 
         assert_eq!(c["schema"], "foxglove.Log", "{c}");
         assert!(c["messages"].as_u64().unwrap_or(0) > 0, "{c}");
     }
-    assert!(
-        logs.iter().any(|c| c["channel"] == "hng/log/slam"),
-        "{logs:?}"
-    );
+    // Every module that wrote lines during the run has them recorded (the run directory was
+    // new: its log files hold this run's lines only; the last lines of a stopping module may
+    // reach its file after the recorder's last read).
+    let mut with_lines = 0;
+    for e in std::fs::read_dir(r.run_dir.join("logs"))
+        .expect("log dir")
+        .flatten()
+    {
+        let path = e.path();
+        let Some(module) = path
+            .file_name()
+            .and_then(|n| n.to_str())
+            .and_then(|n| n.strip_suffix(".log"))
+        else {
+            continue;
+        };
+        let lines = std::fs::read_to_string(&path)
+            .unwrap_or_default()
+            .lines()
+            .filter(|l| !l.trim().is_empty())
+            .count() as u64;
+        if lines == 0 || module == "hng" {
+            continue;
+        }
+        with_lines += 1;
+        let got = channel(info, &format!("hng/log/{module}"))["messages"]
+            .as_u64()
+            .unwrap_or(0);
+        assert!(got >= 1 && got <= lines, "{module}: {got} of {lines} lines");
+    }
+    assert!(with_lines >= 1, "no module wrote a line: {logs:?}");
     let ckpt = &info["attachments"]["checkpoint/slam"];
-    assert!(ckpt["count"].as_u64().unwrap_or(0) >= 1, "{}", info["attachments"]);
+    assert!(
+        ckpt["count"].as_u64().unwrap_or(0) >= 1,
+        "{}",
+        info["attachments"]
+    );
     assert!(ckpt["bytes"].as_u64().unwrap_or(0) > 28, "{ckpt}");
     assert!(r.run_output.contains("internal data:"), "{}", r.run_output);
     // The plan's module configurations are kept for `hng replay --module`.
