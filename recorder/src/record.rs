@@ -423,7 +423,7 @@ fn record_impl(
             None => std::thread::sleep(opts.poll),
         }
     }
-    let summary = RecordSummary {
+    let mut summary = RecordSummary {
         output: opts.output.clone(),
         channels: chans
             .iter()
@@ -448,7 +448,6 @@ fn record_impl(
         error,
         internal: InternalReport::default(),
     };
-    let mut summary = summary;
     // Out of the barrier before closing the file (the world does not wait for the close).
     drop(lockstep);
     if let Some(mut m) = mcap {
