@@ -282,8 +282,7 @@ impl Internal {
     }
 
     fn write_line(&mut self, out: &mut McapOut, module: &str, line: &[u8]) -> Result<(), Error> {
-        let text =
-            strip_ansi(String::from_utf8_lossy(&line[..line.len().min(MAX_LINE)]).trim());
+        let text = strip_ansi(String::from_utf8_lossy(&line[..line.len().min(MAX_LINE)]).trim());
         if text.is_empty() {
             return Ok(());
         }
