@@ -43,6 +43,11 @@ pub struct RecordArgs {
     /// Print the summary as one JSON object.
     #[arg(long)]
     pub json: bool,
+    /// The run directory of the system whose module logs (`DIR/logs`) and checkpoints
+    /// (`DIR/checkpoints`) are recorded too (default: the prefix's default run directory,
+    /// when it exists; `hng run --record` always records its own).
+    #[arg(long, value_name = "DIR")]
+    pub run_dir: Option<PathBuf>,
 }
 
 /// The recorder flags of `hng run`.
@@ -146,6 +151,14 @@ pub fn record(prefix: &str, args: &RecordArgs) -> Result<()> {
     opts.live = args.foxglove.clone();
     opts.duration = seconds(args.duration)?;
     opts.catch_signals = true;
+    let run_dir = args
+        .run_dir
+        .clone()
+        .unwrap_or_else(|| crate::run::default_run_dir(prefix));
+    if run_dir.is_dir() {
+        opts.internal.logs = Some(crate::run::logs::log_dir(&run_dir));
+        opts.internal.checkpoints = Some(run_dir.join("checkpoints"));
+    }
     let mut run = BTreeMap::new();
     run.insert("prefix".to_string(), prefix.to_string());
     run.insert("command".to_string(), "hng record".to_string());
@@ -305,16 +318,23 @@ pub fn eval_replay(args: &EvalReplayArgs) -> Result<()> {
 /// The recorder of `hng run --record/--foxglove`, started before the first module so the run
 /// is recorded from its first message; the plan's module configurations are kept in the
 /// file (metadata `hng.modules`) for `hng replay --module`.
+///
+/// The modules' log lines (`logs`, the supervisor's per-module log files) and checkpoints
+/// (`checkpoints`) are recorded too (docs/recording.md, "internal data").
 pub fn start_for_run(
     prefix: &str,
     args: &RunRecordArgs,
     plan: &mut hng_watchdog::LaunchPlan,
+    logs: &std::path::Path,
+    checkpoints: &std::path::Path,
 ) -> Result<Option<RecorderThread>> {
     if args.record.is_none() && args.foxglove.is_none() {
         return Ok(None);
     }
     let mut opts = RecordOptions::new(prefix);
     opts.output = args.record.clone();
+    opts.internal.logs = Some(logs.to_path_buf());
+    opts.internal.checkpoints = Some(checkpoints.to_path_buf());
     opts.live = args.foxglove.clone();
     let mut run = BTreeMap::new();
     run.insert("prefix".to_string(), prefix.to_string());

@@ -10,6 +10,7 @@
 //! | `Odometry` | `foxglove.FrameTransforms` (parent: the header's frame, child: `child_frame_id`) |
 //! | `GridInfo` + cells | `foxglove.Grid` (one `int8` field, `occupancy`) |
 //! | `ImageInfo` + bytes | `foxglove.RawImage` |
+//! | `PathInfo` + poses | `foxglove.PosesInFrame` (a planned path) |
 //!
 //! Every other type is written as JSON (its serde form) with a JSON Schema inferred from the
 //! type's default value.
@@ -29,8 +30,8 @@ use base64::Engine as _;
 use base64::engine::general_purpose::STANDARD as B64;
 use foxglove::messages as fg;
 use hng_runtime::msg::{
-    GridInfo, Header, ImageInfo, LaserScan, MAX_BEAMS, Message, Odometry, PoseWithCovariance,
-    SliceMessage,
+    GridInfo, Header, ImageInfo, LaserScan, MAX_BEAMS, Message, Odometry, PathInfo, Pose2D,
+    PoseWithCovariance, SliceMessage,
 };
 use prost::Message as _;
 use serde_json::{Map, Value};
@@ -310,6 +311,54 @@ impl SliceCodec for ImageInfo {
     }
 }
 
+/// hng's bytes of a slice message with no exact place in its well-known schema: the header
+/// (field [`RAW_FIELD`]) and the payload's elements (field [`RAW_FIELD`] + 1).
+#[derive(Clone, PartialEq, prost::Message)]
+struct SliceTrailer {
+    #[prost(bytes = "vec", tag = "15000")]
+    raw: Vec<u8>,
+    #[prost(bytes = "vec", tag = "15001")]
+    data: Vec<u8>,
+}
+
+impl SliceCodec for PathInfo {
+    fn schema() -> SchemaDesc {
+        wkt_schema::<fg::PosesInFrame>()
+    }
+    fn encode(&self, data: &[Pose2D], out: &mut Vec<u8>) -> Result<(), String> {
+        let frame = match self.header.frame_id.as_str() {
+            "" => "map",
+            f => f,
+        };
+        pb(
+            &fg::PosesInFrame {
+                timestamp: timestamp(&self.header),
+                frame_id: frame.to_string(),
+                poses: data
+                    .iter()
+                    .map(|p| planar_pose(p.x, p.y, p.theta))
+                    .collect(),
+            },
+            out,
+        )?;
+        // The poses again as hng's bytes: a quaternion does not give back the heading's bits.
+        pb(
+            &SliceTrailer {
+                raw: raw_of(self).to_vec(),
+                data: elems_as_bytes(data).to_vec(),
+            },
+            out,
+        )
+    }
+    fn decode(data: &[u8]) -> Result<(Self, Vec<Pose2D>), String> {
+        let t = SliceTrailer::decode(data).map_err(|e| format!("protobuf: {e}"))?;
+        if t.raw.is_empty() {
+            return Err("no hng bytes (field 15000) in the message: not written by hng".into());
+        }
+        Ok((from_raw(&t.raw)?, elems_from_bytes(&t.data)?))
+    }
+}
+
 /// A JSON Schema describing `v` (objects, arrays, numbers, strings, booleans).
 pub(crate) fn infer_schema(v: &Value) -> Value {
     match v {
@@ -515,6 +564,41 @@ mod tests {
         let (h2, c2) = <GridInfo as SliceCodec>::decode(&buf).unwrap();
         assert_eq!(h2.width, 3);
         assert_eq!(c2, cells);
+    }
+
+    #[test]
+    fn paths_are_foxglove_poses_in_frame_and_come_back_bit_exact() {
+        let mut h = PathInfo {
+            goal_id: 3,
+            length_m: 2.5,
+            ..Default::default()
+        };
+        h.header.frame_id = FrameId::MAP;
+        h.header.stamp_ns = 7_000_000_123;
+        let poses = [
+            Pose2D {
+                x: 0.1,
+                y: -0.2,
+                theta: 0.3,
+            },
+            Pose2D {
+                x: 1.0,
+                y: 2.0,
+                theta: -3.1,
+            },
+        ];
+        let mut buf = Vec::new();
+        h.encode(&poses, &mut buf).unwrap();
+        let fgp = fg::PosesInFrame::decode(buf.as_slice()).unwrap();
+        assert_eq!(fgp.frame_id, "map");
+        assert_eq!(fgp.poses.len(), 2);
+        let p = fgp.poses[1].position.unwrap();
+        assert_eq!((p.x, p.y), (1.0, 2.0));
+        let q = fgp.poses[1].orientation.unwrap();
+        assert!((2.0 * q.z.atan2(q.w) - (-3.1)).abs() < 1e-9);
+        let (h2, p2) = <PathInfo as SliceCodec>::decode(&buf).unwrap();
+        assert_eq!(raw_of(&h2), raw_of(&h));
+        assert_eq!(p2, poses);
     }
 
     #[test]

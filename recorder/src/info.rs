@@ -52,6 +52,19 @@ pub struct Info {
     pub damage: Option<String>,
     /// Metadata records.
     pub metadata: BTreeMap<String, BTreeMap<String, String>>,
+    /// Attachments (the modules' checkpoints) by name: how many, and their bytes.
+    pub attachments: BTreeMap<String, AttachmentStat>,
+}
+
+/// The attachments of one name.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct AttachmentStat {
+    /// Media type (of the last one).
+    pub media_type: String,
+    /// How many.
+    pub count: u64,
+    /// Their bytes in all.
+    pub bytes: u64,
 }
 
 /// Reads `path` and summarises it.
@@ -96,7 +109,15 @@ pub fn info(path: &Path) -> Result<Info, Error> {
     let with = channels.iter().filter(|c| c.messages > 0);
     let first = with.clone().map(|c| c.first_log).min().unwrap_or(0);
     let last = with.map(|c| c.last_log).max().unwrap_or(0);
+    let mut attachments: BTreeMap<String, AttachmentStat> = BTreeMap::new();
+    for a in &contents.attachments {
+        let e = attachments.entry(a.name.clone()).or_default();
+        e.media_type.clone_from(&a.media_type);
+        e.count += 1;
+        e.bytes += a.bytes;
+    }
     Ok(Info {
+        attachments,
         file: path.display().to_string(),
         bytes: contents.file_bytes,
         messages: channels.iter().map(|c| c.messages).sum(),
@@ -148,6 +169,16 @@ impl std::fmt::Display for Info {
                 c.schema,
                 c.message_encoding
             )?;
+        }
+        if !self.attachments.is_empty() {
+            writeln!(f, "attachments:")?;
+            for (name, a) in &self.attachments {
+                writeln!(
+                    f,
+                    "  {name:w$}  {:>8}  {:>9} bytes  {}",
+                    a.count, a.bytes, a.media_type
+                )?;
+            }
         }
         Ok(())
     }

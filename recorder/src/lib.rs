@@ -5,7 +5,10 @@
 //!
 //! - [`codec`]: how each hng type is written (Foxglove well-known schemas where one fits,
 //!   JSON with a JSON Schema otherwise) and read back.
-//! - [`record`]: the recorder (`hng record`, `hng run --record`, `hng foxglove`).
+//! - [`record`]: the recorder (`hng record`, `hng run --record`, `hng foxglove`): the
+//!   thread that reads the channels.
+//! - [`writer`]: the thread that compresses and writes the file, behind a bounded queue.
+//! - [`internal`]: the modules' log lines and checkpoints (their "internal data").
 //! - [`live`]: the Foxglove WebSocket server.
 //! - [`lockstep`]: the recorder as a lockstep participant (nothing dropped in simulated runs).
 //! - [`read`]: reading a file, damaged or not, with offsets in the errors.
@@ -19,6 +22,7 @@
 pub mod codec;
 pub mod compare;
 pub mod info;
+pub mod internal;
 pub mod live;
 pub mod lockstep;
 pub mod read;
@@ -26,11 +30,13 @@ pub mod record;
 pub mod registry;
 pub mod replay;
 mod replay_lockstep;
+pub mod writer;
 
 use std::path::Path;
 use std::sync::atomic::{AtomicU64, Ordering};
 
 pub use record::{RecordOptions, RecordSummary, RecorderThread, record};
+pub use writer::QueueLimits;
 
 /// An error of the recorder, the reader or the replay.
 #[derive(Debug, thiserror::Error)]

@@ -29,6 +29,21 @@ pub struct ChannelInfo {
     pub hng_type: Option<String>,
 }
 
+/// An attachment of a recording (a module's checkpoint).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct AttachmentInfo {
+    /// Its name (`checkpoint/slam`).
+    pub name: String,
+    /// Its media type.
+    pub media_type: String,
+    /// When the recorder stored it, ns since the Unix epoch.
+    pub log_time: u64,
+    /// When it was created (the checkpoint file's modification time), ns.
+    pub create_time: u64,
+    /// Its size.
+    pub bytes: u64,
+}
+
 /// What a pass over a file found besides its messages.
 #[derive(Debug, Default)]
 pub struct Contents {
@@ -36,6 +51,8 @@ pub struct Contents {
     pub channels: BTreeMap<u16, ChannelInfo>,
     /// Metadata records, in file order.
     pub metadata: Vec<(String, BTreeMap<String, String>)>,
+    /// Attachments (the modules' checkpoints), in file order, without their data.
+    pub attachments: Vec<AttachmentInfo>,
     /// The damage that stopped the pass, if any (everything before it was read).
     pub damage: Option<Error>,
     /// Bytes in the file.
@@ -275,6 +292,15 @@ impl State<'_> {
                 }
             }
             Record::Metadata(m) => self.contents.metadata.push((m.name, m.metadata)),
+            Record::Attachment { header, data, .. } => {
+                self.contents.attachments.push(AttachmentInfo {
+                    name: header.name,
+                    media_type: header.media_type,
+                    log_time: header.log_time,
+                    create_time: header.create_time,
+                    bytes: data.len() as u64,
+                });
+            }
             _ => {}
         }
         Ok(())

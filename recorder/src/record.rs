@@ -9,24 +9,23 @@
 //! metadata (`hng.drops`).
 
 use std::collections::{BTreeMap, BTreeSet};
-use std::fs::File;
-use std::io::BufWriter;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use hng_runtime::channel::{Node, NodeOptions, Service, iceoryx_config};
-use hng_runtime::msg::Header;
 use hng_runtime::wait::{WaitMode, Waiter, Wake};
 use iceoryx2::prelude::*;
 use serde::Serialize;
 
 use crate::Error;
 use crate::codec::SchemaDesc;
+use crate::internal::{InternalOptions, InternalReport};
 use crate::live::Live;
 use crate::lockstep::Participant;
 use crate::registry::{Tap, TypeEntry, lookup, registry};
+use crate::writer::{QueueLimits, Writer};
 
 /// What to record and where.
 #[derive(Debug, Clone)]
@@ -56,6 +55,11 @@ pub struct RecordOptions {
     /// the world then waits every round until the recorder has read it, so nothing is
     /// dropped in a simulated run ([`crate::lockstep`]).
     pub lockstep: Option<String>,
+    /// The queue between the thread that reads the channels and the one that writes the
+    /// file ([`crate::writer`]).
+    pub queue: QueueLimits,
+    /// The modules' logs and checkpoints to record ([`crate::internal`]).
+    pub internal: InternalOptions,
 }
 
 impl RecordOptions {
@@ -73,6 +77,11 @@ impl RecordOptions {
             catch_signals: false,
             compression_level: 1,
             lockstep: None,
+            queue: QueueLimits::default(),
+            internal: InternalOptions {
+                checkpoint_period: Duration::from_secs(2),
+                ..InternalOptions::default()
+            },
         }
     }
 }
@@ -88,8 +97,10 @@ pub struct ChannelSummary {
     pub schema: String,
     /// Messages recorded.
     pub messages: u64,
-    /// Messages lost before the recorder read them.
+    /// Messages lost: before the recorder read them, or at its writer's full queue.
     pub dropped: u64,
+    /// Of `dropped`, those lost at the writer's full queue.
+    pub queue_dropped: u64,
     /// Encoded bytes.
     pub bytes: u64,
 }
@@ -113,6 +124,8 @@ pub struct RecordSummary {
     pub bytes: u64,
     /// Why recording stopped early (a write error such as a full disk), if it did.
     pub error: Option<String>,
+    /// The module logs and checkpoints recorded.
+    pub internal: InternalReport,
 }
 
 impl std::fmt::Display for RecordSummary {
@@ -130,7 +143,21 @@ impl std::fmt::Display for RecordSummary {
             self.dropped
         )?;
         for c in self.channels.iter().filter(|c| c.dropped > 0) {
-            writeln!(f, "  dropped {:>6} on {}", c.dropped, c.channel)?;
+            write!(f, "  dropped {:>6} on {}", c.dropped, c.channel)?;
+            if c.queue_dropped > 0 {
+                write!(f, " ({} at the writer's full queue)", c.queue_dropped)?;
+            }
+            writeln!(f)?;
+        }
+        let lines: u64 = self.internal.log_lines.values().sum();
+        let ckpts: u64 = self.internal.checkpoints.values().sum();
+        if lines + ckpts > 0 {
+            writeln!(
+                f,
+                "  internal data: {lines} log line(s) of {} module(s), {ckpts} checkpoint(s) of {} module(s)",
+                self.internal.log_lines.len(),
+                self.internal.checkpoints.len()
+            )?;
         }
         if !self.skipped.is_empty() {
             let mut names: Vec<String> = self
@@ -176,7 +203,7 @@ impl Progress {
             .unwrap_or(false)
     }
 
-    /// Messages recorded so far.
+    /// Messages taken off the bus so far (recorded, or dropped at the writer's full queue).
     pub fn messages(&self) -> u64 {
         self.0.messages.load(Ordering::Acquire)
     }
@@ -251,94 +278,12 @@ struct Chan {
     type_name: String,
     schema: SchemaDesc,
     tap: Box<dyn Tap>,
-    mcap_id: Option<u16>,
+    /// Its index at the writer.
+    file_id: Option<usize>,
     live: Option<Arc<foxglove::RawChannel>>,
     messages: u64,
     bytes: u64,
-}
-
-/// The MCAP side of the recorder.
-pub(crate) struct McapOut {
-    pub(crate) writer: mcap::Writer<BufWriter<File>>,
-    pub(crate) path: PathBuf,
-}
-
-impl McapOut {
-    pub(crate) fn create(path: &std::path::Path, level: u32) -> Result<McapOut, Error> {
-        let file = File::create(path).map_err(|e| Error::Io {
-            path: path.display().to_string(),
-            source: e,
-        })?;
-        let writer = mcap::WriteOptions::new()
-            .compression(Some(mcap::Compression::Zstd))
-            .compression_level(level)
-            .chunk_size(Some(1 << 20))
-            .profile("")
-            .library(format!("hng-recorder {}", env!("CARGO_PKG_VERSION")))
-            .create(BufWriter::with_capacity(1 << 20, file))
-            .map_err(|e| Error::mcap(path, e))?;
-        Ok(McapOut {
-            writer,
-            path: path.to_path_buf(),
-        })
-    }
-
-    pub(crate) fn add_channel(
-        &mut self,
-        name: &str,
-        type_name: &str,
-        schema: &SchemaDesc,
-    ) -> Result<u16, Error> {
-        let sid = self
-            .writer
-            .add_schema(&schema.name, schema.encoding, &schema.data)
-            .map_err(|e| Error::mcap(&self.path, e))?;
-        let mut meta = BTreeMap::new();
-        meta.insert("hng.type".to_string(), type_name.to_string());
-        self.writer
-            .add_channel(sid, name, schema.message_encoding, &meta)
-            .map_err(|e| Error::mcap(&self.path, e))
-    }
-
-    pub(crate) fn write(
-        &mut self,
-        id: u16,
-        h: &Header,
-        log_time: u64,
-        data: &[u8],
-    ) -> Result<(), Error> {
-        self.writer
-            .write_to_known_channel(
-                &mcap::records::MessageHeader {
-                    channel_id: id,
-                    sequence: h.seq as u32,
-                    log_time,
-                    publish_time: h.stamp_ns,
-                },
-                data,
-            )
-            .map_err(|e| Error::mcap(&self.path, e))
-    }
-
-    pub(crate) fn metadata(
-        &mut self,
-        name: &str,
-        metadata: BTreeMap<String, String>,
-    ) -> Result<(), Error> {
-        self.writer
-            .write_metadata(&mcap::records::Metadata {
-                name: name.to_string(),
-                metadata,
-            })
-            .map_err(|e| Error::mcap(&self.path, e))
-    }
-
-    pub(crate) fn finish(mut self) -> Result<(), Error> {
-        self.writer
-            .finish()
-            .map_err(|e| Error::mcap(&self.path, e))?;
-        Ok(())
-    }
+    queue_dropped: u64,
 }
 
 /// Records until `stop` is set (or a signal / the duration ends); returns what was recorded.
@@ -368,7 +313,13 @@ fn record_impl(
         .prefix(&opts.prefix),
     )?;
     let mut mcap = match &opts.output {
-        Some(p) => Some(McapOut::create(p, opts.compression_level)?),
+        Some(p) => Some(Writer::start(
+            p,
+            opts.compression_level,
+            opts.queue,
+            opts.lockstep.is_some(),
+            opts.internal.clone(),
+        )?),
         None => None,
     };
     if let Some(m) = mcap.as_mut() {
@@ -430,14 +381,18 @@ fn record_impl(
         }
         let log_time = now_unix_ns();
         for c in chans.iter_mut() {
-            let before = c.messages;
+            // Messages taken off the bus, kept or dropped at the writer's queue.
+            let before = c.messages + c.queue_dropped;
             let r = drain(c, opts.only_source, log_time, &mut mcap);
-            progress.count(c.messages - before);
-            if let Err(e) = r {
+            progress.count(c.messages + c.queue_dropped - before);
+            let failed = mcap.as_ref().and_then(Writer::error);
+            if let Some(e) = failed.or(r.err().map(|e| e.to_string())) {
                 // A write error (a full disk): stop cleanly, keep what was written.
                 tracing::error!("recording stopped: {e}");
-                error = Some(e.to_string());
-                mcap = None;
+                error = Some(e);
+                if let Some(w) = mcap.take() {
+                    let _ = w.finish();
+                }
                 stopping = true;
                 break;
             }
@@ -468,7 +423,7 @@ fn record_impl(
             None => std::thread::sleep(opts.poll),
         }
     }
-    let summary = RecordSummary {
+    let mut summary = RecordSummary {
         output: opts.output.clone(),
         channels: chans
             .iter()
@@ -477,16 +432,21 @@ fn record_impl(
                 r#type: c.type_name.clone(),
                 schema: c.schema.name.clone(),
                 messages: c.messages,
-                dropped: c.tap.stats().dropped,
+                dropped: c.tap.stats().dropped + c.queue_dropped,
+                queue_dropped: c.queue_dropped,
                 bytes: c.bytes,
             })
             .collect(),
         skipped,
         wall_s: started.elapsed().as_secs_f64(),
         messages: chans.iter().map(|c| c.messages).sum(),
-        dropped: chans.iter().map(|c| c.tap.stats().dropped).sum(),
+        dropped: chans
+            .iter()
+            .map(|c| c.tap.stats().dropped + c.queue_dropped)
+            .sum(),
         bytes: chans.iter().map(|c| c.bytes).sum(),
         error,
+        internal: InternalReport::default(),
     };
     // Out of the barrier before closing the file (the world does not wait for the close).
     drop(lockstep);
@@ -496,7 +456,7 @@ fn record_impl(
             .iter()
             .map(|c| (c.channel.clone(), c.dropped.to_string()))
             .collect();
-        m.metadata("hng.drops", drops)?;
+        let wrote = m.metadata("hng.drops", drops);
         let mut rec = BTreeMap::new();
         rec.insert("messages".into(), summary.messages.to_string());
         rec.insert("dropped".into(), summary.dropped.to_string());
@@ -505,8 +465,24 @@ fn record_impl(
             "skipped".into(),
             serde_json::to_string(&summary.skipped).unwrap_or_default(),
         );
-        m.metadata("hng.recorder", rec)?;
-        m.finish()?;
+        rec.insert(
+            "queue_dropped".into(),
+            summary
+                .channels
+                .iter()
+                .map(|c| c.queue_dropped)
+                .sum::<u64>()
+                .to_string(),
+        );
+        let wrote = wrote.and_then(|()| m.metadata("hng.recorder", rec));
+        let failed = m.error();
+        let finished = m.finish();
+        match (failed, wrote.and(finished)) {
+            // The writer failed at the end (a full disk): said like a failure on the way.
+            (Some(e), _) => summary.error = Some(e),
+            (None, Err(e)) => summary.error = Some(e.to_string()),
+            (None, Ok(report)) => summary.internal = report.internal,
+        }
     }
     drop(chans);
     if let Some(l) = live {
@@ -523,25 +499,30 @@ fn drain(
     c: &mut Chan,
     only_source: Option<u32>,
     log_time: u64,
-    mcap: &mut Option<McapOut>,
+    mcap: &mut Option<Writer>,
 ) -> Result<(), Error> {
     let Chan {
         tap,
-        mcap_id,
+        file_id,
         live,
         messages,
         bytes,
+        queue_dropped,
         ..
     } = c;
     tap.drain(&mut |h, data| {
         if only_source.is_some_and(|s| s != h.source) {
             return Ok(());
         }
+        if let (Some(m), Some(id)) = (mcap.as_mut(), *file_id)
+            && !m.message(id, h, log_time, data)?
+        {
+            // The writer's queue is full: lost, counted on its channel.
+            *queue_dropped += 1;
+            return Ok(());
+        }
         *messages += 1;
         *bytes += data.len() as u64;
-        if let (Some(m), Some(id)) = (mcap.as_mut(), *mcap_id) {
-            m.write(id, h, log_time, data)?;
-        }
         if let Some(l) = live {
             l.log_with_meta(data, foxglove::PartialMetadata::with_log_time(log_time));
         }
@@ -557,7 +538,7 @@ fn discover(
     reg: &[TypeEntry],
     chans: &mut Vec<Chan>,
     skipped: &mut BTreeMap<String, String>,
-    mcap: &mut Option<McapOut>,
+    mcap: &mut Option<Writer>,
     live: &Option<Live>,
     progress: &Progress,
 ) -> Result<(), Error> {
@@ -583,7 +564,7 @@ fn discover(
             Err(e) => return Err(e.into()),
         };
         let schema = (entry.schema)();
-        let mcap_id = match mcap.as_mut() {
+        let file_id = match mcap.as_mut() {
             Some(m) => Some(m.add_channel(&name, &ty, &schema)?),
             None => None,
         };
@@ -597,10 +578,11 @@ fn discover(
             type_name: ty,
             schema,
             tap,
-            mcap_id,
+            file_id,
             live,
             messages: 0,
             bytes: 0,
+            queue_dropped: 0,
         });
     }
     Ok(())

@@ -127,7 +127,7 @@ fn fixed<T: FixedCodec>() -> TypeEntry {
         schema: T::schema,
         tap: |node, ch| {
             Ok(Box::new(FixedTap::<T> {
-                sub: node.subscriber::<T>(ch)?,
+                sub: node.tap_subscriber::<T>(ch)?,
                 buf: Vec::new(),
             }) as Box<dyn Tap>)
         },
@@ -145,7 +145,7 @@ fn slice<H: SliceCodec>() -> TypeEntry {
         schema: H::schema,
         tap: |node, ch| {
             Ok(Box::new(SliceTap::<H> {
-                sub: node.slice_subscriber::<H>(ch)?,
+                sub: node.slice_tap_subscriber::<H>(ch)?,
                 buf: Vec::new(),
             }) as Box<dyn Tap>)
         },
@@ -250,7 +250,7 @@ json_fixed!(
 
 raw_fixed!(msg::Walls, msg::Behaviours, msg::Order, msg::OrderStatus);
 
-json_slice!(system::JsonInfo => true, msg::BytesInfo => false, msg::PathInfo => false);
+json_slice!(system::JsonInfo => true, msg::BytesInfo => false);
 
 /// Every type the recorder knows.
 pub fn registry() -> Vec<TypeEntry> {

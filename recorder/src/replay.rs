@@ -145,7 +145,7 @@ pub fn replay(
             }
         };
         let c = &mut chans[idx];
-        if c.source.is_none() {
+        if c.source.is_none() && !c.hng_type.is_empty() {
             match lookup(&reg, &c.hng_type) {
                 Some(e) => c.source = (e.decode_header)(data).ok().map(|h| h.source),
                 None => {
@@ -172,7 +172,8 @@ pub fn replay(
     let mut selected = vec![false; chans.len()];
     for (i, c) in chans.iter().enumerate() {
         let own = module_id_.is_some() && c.source == module_id_;
-        selected[i] = wanted(&opts.channels, &c.topic) && !own;
+        // Channels without an hng type (the module logs) were never on the bus.
+        selected[i] = wanted(&opts.channels, &c.topic) && !own && !c.hng_type.is_empty();
     }
     for (i, c) in chans.iter().enumerate() {
         if selected[i] && lookup(&reg, &c.hng_type).is_none() {

@@ -435,7 +435,7 @@ impl Node {
         let open = || {
             with_qos(
                 self.inner.service_builder(&name).publish_subscribe::<T>(),
-                T::KIND.qos(),
+                T::KIND.qos_of(channel),
             )
             .open_or_create()
         };
@@ -455,7 +455,7 @@ impl Node {
                     .service_builder(&name)
                     .publish_subscribe::<[H::Elem]>()
                     .user_header::<H>(),
-                H::KIND.qos(),
+                H::KIND.qos_of(channel),
             )
             .open_or_create()
         };
@@ -479,12 +479,34 @@ impl Node {
         })
     }
 
-    /// Opens (or creates) a channel and returns a subscriber on it. On state channels the
-    /// latest sample published before this call is delivered too.
+    /// Opens (or creates) a channel and returns a subscriber on it, holding the channel
+    /// kind's buffer of unread samples ([`crate::qos`]). On state channels the latest sample
+    /// published before this call is delivered too.
     pub fn subscriber<T: Message>(&self, channel: &str) -> Result<Subscriber<T>, Error> {
+        self.subscriber_holding::<T>(channel, false)
+    }
+
+    /// A subscriber for a recorder (`hng record`, the live view): it holds the channel's
+    /// recorder's buffer ([`crate::qos::Qos::record_buffer`]), so a reader that polls loses
+    /// nothing between two polls at the rates the buffer was sized for.
+    pub fn tap_subscriber<T: Message>(&self, channel: &str) -> Result<Subscriber<T>, Error> {
+        self.subscriber_holding::<T>(channel, true)
+    }
+
+    fn subscriber_holding<T: Message>(
+        &self,
+        channel: &str,
+        tap: bool,
+    ) -> Result<Subscriber<T>, Error> {
         let (service, name) = self.fixed_service::<T>(channel)?;
+        let buffer = buffer_for(
+            T::KIND.qos_of(channel),
+            service.static_config().subscriber_max_buffer_size(),
+            tap,
+        );
         let port = service
             .subscriber_builder()
+            .buffer_size(buffer)
             .create()
             .map_err(|e| self.port_error(channel, &name, T::KIND, "create subscriber", e))?;
         self.receiver(channel, &name, T::KIND, port)
@@ -522,9 +544,31 @@ impl Node {
         &self,
         channel: &str,
     ) -> Result<SliceSubscriber<H>, Error> {
+        self.slice_subscriber_holding::<H>(channel, false)
+    }
+
+    /// [`Node::tap_subscriber`] for a variable-size channel.
+    pub fn slice_tap_subscriber<H: SliceMessage>(
+        &self,
+        channel: &str,
+    ) -> Result<SliceSubscriber<H>, Error> {
+        self.slice_subscriber_holding::<H>(channel, true)
+    }
+
+    fn slice_subscriber_holding<H: SliceMessage>(
+        &self,
+        channel: &str,
+        tap: bool,
+    ) -> Result<SliceSubscriber<H>, Error> {
         let (service, name) = self.slice_service::<H>(channel)?;
+        let buffer = buffer_for(
+            H::KIND.qos_of(channel),
+            service.static_config().subscriber_max_buffer_size(),
+            tap,
+        );
         let port = service
             .subscriber_builder()
+            .buffer_size(buffer)
             .create()
             .map_err(|e| self.port_error(channel, &name, H::KIND, "create subscriber", e))?;
         self.receiver(channel, &name, H::KIND, port)
@@ -592,6 +636,13 @@ impl Node {
     }
 }
 
+/// A subscriber's buffer: the kind's (a module's) or the recorder's, within the bound the
+/// channel was created with (by a process that may have had other limits).
+fn buffer_for(qos: Qos, channel_bound: usize, tap: bool) -> usize {
+    let want = if tap { qos.max_buffer() } else { qos.buffer };
+    want.clamp(1, channel_bound.max(1))
+}
+
 /// The QoS settings every opener of a channel must ask for (see [`crate::qos`]).
 fn with_qos<P: fmt::Debug + IceoryxSend + ?Sized, U: fmt::Debug + ZeroCopySend>(
     builder: PsBuilder<P, U, Service>,
@@ -600,7 +651,7 @@ fn with_qos<P: fmt::Debug + IceoryxSend + ?Sized, U: fmt::Debug + ZeroCopySend>(
     builder
         .enable_safe_overflow(true)
         .history_size(qos.history)
-        .subscriber_max_buffer_size(qos.buffer)
+        .subscriber_max_buffer_size(qos.max_buffer())
         .subscriber_max_borrowed_samples(qos.borrowed)
         .max_publishers(qos.max_publishers)
         .max_subscribers(qos.max_subscribers)

@@ -322,9 +322,19 @@ fn lidar_to_command_watched(a: &LoopArgs, browsers: usize) -> Result<Vec<BenchRo
         let mean_ns = samples.iter().sum::<u64>() / (samples.len() as u64).max(1);
         let mut r = BenchRow::new("loop", &format!("{case}{suffix}"), Percentiles::of(samples));
         if let Some(s) = &recorded {
+            let by_channel: serde_json::Map<String, serde_json::Value> = s
+                .channels
+                .iter()
+                .filter(|c| c.dropped > 0)
+                .map(|c| (c.channel.clone(), c.dropped.into()))
+                .collect();
             r = r
                 .with("recorded_messages", s.messages)
-                .with("recorded_dropped", s.dropped);
+                .with("recorded_dropped", s.dropped)
+                .with(
+                    "recorded_dropped_by_channel",
+                    serde_json::Value::Object(by_channel),
+                );
         }
         r.with("mean_ns", mean_ns)
             .with("wait", a.wait.clone())

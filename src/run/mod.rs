@@ -508,7 +508,13 @@ fn supervise_inner(
     };
     // The operator page first: its address is among the first lines printed.
     let gui = crate::gui::start_for_run(prefix, &args.gui);
-    let recorder = crate::recording::start_for_run(prefix, &args.recording, &mut plan)?;
+    let recorder = crate::recording::start_for_run(
+        prefix,
+        &args.recording,
+        &mut plan,
+        &logs::log_dir(&run_dir),
+        &checkpoint_dir,
+    )?;
     let logs = logs::RUN_LOG
         .get()
         .map(|l| l.open(&logs::log_dir(&run_dir)));

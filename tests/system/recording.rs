@@ -63,6 +63,7 @@ fn info_json(file: &Path) -> (Output, Value) {
 /// The default mission, run once with `--record` and shared by the tests that read it.
 struct Recorded {
     file: PathBuf,
+    run_dir: PathBuf,
     info: Value,
     run_output: String,
 }
@@ -82,6 +83,9 @@ fn recorded_mission() -> &'static Recorded {
             .arg(dir.join("run"))
             .args(["--speed", SPEED, "--record"])
             .arg(&file)
+            // Modules log at their default level (info) to their log files, which are
+            // recorded; the terminal stays quiet.
+            .env_remove("HNG_LOG")
             .output()
             .expect("hng run --record");
         shm::remove_prefix_files(&prefix);
@@ -92,6 +96,7 @@ fn recorded_mission() -> &'static Recorded {
         assert!(iout.status.success(), "{}", text(&iout));
         Recorded {
             file,
+            run_dir: dir.join("run"),
             info,
             run_output,
         }
@@ -148,6 +153,7 @@ fn a_recorded_mission_holds_every_channel_with_foxglove_schemas_and_its_drops() 
         ("slam/pose", "foxglove.PoseInFrame"),
         ("robot/odom", "foxglove.FrameTransforms"),
         ("slam/map", "foxglove.Grid"),
+        ("planning/path", "foxglove.PosesInFrame"),
         ("hng/clock", "hng/Clock/v2"),
         ("hng/report", "hng/ModuleReport/v1"),
     ] {
@@ -181,6 +187,62 @@ fn a_recorded_mission_holds_every_channel_with_foxglove_schemas_and_its_drops() 
         let c = channel(info, name);
         assert_eq!(c["dropped"].as_u64(), Some(0), "{c}");
     }
+    // The modules' internal data: their log lines, in Foxglove's Log schema, one channel per
+    // module, and their checkpoints as attachments.
+    let logs: Vec<&Value> = info["channels"]
+        .as_array()
+        .expect("channels")
+        .iter()
+        .filter(|c| {
+            c["channel"]
+                .as_str()
+                .is_some_and(|n| n.starts_with("hng/log/"))
+        })
+        .collect();
+    assert!(logs.len() >= 2, "log channels: {logs:?}");
+    for c in &logs {
+        assert_eq!(c["schema"], "foxglove.Log", "{c}");
+        assert!(c["messages"].as_u64().unwrap_or(0) > 0, "{c}");
+    }
+    // Every module that wrote lines during the run has them recorded (the run directory was
+    // new: its log files hold this run's lines only; the last lines of a stopping module may
+    // reach its file after the recorder's last read).
+    let mut with_lines = 0;
+    for e in std::fs::read_dir(r.run_dir.join("logs"))
+        .expect("log dir")
+        .flatten()
+    {
+        let path = e.path();
+        let Some(module) = path
+            .file_name()
+            .and_then(|n| n.to_str())
+            .and_then(|n| n.strip_suffix(".log"))
+        else {
+            continue;
+        };
+        let lines = std::fs::read_to_string(&path)
+            .unwrap_or_default()
+            .lines()
+            .filter(|l| !l.trim().is_empty())
+            .count() as u64;
+        if lines == 0 || module == "hng" {
+            continue;
+        }
+        with_lines += 1;
+        let got = channel(info, &format!("hng/log/{module}"))["messages"]
+            .as_u64()
+            .unwrap_or(0);
+        assert!(got >= 1 && got <= lines, "{module}: {got} of {lines} lines");
+    }
+    assert!(with_lines >= 1, "no module wrote a line: {logs:?}");
+    let ckpt = &info["attachments"]["checkpoint/slam"];
+    assert!(
+        ckpt["count"].as_u64().unwrap_or(0) >= 1,
+        "{}",
+        info["attachments"]
+    );
+    assert!(ckpt["bytes"].as_u64().unwrap_or(0) > 28, "{ckpt}");
+    assert!(r.run_output.contains("internal data:"), "{}", r.run_output);
     // The plan's module configurations are kept for `hng replay --module`.
     assert!(
         info["metadata"]["hng.modules"]["slam"]
@@ -247,6 +309,17 @@ fn an_independent_python_reader_agrees_with_hng_info() {
     assert!(py["scans_with_ranges"].as_u64().unwrap_or(0) > 0, "{py}");
     assert!(py["poses_with_position"].as_u64().unwrap_or(0) > 0, "{py}");
     assert_eq!(py["metadata"]["hng.drops"], r.info["metadata"]["hng.drops"]);
+    assert!(py["logs_with_text"].as_u64().unwrap_or(0) > 0, "{py}");
+    assert!(py["paths_with_poses"].as_u64().unwrap_or(0) > 0, "{py}");
+    let counts: std::collections::BTreeMap<String, u64> = r.info["attachments"]
+        .as_object()
+        .expect("attachments")
+        .iter()
+        .map(|(k, v)| (k.clone(), v["count"].as_u64().unwrap_or(0)))
+        .collect();
+    let theirs: std::collections::BTreeMap<String, u64> =
+        serde_json::from_value(py["attachments"].clone()).expect("attachments");
+    assert_eq!(counts, theirs, "attachments differ");
 }
 
 #[test]

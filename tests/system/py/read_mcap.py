@@ -30,7 +30,15 @@ class JsonDecoderFactory(DecoderFactory):
 
 
 def main(path):
-    out = {"channels": {}, "decoded": 0, "scans_with_ranges": 0, "poses_with_position": 0}
+    out = {
+        "channels": {},
+        "decoded": 0,
+        "scans_with_ranges": 0,
+        "poses_with_position": 0,
+        "logs_with_text": 0,
+        "paths_with_poses": 0,
+        "attachments": {},
+    }
     with open(path, "rb") as f:
         reader = make_reader(f, decoder_factories=[ProtobufDecoderFactory(), JsonDecoderFactory()])
         summary = reader.get_summary()
@@ -49,7 +57,13 @@ def main(path):
                 out["scans_with_ranges"] += 1
             if schema.name == "foxglove.PoseInFrame" and decoded.HasField("pose"):
                 out["poses_with_position"] += 1
+            if schema.name == "foxglove.Log" and decoded.message and decoded.name:
+                out["logs_with_text"] += 1
+            if schema.name == "foxglove.PosesInFrame" and len(decoded.poses) > 0:
+                out["paths_with_poses"] += 1
         out["metadata"] = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
+        for a in reader.iter_attachments():
+            out["attachments"][a.name] = out["attachments"].get(a.name, 0) + 1
     print(json.dumps(out))
 
 
