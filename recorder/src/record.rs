@@ -312,6 +312,17 @@ fn record_impl(
         ))
         .prefix(&opts.prefix),
     )?;
+    // Signals first: the writer's and the live view's threads inherit the blocked mask, so
+    // SIGTERM reaches the signalfd and not a thread that would die of it.
+    let mut waiter = if opts.catch_signals {
+        let mut w = Waiter::new(WaitMode::Blocking {
+            max_spin: Duration::ZERO,
+        })?;
+        w.catch_termination_signals()?;
+        Some(w)
+    } else {
+        None
+    };
     let mut mcap = match &opts.output {
         Some(p) => Some(Writer::start(
             p,
@@ -327,17 +338,6 @@ fn record_impl(
             m.metadata(name, kv.clone())?;
         }
     }
-    // Signals first: the live view's threads inherit the blocked mask, so SIGTERM reaches
-    // the signalfd and not a thread that would die of it.
-    let mut waiter = if opts.catch_signals {
-        let mut w = Waiter::new(WaitMode::Blocking {
-            max_spin: Duration::ZERO,
-        })?;
-        w.catch_termination_signals()?;
-        Some(w)
-    } else {
-        None
-    };
     let live = match &opts.live {
         Some(addr) => Some(Live::start(addr)?),
         None => None,
