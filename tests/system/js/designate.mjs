@@ -9,7 +9,7 @@
 //   - clicks at MISS_FRACTION, reports the answer text.
 // The test computes the fractions from the bearings and the field of view it published; the
 // page must turn the click back into a bearing with that field of view.
-import { chromium } from "playwright-core";
+import { launchBrowser } from "./launch.mjs";
 import path from "node:path";
 import fs from "node:fs";
 
@@ -17,16 +17,7 @@ const [url, dir, hitArg, missArg, beaconsArg] = process.argv.slice(2);
 const beacons = Number(beaconsArg || 2);
 const say = (o) => process.stdout.write(JSON.stringify(o) + "\n");
 fs.mkdirSync(dir, { recursive: true });
-const userDir = fs.mkdtempSync(path.join(dir, "profile-"));
-const browser = await chromium.launchPersistentContext(userDir, {
-  executablePath: process.env.CHROMIUM || "/usr/bin/chromium",
-  headless: true,
-  viewport: { width: 1500, height: 950 },
-  args: [
-    "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-    "--disable-background-networking", "--disable-component-update", "--disable-sync",
-  ],
-});
+const { browser, userDir } = await launchBrowser(dir);
 let code = 0;
 try {
   const page = browser.pages()[0] || (await browser.newPage());

@@ -10,7 +10,7 @@
 //   - waits until the robot moves again (the mission's next goal), presses STOP, waits until
 //     the page shows it stopped;
 //   - saves screenshots in ARTEFACT_DIR (gui-contracts, gui-path, gui-goal, gui-stop .png).
-import { chromium } from "playwright-core";
+import { launchBrowser } from "./launch.mjs";
 import path from "node:path";
 import fs from "node:fs";
 
@@ -20,18 +20,7 @@ const timeout = Number(timeoutArg || 120000);
 const say = (o) => process.stdout.write(JSON.stringify(o) + "\n");
 fs.mkdirSync(dir, { recursive: true });
 
-const userDir = fs.mkdtempSync(path.join(dir, "profile-"));
-// A fresh profile (--user-data-dir, which playwright takes as launchPersistentContext's
-// first argument).
-const browser = await chromium.launchPersistentContext(userDir, {
-  executablePath: process.env.CHROMIUM || "/usr/bin/chromium",
-  headless: true,
-  viewport: { width: 1500, height: 950 },
-  args: [
-    "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-    "--disable-background-networking", "--disable-component-update", "--disable-sync",
-  ],
-});
+const { browser, userDir } = await launchBrowser(dir);
 let code = 0;
 try {
   const page = browser.pages()[0] || (await browser.newPage());

@@ -1,0 +1,32 @@
+// Headless Debian Chromium for the browser tests, with a fresh profile in DIR (playwright
+// takes --user-data-dir as launchPersistentContext's first argument). Chromium sometimes dies
+// while starting (seen once in a CI rehearsal: SIGTRAP before the first page): a launch that
+// fails is said on stderr and tried again, at most three times; the page's own checks are never
+// retried.
+import { chromium } from "playwright-core";
+import path from "node:path";
+import fs from "node:fs";
+
+// Returns { browser, userDir }: the caller removes userDir after closing the browser.
+export async function launchBrowser(dir) {
+  fs.mkdirSync(dir, { recursive: true });
+  for (let attempt = 1; ; attempt++) {
+    const userDir = fs.mkdtempSync(path.join(dir, "profile-"));
+    try {
+      const browser = await chromium.launchPersistentContext(userDir, {
+        executablePath: process.env.CHROMIUM || "/usr/bin/chromium",
+        headless: true,
+        viewport: { width: 1500, height: 950 },
+        args: [
+          "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+          "--disable-background-networking", "--disable-component-update", "--disable-sync",
+        ],
+      });
+      return { browser, userDir };
+    } catch (e) {
+      fs.rmSync(userDir, { recursive: true, force: true });
+      if (attempt >= 3) throw e;
+      process.stderr.write(`chromium failed to start (attempt ${attempt} of 3): ${String(e).split("\n")[0]}\n`);
+    }
+  }
+}
