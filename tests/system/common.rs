@@ -398,3 +398,21 @@ pub(crate) fn goal(kind: OrderKind, pts: &[(f64, f64)]) -> Order {
     o.count = pts.len() as u32;
     o
 }
+
+/// The lines a child writes on `stdout`, read by a thread of their own and handed out in order
+/// (the receiver's `recv_timeout` waits for the next one with a deadline).
+pub fn stdout_lines(stdout: std::process::ChildStdout) -> std::sync::mpsc::Receiver<String> {
+    use std::io::BufRead;
+    let (tx, lines) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        for l in std::io::BufReader::new(stdout)
+            .lines()
+            .map_while(Result::ok)
+        {
+            if tx.send(l).is_err() {
+                break;
+            }
+        }
+    });
+    lines
+}

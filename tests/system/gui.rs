@@ -56,14 +56,7 @@ impl GuiRun {
             .spawn()
             .expect("hng run");
         let stdout = child.stdout.take().expect("stdout");
-        let (tx, lines) = mpsc::channel();
-        std::thread::spawn(move || {
-            for l in BufReader::new(stdout).lines().map_while(Result::ok) {
-                if tx.send(l).is_err() {
-                    break;
-                }
-            }
-        });
+        let lines = crate::common::stdout_lines(stdout);
         let mut seen = Vec::new();
         let url = loop {
             let l = lines
@@ -637,14 +630,7 @@ fn a_busy_page_address_is_reported_and_the_run_goes_on_without_the_page() {
         .spawn()
         .expect("hng run");
     let stdout = child.stdout.take().expect("stdout");
-    let (tx, lines) = mpsc::channel();
-    std::thread::spawn(move || {
-        for l in BufReader::new(stdout).lines().map_while(Result::ok) {
-            if tx.send(l).is_err() {
-                break;
-            }
-        }
-    });
+    let lines = crate::common::stdout_lines(stdout);
     let mut seen = Vec::new();
     let said = loop {
         match lines.recv_timeout(Duration::from_secs(30)) {

@@ -4,7 +4,6 @@
 //! with it, the next start cleans up), one system per prefix, fatal signals on the first
 //! delivery, and a module that is not an hng module (a shell script) stopping on SIGTERM.
 
-use std::io::{BufRead as _, BufReader};
 use std::path::PathBuf;
 use std::process::{Child, Command, ExitStatus, Stdio};
 use std::sync::mpsc;
@@ -65,15 +64,7 @@ impl Run {
             .spawn()
             .expect("spawn hng run");
         let out = child.stdout.take().expect("stdout");
-        let (tx, lines) = mpsc::channel();
-        std::thread::spawn(move || {
-            for l in BufReader::new(out).lines() {
-                let Ok(l) = l else { break };
-                if tx.send(l).is_err() {
-                    break;
-                }
-            }
-        });
+        let lines = crate::common::stdout_lines(out);
         Run {
             prefix: prefix.to_owned(),
             pid: child.id(),
