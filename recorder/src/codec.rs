@@ -124,7 +124,8 @@ fn trailer(data: &[u8]) -> Result<Vec<u8>, String> {
     Ok(t.raw)
 }
 
-fn wkt_schema<M: foxglove::Encode>() -> SchemaDesc {
+/// The schema of a Foxglove well-known type (protobuf), as the file stores it.
+pub(crate) fn wkt_schema<M: foxglove::Encode>() -> SchemaDesc {
     match M::get_schema() {
         Some(s) => SchemaDesc {
             name: s.name,

@@ -101,20 +101,11 @@ pub(crate) struct Internal {
 }
 
 fn log_schema() -> SchemaDesc {
-    match <fg::Log as foxglove::Encode>::get_schema() {
-        Some(s) => SchemaDesc {
-            name: s.name,
-            encoding: "protobuf",
-            data: s.data.into_owned(),
-            message_encoding: "protobuf",
-        },
-        None => SchemaDesc {
-            name: "foxglove.Log".into(),
-            encoding: "protobuf",
-            data: Vec::new(),
-            message_encoding: "protobuf",
-        },
+    let mut s = crate::codec::wkt_schema::<fg::Log>();
+    if s.name.is_empty() {
+        s.name = "foxglove.Log".into();
     }
+    s
 }
 
 /// The level of a log line: the first of tracing's level words among its first tokens.
