@@ -29,6 +29,8 @@ use std::mem::size_of;
 use base64::Engine as _;
 use base64::engine::general_purpose::STANDARD as B64;
 use foxglove::messages as fg;
+use hng_runtime::contract::wire;
+use hng_runtime::control::ControlInfo;
 use hng_runtime::msg::{
     GridInfo, Header, ImageInfo, LaserScan, MAX_BEAMS, Message, Odometry, PathInfo, Pose2D,
     PoseWithCovariance, SliceMessage,
@@ -487,6 +489,32 @@ pub(crate) fn json_encode_slice<H: SliceMessage>(
     serde_json::to_writer(out, &o).map_err(|e| e.to_string())
 }
 
+/// JSON encoding of a contract control message: [`json_encode_slice`]'s fields and the
+/// envelope decoded (`envelope`), or why it does not decode (`envelope_error`), so the
+/// contract protocol reads in any MCAP viewer.
+pub(crate) fn json_encode_control(
+    h: &ControlInfo,
+    data: &[u8],
+    out: &mut Vec<u8>,
+) -> Result<(), String> {
+    let mut o = json_object(h)?;
+    o.insert("len".into(), data.len().into());
+    match wire::decode(data) {
+        Ok(env) => {
+            o.insert(
+                "envelope".into(),
+                serde_json::to_value(&env).map_err(|e| e.to_string())?,
+            );
+        }
+        Err(e) => {
+            o.insert("envelope_error".into(), e.to_string().into());
+        }
+    }
+    o.insert("hng_raw".into(), B64.encode(raw_of(h)).into());
+    o.insert("hng_data".into(), B64.encode(data).into());
+    serde_json::to_writer(out, &o).map_err(|e| e.to_string())
+}
+
 /// A slice type back from its JSON encoding.
 pub(crate) fn json_decode_slice<H: SliceMessage>(data: &[u8]) -> Result<(H, Vec<H::Elem>), String> {
     let v: Value = serde_json::from_slice(data).map_err(|e| format!("JSON: {e}"))?;
@@ -521,6 +549,36 @@ mod tests {
         assert_eq!(fgs.ranges[7], 3.25);
         assert_eq!(fgs.frame_id, "laser");
         assert_eq!(fgs.timestamp.unwrap().sec(), 2);
+    }
+
+    #[test]
+    fn contract_messages_are_recorded_with_their_envelope_decoded() {
+        use hng_runtime::contract::wire::{Envelope, Message, Propose};
+        use hng_runtime::contract::ModuleId;
+        let env = Envelope {
+            from: ModuleId(7),
+            body: Message::Propose(Propose {
+                query_id: 3,
+                need: 1,
+                value: 0.75,
+                channel: "7/Localization".into(),
+            }),
+        };
+        let bytes = wire::encode(&env).unwrap();
+        let mut buf = Vec::new();
+        json_encode_control(&ControlInfo::default(), &bytes, &mut buf).unwrap();
+        let v: Value = serde_json::from_slice(&buf).unwrap();
+        assert_eq!(v["envelope"]["from"], 7);
+        assert_eq!(v["envelope"]["body"]["Propose"]["value"], 0.75);
+        assert_eq!(v["len"], bytes.len());
+        let (_, back) = json_decode_slice::<ControlInfo>(&buf).unwrap();
+        assert_eq!(back, bytes, "the bytes come back for a replay");
+        // Bytes that are no envelope are recorded with the reason, never lost.
+        buf.clear();
+        json_encode_control(&ControlInfo::default(), b"xy", &mut buf).unwrap();
+        let v: Value = serde_json::from_slice(&buf).unwrap();
+        assert!(v["envelope_error"].as_str().is_some_and(|e| !e.is_empty()));
+        assert!(v.get("envelope").is_none());
     }
 
     #[test]

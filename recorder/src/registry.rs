@@ -4,6 +4,7 @@
 use hng_runtime::channel::{
     ChannelStats, Node, Publisher, SlicePublisher, SliceSubscriber, Subscriber,
 };
+use hng_runtime::control::ControlInfo;
 use hng_runtime::msg::{self, Header, SliceMessage};
 use hng_runtime::system;
 use iceoryx2::prelude::ZeroCopySend;
@@ -252,6 +253,24 @@ raw_fixed!(msg::Walls, msg::Behaviours, msg::Order, msg::OrderStatus);
 
 json_slice!(system::JsonInfo => true, msg::BytesInfo => false);
 
+/// Contract control messages: JSON with the envelope decoded (never replayed by default:
+/// `hng/...` channels are system channels).
+impl SliceCodec for ControlInfo {
+    fn schema() -> SchemaDesc {
+        let mut sample = serde_json::to_value(ControlInfo::default()).unwrap_or_default();
+        if let Some(o) = sample.as_object_mut() {
+            o.insert("len".into(), 0.into());
+        }
+        codec::json_schema(&type_name::<ControlInfo>(), sample, true)
+    }
+    fn encode(&self, data: &[u8], out: &mut Vec<u8>) -> Result<(), String> {
+        codec::json_encode_control(self, data, out)
+    }
+    fn decode(data: &[u8]) -> Result<(Self, Vec<u8>), String> {
+        codec::json_decode_slice(data)
+    }
+}
+
 /// Every type the recorder knows.
 pub fn registry() -> Vec<TypeEntry> {
     vec![
@@ -290,6 +309,7 @@ pub fn registry() -> Vec<TypeEntry> {
         slice::<msg::ImageInfo>(),
         slice::<msg::BytesInfo>(),
         slice::<system::JsonInfo>(),
+        slice::<ControlInfo>(),
     ]
 }
 

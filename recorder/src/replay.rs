@@ -252,11 +252,12 @@ fn run(
                 .unwrap_or_default(),
         };
         let sim = chans.iter().any(|c| c.topic == CLOCK_CHANNEL);
-        // Outputs: the channels the module published on in the recording.
+        // Outputs: the data channels the module published on in the recording (not its
+        // contract messages: alone, nobody answers them).
         let own = module_id(&m.name);
         let outputs: Vec<String> = chans
             .iter()
-            .filter(|c| c.source == Some(own))
+            .filter(|c| c.source == Some(own) && !c.topic.starts_with("hng/"))
             .map(|c| c.topic.clone())
             .collect();
         // In simulated time the replay drives a lockstep barrier of its own.

@@ -550,7 +550,7 @@ pub struct JsonInfo {
     pub header: Header,
 }
 
-crate::impl_slice_message!(JsonInfo, u8, ChannelKind::StateBulk);
+crate::impl_slice_message!(JsonInfo, u8, ChannelKind::State);
 
 #[cfg(test)]
 mod tests {
