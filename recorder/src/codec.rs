@@ -553,8 +553,8 @@ mod tests {
 
     #[test]
     fn contract_messages_are_recorded_with_their_envelope_decoded() {
-        use hng_runtime::contract::wire::{Envelope, Message, Propose};
         use hng_runtime::contract::ModuleId;
+        use hng_runtime::contract::wire::{Envelope, Message, Propose};
         let env = Envelope {
             from: ModuleId(7),
             body: Message::Propose(Propose {
