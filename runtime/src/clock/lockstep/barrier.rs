@@ -327,7 +327,7 @@ impl Barrier {
             return (Verdict::Waiting, dropped);
         }
         self.open = false;
-        let written = std::mem::replace(&mut self.round_written, Some(Vec::new()));
+        let written = self.round_written.replace(Vec::new());
         self.written(written.as_deref());
         // Without selective rounds, a busy answer is work for everyone; with them, the
         // readers of what was written are pending.
