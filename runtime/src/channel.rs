@@ -47,15 +47,20 @@ use crate::wait::Waiter;
 use crate::wake::WakeFlag;
 
 mod hanging;
+mod outlet;
 mod publish;
 mod receive;
 mod slice;
+mod writes;
+use outlet::Outlet;
 use publish::Received;
 pub use publish::{Loan, Publisher, Sample};
 use receive::Reader;
 pub use receive::{Fixed, Kind, Receiver, Slice, SliceSubscriber, Subscriber, Waitable};
 use slice::SlicePort;
 pub use slice::{SliceLoan, SliceLoanUninit, SlicePublisher, SliceSample};
+use writes::WriteLog;
+pub use writes::channel_key;
 
 use iceoryx2::service::messaging_pattern::MessagingPattern;
 
@@ -174,6 +179,8 @@ pub struct Node {
     state_publishers: RefCell<Vec<Weak<dyn UpdateConnections>>>,
     /// The lockstep round the node is handling (0: none), shared with its ports.
     round: Rc<Cell<u32>>,
+    /// The channels written (lockstep participants only), shared with its publishers.
+    writes: Rc<WriteLog>,
 }
 
 impl fmt::Debug for Node {
@@ -215,7 +222,20 @@ impl Node {
             counters: Rc::new(Counters::default()),
             state_publishers: RefCell::new(Vec::new()),
             round: Rc::new(Cell::new(0)),
+            writes: Rc::new(WriteLog::default()),
         })
+    }
+
+    /// Starts (or stops) noting which channels this node writes ([`Node::take_written`]): a
+    /// lockstep participant tells the barrier, so only their subscribers get the next round.
+    pub fn track_writes(&self, on: bool) {
+        self.writes.set_enabled(on);
+    }
+
+    /// The keys ([`channel_key`]) of the channels written since the last call (each once;
+    /// empty unless [`Node::track_writes`] is on).
+    pub fn take_written(&self) -> Vec<u64> {
+        self.writes.take()
     }
 
     /// Lets this node's state-channel publishers hand their latest sample to subscribers that
@@ -600,6 +620,8 @@ impl Node {
             counters: self.counters.clone(),
             notified: Cell::new(0),
             round: self.round.clone(),
+            key: channel_key(channel),
+            writes: self.writes.clone(),
         };
         Ok((port, out))
     }
@@ -624,6 +646,7 @@ impl Node {
             stats: Cell::new(ChannelStats::default()),
             counters: self.counters.clone(),
             round: self.round.clone(),
+            key: channel_key(channel),
         });
         K::update_connections(&port);
         Ok(Receiver {
@@ -675,53 +698,6 @@ fn describe_type(payload: String, user_header: String) -> String {
     }
 }
 
-/// What the sending side of a channel shares between fixed and slice publishers.
-struct Outlet {
-    notifier: Notifier<Service>,
-    wake: WakeFlag,
-    seq: Cell<u64>,
-    source: u32,
-    clock: Clock,
-    channel: Rc<str>,
-    counters: Rc<Counters>,
-    notified: Cell<u64>,
-    round: Rc<Cell<u32>>,
-}
-
-impl Outlet {
-    #[inline]
-    fn stamp(&self, h: &mut Header) {
-        let seq = self.seq.get() + 1;
-        self.seq.set(seq);
-        h.seq = seq;
-        h.stamp_ns = self.clock.now_ns();
-        h.source = self.source;
-        h.round = self.round.get();
-    }
-
-    /// Numbers a recorded header (replay): the sequence is this publisher's, the stamp and
-    /// the source are the recording's.
-    fn stamp_recorded(&self, h: &mut Header) {
-        let seq = self.seq.get() + 1;
-        self.seq.set(seq);
-        h.seq = seq;
-        h.round = self.round.get();
-    }
-
-    #[inline]
-    fn sent(&self) -> Result<(), Error> {
-        Counters::add(&self.counters.msgs_out, 1);
-        if self.wake.has_waiters() {
-            self.notified.set(self.notified.get() + 1);
-            Counters::add(&self.counters.wakeups, 1);
-            self.notifier
-                .notify()
-                .map_err(|e| Error::channel(&self.channel, "notify", e))?;
-        }
-        Ok(())
-    }
-}
-
 /// Statistics of one subscriber.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
 pub struct ChannelStats {
@@ -744,6 +720,8 @@ pub(crate) struct Inlet {
     counters: Rc<Counters>,
     /// The node's lockstep round (see [`Header::round`]).
     round: Rc<Cell<u32>>,
+    /// [`channel_key`] of the channel.
+    pub(crate) key: u64,
 }
 
 impl Inlet {

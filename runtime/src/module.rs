@@ -27,8 +27,7 @@ use serde::de::DeserializeOwned;
 use crate::channel::{
     InputId, Node, NodeOptions, Publisher, SlicePublisher, SliceSubscriber, Subscriber,
 };
-use crate::clock::lockstep::Acker;
-use crate::clock::{CLOCK_CHANNEL, Clock, ClockMode, monotonic_ns};
+use crate::clock::{Clock, ClockMode, monotonic_ns};
 use crate::contract::{
     ContractAgent, DropCounters, ModuleId, NeedSpec, Priority, ServiceOffer, Timing, Verdict,
 };
@@ -41,10 +40,12 @@ mod checkpoints;
 mod due;
 mod logging;
 mod options;
+mod rounds;
 
 use checkpoints::{Checkpoints, save_checkpoint};
 pub use logging::init_tracing;
 pub use options::RunOptions;
+use rounds::Rounds;
 
 /// The well-known channel every module publishes its [`ModuleReport`] on.
 pub const REPORT_CHANNEL: &str = "hng/report";
@@ -566,18 +567,11 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
     if opts.catch_signals {
         ctx.waiter.catch_termination_signals()?;
     }
-    // The latest lockstep round (0: none): a module started while the simulator waits for
-    // a round's answers must answer it, not wait for the next one.
-    let mut round = 0;
-    let clock_sub = if clock.is_sim() {
-        let sub = ctx.node.subscriber::<msg::Clock>(CLOCK_CHANNEL)?;
-        ctx.waiter.attach(&sub)?;
-        if let Some(c) = sub.latest()? {
-            clock.set_sim_ns(c.sim_time_ns);
-            round = c.round;
-        }
-        ctx.node.set_lockstep_round(round);
-        Some(sub)
+    // The simulation clock, its rounds and our answers (see module/rounds.rs).
+    let mut rounds = if clock.is_sim() {
+        let r = Rounds::new(&ctx.node, opts.catch_signals)?;
+        ctx.waiter.attach(&r.common)?;
+        Some(r)
     } else {
         None
     };
@@ -618,28 +612,7 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
     let _ = reports.publish(ctx.report(report_ns));
     let mut next_report = monotonic_ns().saturating_add(report_ns);
     let mut next_checkpoint = monotonic_ns().saturating_add(checkpoint_ns);
-    let clock_id = clock_sub.as_ref().map(|s| s.id());
-    // Lockstep: acknowledge each barrier round of the simulator (see crate::clock::lockstep).
-    let mut acker = clock_sub
-        .is_some()
-        .then(|| Acker::new(&ctx.node))
-        .transpose()?;
-    // Between acknowledging a round and the next one, inputs wait: they belong to the next
-    // round (this waiter watches only the clock, and the termination signals).
-    let mut round_waiter = match &clock_sub {
-        Some(sub) => {
-            let mut w = Waiter::new(WaitMode::Blocking {
-                max_spin: Duration::ZERO,
-            })?;
-            w.attach(sub)?;
-            if opts.catch_signals {
-                w.catch_termination_signals()?;
-            }
-            Some(w)
-        }
-        None => None,
-    };
-
+    let clock_id = rounds.as_ref().map(|r| r.common.id());
     while !ctx.stop_requested {
         // Wall-clock wake-ups: report and checkpoint; clock-time ones: timers and deadlines
         // (in simulation they are checked at every clock sample instead).
@@ -653,9 +626,10 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
             wake_at = wake_at.min(wall_now.saturating_add(in_ns));
         }
         let timeout = Duration::from_nanos(wake_at.saturating_sub(wall_now));
-        let held = acker.as_ref().is_some_and(|a| a.holds(round));
-        let waiter = match round_waiter.as_mut() {
-            Some(w) if held => w,
+        // Between answering a round and being called to the next one, inputs wait: they
+        // belong to the next round (that waiter watches only the clock, and the signals).
+        let waiter = match rounds.as_mut() {
+            Some(r) if r.holds() => &mut r.waiter,
             _ => &mut ctx.waiter,
         };
         match waiter.wait(Some(timeout))? {
@@ -667,17 +641,14 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
         }
 
         ctx.node.update_connections();
-        if let Some(sub) = &clock_sub
-            && let Some(c) = sub.latest()?
+        if let Some(r) = rounds.as_mut()
+            && r.read(&ctx.node)?
         {
-            clock.set_sim_ns(c.sim_time_ns);
-            round = c.round;
-            // What this iteration publishes belongs to this round, and what others publish
-            // in it waits for the next (crate::clock::lockstep, "two phases").
-            ctx.node.set_lockstep_round(round);
+            // Called on its own channel from now on: the common one wakes it no more.
+            ctx.waiter.detach(r.common.id())?;
         }
         let now = clock.now_ns();
-        if !acker.as_ref().is_some_and(|a| a.holds(round)) {
+        if !rounds.as_ref().is_some_and(Rounds::holds) {
             let ready: Vec<InputId> = ctx
                 .waiter
                 .ready()
@@ -741,8 +712,9 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
         }
         // Lockstep: the round's answer. Only what the module published can give another one
         // work; handling an input or a timer without publishing leaves nothing in flight.
-        if let Some(a) = acker.as_mut() {
-            a.after_iteration(&ctx.node, round, reported, ctx.next_due_ns())?;
+        if let Some(r) = rounds.as_mut() {
+            let due = ctx.next_due_ns();
+            r.answer(&ctx.node, &ctx.waiter, reported, due)?;
         }
     }
 

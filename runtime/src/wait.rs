@@ -253,6 +253,12 @@ impl Waiter {
         self.inputs.iter().any(|(_, i)| i.has_samples())
     }
 
+    /// The keys ([`crate::channel::channel_key`]) of the channels watched: a lockstep
+    /// participant's inputs.
+    pub fn input_keys(&self) -> impl Iterator<Item = u64> + '_ {
+        self.inputs.iter().map(|(_, i)| i.inlet().key)
+    }
+
     /// The ids of the inputs that have data now.
     pub fn ready(&self) -> impl Iterator<Item = InputId> + '_ {
         self.inputs

@@ -203,7 +203,14 @@ impl Module for SimulatorModule {
         let lockstep = if cfg.lockstep.is_empty() {
             None
         } else {
-            Some(Lockstep::new(ctx, &cfg.lockstep, cfg.lockstep_timeout_s)?)
+            node.track_writes(true);
+            Some(Lockstep::new(
+                ctx,
+                &node,
+                &cfg.lockstep,
+                cfg.lockstep_timeout_s,
+                cfg.lockstep_idle_s,
+            )?)
         };
         let followers: BTreeSet<String> =
             cfg.wait_for.iter().chain(&cfg.lockstep).cloned().collect();
@@ -423,6 +430,7 @@ impl Module for SimulatorModule {
             lockstep_extra_rounds = self.lockstep.as_ref().map_or(0, |l| l.extra_rounds),
             lockstep_steps_without_round =
                 self.lockstep.as_ref().map_or(0, |l| l.steps_without_round),
+            lockstep_calls = self.lockstep.as_ref().map_or(0, |l| l.members),
             "simulator stopped"
         );
     }
@@ -543,6 +551,8 @@ impl SimulatorModule {
             // Modules hold their inputs until they see the round, so they handle the whole
             // step together, at its time. A step that sends nothing the modules read (ground
             // truth is for evaluation) and reaches no module's deadline needs no round.
+            // The step's readers are the round's members: what it writes is noted.
+            let _ = self.node.take_written();
             let image_due = self.outputs.image.as_ref().map(|c| c.next_ns());
             let sent = out
                 .iter()
@@ -552,10 +562,16 @@ impl SimulatorModule {
             let data = out
                 .iter()
                 .any(|o| !matches!(o, SensorOutput::GroundTruth(_)));
+            let written = self.node.take_written();
+            let now = self.sim.now_ns();
+            let wants = self
+                .lockstep
+                .as_mut()
+                .is_some_and(|l| l.step_wants_round(now, &written, data || image_sent));
             match self.lockstep.as_mut() {
-                Some(l) if data || image_sent || self.sim.now_ns() >= l.next_due_ns() => {
-                    l.open(false);
-                    sent.and_then(|()| self.publish_clock())
+                Some(l) if wants && sent.is_ok() => {
+                    l.open(now, false)?;
+                    self.publish_clock()
                 }
                 Some(l) => {
                     l.steps_without_round += 1;
@@ -759,6 +775,7 @@ impl SimulatorModule {
             path_length_m: self.true_path_m,
             lockstep_rounds: self.lockstep.as_ref().map_or(0, |l| l.rounds),
             lockstep_extra_rounds: self.lockstep.as_ref().map_or(0, |l| l.extra_rounds),
+            lockstep_calls: self.lockstep.as_ref().map_or(0, |l| l.members),
         })?;
         Ok(())
     }

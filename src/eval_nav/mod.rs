@@ -115,6 +115,13 @@ pub fn summary(results: &[ProblemResult]) -> serde_json::Value {
         .count();
     let walls: Vec<f64> = results.iter().map(|r| r.wall_s).collect();
     let sim: f64 = results.iter().map(|r| r.time_s).sum();
+    // Wall time per metre of the optimum (start-up and shut-down included), over the problems
+    // with an optimum: the benchmark's "one 30 m problem" is 30 times it.
+    let (wall_opt, metres) = results
+        .iter()
+        .filter_map(|r| r.problem.optimum_m.map(|m| (r.wall_s, m)))
+        .fold((0.0, 0.0), |(w, m), (rw, rm)| (w + rw, m + rm));
+    let wall_per_m = (metres > 0.0).then(|| wall_opt / metres);
     let mut cpu: BTreeMap<String, f64> = BTreeMap::new();
     for r in results {
         for (k, v) in &r.cpu_s {
@@ -152,6 +159,9 @@ pub fn summary(results: &[ProblemResult]) -> serde_json::Value {
         "wall_s_total": walls.iter().sum::<f64>(),
         "wall_s_mean": mean(&walls),
         "wall_s_max": walls.iter().copied().reduce(f64::max),
+        "wall_s_per_m": wall_per_m,
+        "wall_s_per_30_m": wall_per_m.map(|w| 30.0 * w),
+        "wall_s_per_sim_s": (sim > 0.0).then(|| walls.iter().sum::<f64>() / sim),
         "cpu_s": cpu,
         "cpu_s_per_sim_s": cpu_per_sim_s,
         "failures": reasons,
@@ -186,7 +196,7 @@ fn print_table(results: &[ProblemResult], s: &serde_json::Value) {
     let f = |k: &str| s[k].as_f64().map_or("-".into(), |x| format!("{x:.3}"));
     println!(
         "success {}/{} ({}), collisions {}, mean path ratio {}, worst clearance {} m, \
-         roomy problems keeping 0.25 m: {}/{}, recoveries {}, wall time mean {} s",
+         roomy problems keeping 0.25 m: {}/{}, recoveries {}, wall time mean {} s ({} s per m, {} s per 30 m)",
         s["successes"],
         s["problems"],
         f("success_rate"),
@@ -197,6 +207,8 @@ fn print_table(results: &[ProblemResult], s: &serde_json::Value) {
         s["roomy_problems"],
         s["recoveries"],
         f("wall_s_mean"),
+        f("wall_s_per_m"),
+        f("wall_s_per_30_m"),
     );
     println!("cpu s per simulated s: {}", s["cpu_s_per_sim_s"]);
     if let Some(m) = s["failures"].as_object()

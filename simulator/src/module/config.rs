@@ -113,6 +113,11 @@ pub struct SimModuleConfig {
     /// A lockstep participant silent this long (s of wall time) is not waited for until it
     /// answers again (default 10).
     pub lockstep_timeout_s: f64,
+    /// A lockstep participant is called to a round at least every this many seconds of
+    /// simulated time, even with nothing written to it and no deadline (so it reads what
+    /// processes outside the barrier sent it: the supervisor, the RM, an operator); default
+    /// 0.1.
+    pub lockstep_idle_s: f64,
 }
 
 impl Default for SimModuleConfig {
@@ -132,6 +137,7 @@ impl Default for SimModuleConfig {
             wait_timeout_s: 10.0,
             lockstep: Vec::new(),
             lockstep_timeout_s: 10.0,
+            lockstep_idle_s: 0.1,
         }
     }
 }
@@ -221,6 +227,12 @@ impl SimModuleConfig {
         }
         if self.max_steps_per_tick == 0 {
             return Err(config_error("max_steps_per_tick", "must be at least 1"));
+        }
+        if !(self.lockstep_idle_s.is_finite() && self.lockstep_idle_s > 0.0) {
+            return Err(config_error(
+                "lockstep_idle_s",
+                format!("must be > 0 seconds, got {}", self.lockstep_idle_s),
+            ));
         }
         if !(self.lockstep_timeout_s.is_finite() && self.lockstep_timeout_s > 0.0) {
             return Err(config_error(

@@ -4,11 +4,11 @@
 
 use std::time::{Duration, Instant};
 
-use hng_runtime::channel::InputId;
-use hng_runtime::clock::lockstep::{ACK_CHANNEL, Barrier, ClockAck, Verdict};
+use hng_runtime::channel::{InputId, Node, Publisher};
+use hng_runtime::clock::lockstep::{ACK_CHANNEL, Barrier, ClockAck, Verdict, round_channel};
 use hng_runtime::clock::monotonic_ns;
 use hng_runtime::system::{EventKind, ModuleEvent, SUPERVISOR_EVENTS};
-use hng_runtime::{Context, ModuleResult, Subscriber};
+use hng_runtime::{Context, ModuleResult, Subscriber, msg};
 
 use super::{SimulatorModule, TICK_BUDGET};
 
@@ -17,6 +17,10 @@ pub(super) struct Lockstep {
     barrier: Barrier,
     acks: Subscriber<ClockAck>,
     events: Subscriber<ModuleEvent>,
+    /// Each participant's own round channel, by name.
+    calls: Vec<(String, Publisher<msg::Clock>)>,
+    /// Members called to the rounds so far (summed over the rounds).
+    pub(super) members: u64,
     /// Rounds opened, and of them those opened again at the same time (someone was busy).
     pub(super) rounds: u64,
     pub(super) extra_rounds: u64,
@@ -34,15 +38,27 @@ const MAX_ROUNDS_AT_ONE_TIME: u32 = 64;
 
 impl Lockstep {
     /// Subscribes to the acknowledgements and the supervisor's events.
+    /// Subscribes to the acknowledgements and the supervisor's events, and opens each
+    /// participant's round channel on `node` (the simulator's data node). Every participant
+    /// is called at least every `idle_s` of simulated time.
     pub(super) fn new(
         ctx: &mut Context,
+        node: &Node,
         participants: &[String],
         timeout_s: f64,
+        idle_s: f64,
     ) -> ModuleResult<Lockstep> {
+        let calls = participants
+            .iter()
+            .map(|n| Ok((n.clone(), node.publisher::<msg::Clock>(&round_channel(n))?)))
+            .collect::<ModuleResult<Vec<_>>>()?;
         Ok(Lockstep {
-            barrier: Barrier::new(participants, Duration::from_secs_f64(timeout_s)),
+            barrier: Barrier::new(participants, Duration::from_secs_f64(timeout_s))
+                .selective(Duration::from_secs_f64(idle_s)),
             acks: ctx.subscribe(ACK_CHANNEL, None)?,
             events: ctx.subscribe(SUPERVISOR_EVENTS, None)?,
+            calls,
+            members: 0,
             rounds: 0,
             extra_rounds: 0,
             steps_without_round: 0,
@@ -56,9 +72,10 @@ impl Lockstep {
         input == self.acks.id() || input == self.events.id()
     }
 
-    /// Opens a round (`again`: at the same simulated time as the last one); returns its
-    /// number, for the clock sample.
-    pub(super) fn open(&mut self, again: bool) -> u64 {
+    /// Opens a round at `sim_ns` (`again`: at the same simulated time as the last one) and
+    /// calls its members on their own channels; returns its number, for the common clock
+    /// sample, which goes out after the calls.
+    pub(super) fn open(&mut self, sim_ns: u64, again: bool) -> ModuleResult<u64> {
         self.rounds += 1;
         if again {
             self.extra_rounds += 1;
@@ -66,7 +83,26 @@ impl Lockstep {
         } else {
             self.same_time = 0;
         }
-        self.barrier.open(monotonic_ns())
+        let round = self.barrier.open_at(monotonic_ns(), sim_ns, again);
+        self.members += self.barrier.members() as u64;
+        let called: Vec<&str> = self.barrier.called().collect();
+        for (name, publisher) in &self.calls {
+            if called.contains(&name.as_str()) {
+                publisher.publish(msg::Clock {
+                    sim_time_ns: sim_ns,
+                    round,
+                    ..Default::default()
+                })?;
+            }
+        }
+        Ok(round)
+    }
+
+    /// What a step wrote (the keys of its channels): does it need a round? `data`: it
+    /// published more than ground truth.
+    pub(super) fn step_wants_round(&mut self, sim_ns: u64, written: &[u64], data: bool) -> bool {
+        self.barrier.written(Some(written));
+        self.barrier.wants_round(sim_ns, data)
     }
 
     /// The round of the clock samples published now (0 when no round is open).
@@ -76,12 +112,6 @@ impl Lockstep {
         } else {
             0
         }
-    }
-
-    /// The latest simulated time the world may reach without a round (the earliest next
-    /// deadline of the participants waited for).
-    pub(super) fn next_due_ns(&self) -> u64 {
-        self.barrier.next_due_ns()
     }
 
     /// Reads the acknowledgements and the supervisor's events.
@@ -159,7 +189,7 @@ impl SimulatorModule {
         match l.poll(ctx) {
             Verdict::Waiting => Ok(()),
             Verdict::Busy => {
-                l.open(true);
+                l.open(self.sim.now_ns(), true)?;
                 self.publish_clock()
             }
             Verdict::Quiet => {

@@ -9,7 +9,7 @@ use serde::Serialize;
 /// joiners get the latest). Header stamp: simulated time.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize)]
-#[type_name("hng-simulator/SimStatus/v2")]
+#[type_name("hng-simulator/SimStatus/v3")]
 pub struct SimStatus {
     /// Header; `frame_id` is `map`.
     pub header: Header,
@@ -41,6 +41,9 @@ pub struct SimStatus {
     pub lockstep_rounds: u64,
     /// See `lockstep_rounds`.
     pub lockstep_extra_rounds: u64,
+    /// Participants called to those rounds, summed over the rounds (selective rounds call
+    /// only those a round can give work to).
+    pub lockstep_calls: u64,
 }
 
 hng_runtime::impl_message!(SimStatus, ChannelKind::State);

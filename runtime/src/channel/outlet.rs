@@ -1,0 +1,54 @@
+//! The sending side every publisher shares: notifier, wake flag, header stamping, and the
+//! note of what was written (lockstep).
+
+use super::*;
+
+/// What the sending side of a channel shares between fixed and slice publishers.
+pub(super) struct Outlet {
+    pub(super) notifier: Notifier<Service>,
+    pub(super) wake: WakeFlag,
+    pub(super) seq: Cell<u64>,
+    pub(super) source: u32,
+    pub(super) clock: Clock,
+    pub(super) channel: Rc<str>,
+    pub(super) counters: Rc<Counters>,
+    pub(super) notified: Cell<u64>,
+    pub(super) round: Rc<Cell<u32>>,
+    pub(super) key: u64,
+    pub(super) writes: Rc<WriteLog>,
+}
+
+impl Outlet {
+    #[inline]
+    pub(super) fn stamp(&self, h: &mut Header) {
+        let seq = self.seq.get() + 1;
+        self.seq.set(seq);
+        h.seq = seq;
+        h.stamp_ns = self.clock.now_ns();
+        h.source = self.source;
+        h.round = self.round.get();
+    }
+
+    /// Numbers a recorded header (replay): the sequence is this publisher's, the stamp and
+    /// the source are the recording's.
+    pub(super) fn stamp_recorded(&self, h: &mut Header) {
+        let seq = self.seq.get() + 1;
+        self.seq.set(seq);
+        h.seq = seq;
+        h.round = self.round.get();
+    }
+
+    #[inline]
+    pub(super) fn sent(&self) -> Result<(), Error> {
+        Counters::add(&self.counters.msgs_out, 1);
+        self.writes.note(self.key);
+        if self.wake.has_waiters() {
+            self.notified.set(self.notified.get() + 1);
+            Counters::add(&self.counters.wakeups, 1);
+            self.notifier
+                .notify()
+                .map_err(|e| Error::channel(&self.channel, "notify", e))?;
+        }
+        Ok(())
+    }
+}
