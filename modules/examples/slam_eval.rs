@@ -5,7 +5,8 @@
 //!
 //! Parameters to try, from the environment (defaults otherwise): `LOCAL` (local-map scans),
 //! `MATCH_RANGE` (m), `CANDS` (wide-search candidates refined), `WIDE_BELOW` (score under
-//! which the wide search runs), `FREE` (free-space penalty), `FOV` (degrees, `FLASER` field of view), `NO_LC` (1: front
+//! which the wide search runs), `FREE` (free-space penalty), `UNKNOWN` (score of a point in never-observed
+//! space when ranking matches), `FOV` (degrees, `FLASER` field of view), `NO_LC` (1: front
 //! end alone).
 
 use std::path::PathBuf;
@@ -46,6 +47,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     }
     if let Some(f) = env("FREE") {
         opts.slam.free_space_penalty = f;
+    }
+    if let Some(u) = env("UNKNOWN") {
+        opts.slam.unknown_score = Some(u);
     }
     if let Some(w) = env("WIDE_BELOW") {
         opts.slam.wide_below_score = w;

@@ -168,6 +168,17 @@ impl LogOddsMap {
         }
     }
 
+    /// Whether the cell containing the map-frame point `p` has ever been
+    /// observed (a beam ended in it or passed through it).
+    pub fn is_observed(&self, p: &Vector2<f64>) -> bool {
+        let (x, y) = self.cell(p);
+        x >= 0
+            && y >= 0
+            && (x as usize) < self.width
+            && (y as usize) < self.height
+            && self.observed[y as usize * self.width + x as usize]
+    }
+
     /// Integrates one scan: `points` are beam end points in the sensor frame,
     /// `sensor_pose` the sensor pose in the map frame. Cells along each beam
     /// (Bresenham) get a miss, the end cell a hit.
