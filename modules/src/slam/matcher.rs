@@ -29,6 +29,18 @@ impl LikelihoodField {
         sigma: f64,
         depth: usize,
     ) -> Option<Self> {
+        Self::build_with_floor(points, resolution, sigma, depth, None)
+    }
+
+    /// [`LikelihoodField::build`], every fine cell raised to at least
+    /// `floor(cell centre)` (before the max-pooled levels are made).
+    pub fn build_with_floor(
+        points: &[Vector2<f64>],
+        resolution: f64,
+        sigma: f64,
+        depth: usize,
+        floor: Option<&dyn Fn(&Vector2<f64>) -> f32>,
+    ) -> Option<Self> {
         let first = points.first()?;
         let (mut lo, mut hi) = (*first, *first);
         for p in points {
@@ -66,6 +78,15 @@ impl LikelihoodField {
                         fine[i] = v;
                         nearest[i] = k as u32;
                     }
+                }
+            }
+        }
+        if let Some(floor) = floor {
+            for y in 0..height {
+                for x in 0..width {
+                    let c = origin + Vector2::new(x as f64 + 0.5, y as f64 + 0.5) * resolution;
+                    let i = y * width + x;
+                    fine[i] = fine[i].max(floor(&c));
                 }
             }
         }
@@ -518,10 +539,27 @@ impl ReferenceMap {
         normals: Vec<Option<Vector2<f64>>>,
         cfg: &MatcherConfig,
     ) -> Option<Self> {
+        Self::build_with_floor(points, normals, cfg, None)
+    }
+
+    /// [`ReferenceMap::build`] with a floor on the field
+    /// ([`LikelihoodField::build_with_floor`]).
+    pub fn build_with_floor(
+        points: Vec<Vector2<f64>>,
+        normals: Vec<Option<Vector2<f64>>>,
+        cfg: &MatcherConfig,
+        floor: Option<&dyn Fn(&Vector2<f64>) -> f32>,
+    ) -> Option<Self> {
         if points.len() != normals.len() {
             return None;
         }
-        let field = LikelihoodField::build(&points, cfg.resolution, cfg.sigma, cfg.depth)?;
+        let field = LikelihoodField::build_with_floor(
+            &points,
+            cfg.resolution,
+            cfg.sigma,
+            cfg.depth,
+            floor,
+        )?;
         Some(Self {
             field,
             points,
