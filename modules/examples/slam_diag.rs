@@ -248,15 +248,17 @@ fn hat(a: &[Isometry2<f64>], b: &[Isometry2<f64>], c: &[Isometry2<f64>]) -> [[f6
                 .collect::<Vec<_>>(),
         )
     };
-    let mut out = [[0.0; 3]; 3];
-    for i in 0..3 {
-        let (ab, ac, bc) = (ms(a, b, i), ms(a, c, i), ms(b, c, i));
-        let sgn = |v: f64| v.signum() * v.abs().sqrt();
-        out[0][i] = sgn((ab + ac - bc) / 2.0);
-        out[1][i] = sgn((ab + bc - ac) / 2.0);
-        out[2][i] = sgn((ac + bc - ab) / 2.0);
-    }
-    out
+    let sgn = |v: f64| v.signum() * v.abs().sqrt();
+    let (ab, ac, bc): (Vec<f64>, Vec<f64>, Vec<f64>) = (
+        (0..3).map(|i| ms(a, b, i)).collect(),
+        (0..3).map(|i| ms(a, c, i)).collect(),
+        (0..3).map(|i| ms(b, c, i)).collect(),
+    );
+    [
+        std::array::from_fn(|i| sgn((ab[i] + ac[i] - bc[i]) / 2.0)),
+        std::array::from_fn(|i| sgn((ab[i] + bc[i] - ac[i]) / 2.0)),
+        std::array::from_fn(|i| sgn((ac[i] + bc[i] - ab[i]) / 2.0)),
+    ]
 }
 
 /// Prints, on stderr, where the per-scan error comes from (docs/slam.md, diagnosis).

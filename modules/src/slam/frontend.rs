@@ -8,8 +8,8 @@ use nalgebra::{Isometry2, Matrix3, Point2, Vector2};
 use super::carmen::LaserConfig;
 use super::mapping::{LogOddsMap, MapperConfig};
 use super::matcher::{
-    LikelihoodField, MatchResult, MatcherConfig, ReferenceMap, match_scan, scan_normals,
-    search_candidates,
+    FieldFloor, LikelihoodField, MatchResult, MatcherConfig, ReferenceMap, match_scan,
+    scan_normals, search_candidates,
 };
 
 /// A local-map point in the map frame with its normal, if any.
@@ -216,7 +216,7 @@ pub fn match_robust_ranked(
     wide: &WideSearch,
     wide_below: f64,
     rank: &dyn Fn(&MatchResult, &LikelihoodField) -> f64,
-    coarse_floor: Option<&dyn Fn(&Vector2<f64>) -> f32>,
+    coarse_floor: Option<FieldFloor<'_>>,
 ) -> Option<(MatchResult, f64)> {
     let coarse_pts = (wide_below > 0.0).then(|| points.clone());
     let reference = ReferenceMap::build(points, normals, fine)?;
@@ -463,7 +463,7 @@ impl SlamFrontEnd {
                 _ => 0.0,
             }
         };
-        let floor: Option<&dyn Fn(&Vector2<f64>) -> f32> =
+        let floor: Option<FieldFloor<'_>> =
             (self.cfg.wide.unknown_floor && unknown.is_some()).then_some(&unknown_floor);
         let second = seeds
             .iter()

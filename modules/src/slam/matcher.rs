@@ -4,6 +4,10 @@
 
 use nalgebra::{Isometry2, Matrix3, Vector2, Vector3};
 
+/// A lower bound on a likelihood field's value at a map-frame point (see
+/// [`LikelihoodField::build_with_floor`]).
+pub type FieldFloor<'a> = &'a dyn Fn(&Vector2<f64>) -> f32;
+
 /// A likelihood field over a local map: each cell holds
 /// `exp(-d² / 2σ²)`, `d` the distance from the cell centre to the nearest map
 /// point, plus max-pooled copies for branch-and-bound.
@@ -39,7 +43,7 @@ impl LikelihoodField {
         resolution: f64,
         sigma: f64,
         depth: usize,
-        floor: Option<&dyn Fn(&Vector2<f64>) -> f32>,
+        floor: Option<FieldFloor<'_>>,
     ) -> Option<Self> {
         let first = points.first()?;
         let (mut lo, mut hi) = (*first, *first);
@@ -548,7 +552,7 @@ impl ReferenceMap {
         points: Vec<Vector2<f64>>,
         normals: Vec<Option<Vector2<f64>>>,
         cfg: &MatcherConfig,
-        floor: Option<&dyn Fn(&Vector2<f64>) -> f32>,
+        floor: Option<FieldFloor<'_>>,
     ) -> Option<Self> {
         if points.len() != normals.len() {
             return None;

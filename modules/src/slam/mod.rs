@@ -97,7 +97,7 @@ pub use mapping::{
     write_pgm_yaml,
 };
 pub use matcher::{
-    LikelihoodField, MatchResult, MatcherConfig, ReferenceMap, match_scan, refine, scan_normals,
-    search_candidates,
+    FieldFloor, LikelihoodField, MatchResult, MatcherConfig, ReferenceMap, match_scan, refine,
+    scan_normals, search_candidates,
 };
 pub use posegraph::{Edge, Optimised, PoseGraphError, optimise};
