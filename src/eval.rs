@@ -51,7 +51,7 @@ pub enum EvalCommand {
         /// Write the map: OUT.yaml and OUT.pgm (map_server format); with --all, a folder.
         #[arg(long, visible_alias = "map", value_name = "OUT.yaml")]
         map_out: Option<PathBuf>,
-        /// Field of view of FLASER scans in degrees (default 180; see docs/modules.md).
+        /// Field of view of FLASER scans in degrees (default 180; see docs/slam.md).
         #[arg(long, value_name = "DEG")]
         fov: Option<f64>,
         /// The front end alone: no pose graph, no loop closure.

@@ -5,8 +5,9 @@
 //!
 //! Parameters to try, from the environment (defaults otherwise): `LOCAL` (local-map scans),
 //! `MATCH_RANGE` (m), `CANDS` (wide-search candidates refined), `WIDE_BELOW` (score under
-//! which the wide search runs), `FREE` (free-space penalty), `FOV` (degrees, `FLASER` field of view), `NO_LC` (1: front
-//! end alone).
+//! which the wide search runs), `FREE` (free-space penalty), `UNKNOWN` (score of a point in never-observed
+//! space when ranking matches; `off`: plain score), `UNKNOWN_FLOOR` (1: also in the coarse search's field), `FOV` (degrees, `FLASER` field of view), `LOOP_MIN_SCORE` (closure
+//! acceptance), `NO_LC` (1: front end alone).
 
 use std::path::PathBuf;
 
@@ -47,11 +48,22 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     if let Some(f) = env("FREE") {
         opts.slam.free_space_penalty = f;
     }
+    if let Some(f) = env::<u8>("UNKNOWN_FLOOR") {
+        opts.slam.wide.unknown_floor = f == 1;
+    }
+    if let Some(u) = env("UNKNOWN") {
+        opts.slam.unknown_score = Some(u);
+    } else if std::env::var("UNKNOWN").is_ok_and(|v| v == "off") {
+        opts.slam.unknown_score = None;
+    }
     if let Some(w) = env("WIDE_BELOW") {
         opts.slam.wide_below_score = w;
     }
     if let Some(d) = env::<f64>("FOV") {
         opts.log.fov = Some(d.to_radians());
+    }
+    if let Some(m) = env("LOOP_MIN_SCORE") {
+        opts.backend.loop_min_score = m;
     }
     if env::<u8>("NO_LC") == Some(1) {
         opts.backend.loop_closure = false;

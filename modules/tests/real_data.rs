@@ -54,7 +54,7 @@ fn movingai_arena_every_optimal_length_exact() {
 /// 0.5 degrees, below odometry's. Below odometry holds on every log (asserted). The 3 cm /
 /// 0.5 degree aim holds on Intel and Seattle; on ACES, Freiburg 101 and Orebro the
 /// measured means are above it, and the test holds them to their measured level (with a
-/// small margin) so that a regression shows: see docs/modules.md (SLAM, measured).
+/// small margin) so that a regression shows: see docs/slam.md (measured).
 #[test]
 fn slam_on_every_carmen_log_beats_odometry_and_holds_its_accuracy() {
     // (log, mean translation bound m, mean rotation bound deg)
@@ -62,7 +62,7 @@ fn slam_on_every_carmen_log_beats_odometry_and_holds_its_accuracy() {
         ("aces-corrected.log", 0.045, 0.5),
         ("freiburg-101-corrected.log", 0.035, 0.5),
         ("intel-corrected.log", 0.03, 0.5),
-        ("orebro-corrected.log", 0.13, 0.8),
+        ("orebro-corrected.log", 0.115, 0.8),
         ("seattle-corrected.log", 0.03, 0.5),
     ];
     let logs = logs_in(&carmen_dir()).expect("tests/data/carmen holds the logs");

@@ -168,6 +168,17 @@ impl LogOddsMap {
         }
     }
 
+    /// Whether the cell containing the map-frame point `p` has ever been
+    /// observed (a beam ended in it or passed through it).
+    pub fn is_observed(&self, p: &Vector2<f64>) -> bool {
+        let (x, y) = self.cell(p);
+        x >= 0
+            && y >= 0
+            && (x as usize) < self.width
+            && (y as usize) < self.height
+            && self.observed[y as usize * self.width + x as usize]
+    }
+
     /// Integrates one scan: `points` are beam end points in the sensor frame,
     /// `sensor_pose` the sensor pose in the map frame. Cells along each beam
     /// (Bresenham) get a miss, the end cell a hit.
@@ -352,6 +363,11 @@ mod tests {
         );
         let (ux, uy) = g.world_to_cell(0.0, 3.0);
         assert_eq!(g.get(ux, uy), Some(UNKNOWN));
+        // Observed: where beams ended or passed; not: beside them and off the grid.
+        assert!(m.is_observed(&Vector2::new(3.02, 1.0)));
+        assert!(m.is_observed(&Vector2::new(2.0, 1.0)));
+        assert!(!m.is_observed(&Vector2::new(0.0, 3.0)));
+        assert!(!m.is_observed(&Vector2::new(500.0, -500.0)));
         // Growing keeps old content in place.
         m.integrate(&Isometry2::new(Vector2::new(-20.0, -20.0), 0.0), &pts);
         let g2 = m.to_occupancy_grid().expect("grid");

@@ -4,6 +4,10 @@
 
 use nalgebra::{Isometry2, Matrix3, Vector2, Vector3};
 
+/// A lower bound on a likelihood field's value at a map-frame point (see
+/// [`LikelihoodField::build_with_floor`]).
+pub type FieldFloor<'a> = &'a dyn Fn(&Vector2<f64>) -> f32;
+
 /// A likelihood field over a local map: each cell holds
 /// `exp(-d² / 2σ²)`, `d` the distance from the cell centre to the nearest map
 /// point, plus max-pooled copies for branch-and-bound.
@@ -28,6 +32,18 @@ impl LikelihoodField {
         resolution: f64,
         sigma: f64,
         depth: usize,
+    ) -> Option<Self> {
+        Self::build_with_floor(points, resolution, sigma, depth, None)
+    }
+
+    /// [`LikelihoodField::build`], every fine cell raised to at least
+    /// `floor(cell centre)` (before the max-pooled levels are made).
+    pub fn build_with_floor(
+        points: &[Vector2<f64>],
+        resolution: f64,
+        sigma: f64,
+        depth: usize,
+        floor: Option<FieldFloor<'_>>,
     ) -> Option<Self> {
         let first = points.first()?;
         let (mut lo, mut hi) = (*first, *first);
@@ -66,6 +82,15 @@ impl LikelihoodField {
                         fine[i] = v;
                         nearest[i] = k as u32;
                     }
+                }
+            }
+        }
+        if let Some(floor) = floor {
+            for y in 0..height {
+                for x in 0..width {
+                    let c = origin + Vector2::new(x as f64 + 0.5, y as f64 + 0.5) * resolution;
+                    let i = y * width + x;
+                    fine[i] = fine[i].max(floor(&c));
                 }
             }
         }
@@ -518,10 +543,27 @@ impl ReferenceMap {
         normals: Vec<Option<Vector2<f64>>>,
         cfg: &MatcherConfig,
     ) -> Option<Self> {
+        Self::build_with_floor(points, normals, cfg, None)
+    }
+
+    /// [`ReferenceMap::build`] with a floor on the field
+    /// ([`LikelihoodField::build_with_floor`]).
+    pub fn build_with_floor(
+        points: Vec<Vector2<f64>>,
+        normals: Vec<Option<Vector2<f64>>>,
+        cfg: &MatcherConfig,
+        floor: Option<FieldFloor<'_>>,
+    ) -> Option<Self> {
         if points.len() != normals.len() {
             return None;
         }
-        let field = LikelihoodField::build(&points, cfg.resolution, cfg.sigma, cfg.depth)?;
+        let field = LikelihoodField::build_with_floor(
+            &points,
+            cfg.resolution,
+            cfg.sigma,
+            cfg.depth,
+            floor,
+        )?;
         Some(Self {
             field,
             points,
