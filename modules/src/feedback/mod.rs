@@ -10,6 +10,13 @@
 //! allowance. Only inconsistency is reported (E ≤ 0): eq. 3 adds every refresh's E with a
 //! decay τ, so a positive E sent at every refresh would pile up and entrench whichever provider
 //! is in use, whatever the others offer.
+//!
+//! [`ScanMapAgreement`] (`scan_map.rs`): Planning rates its "Mapping" provider by agreement
+//! of the map with the scans.
+
+mod scan_map;
+
+pub use scan_map::{MapFeedbackParams, MapRating, ScanMapAgreement};
 
 use hng_runtime::msg::Pose2D;
 
