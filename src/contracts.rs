@@ -1,7 +1,7 @@
 //! `hng contracts [--json]`: the live contract tree (client, provider, service, priority, V)
 //! and the data-exchange network (which channel flows from which provider to which client),
 //! read from the contract tables every module publishes on `hng/contracts` (paper 5.8,
-//! figures 3 and 4).
+//! figures 3 and 4). `--follow` streams the switches instead (`contracts_follow.rs`).
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::time::{Duration, Instant};
@@ -23,6 +23,10 @@ pub struct ContractsArgs {
     /// How long to collect tables, in seconds (modules publish theirs every 200 ms).
     #[arg(long, default_value_t = 0.5)]
     pub wait: f64,
+    /// Follow the contract switches: one line per provider made, switched or ended, until
+    /// stopped (JSON lines with --json or when stdout is not a terminal).
+    #[arg(long)]
+    pub follow: bool,
 }
 
 #[derive(Debug, Serialize)]
@@ -65,7 +69,7 @@ struct View {
     data: Vec<Flow>,
 }
 
-fn priority_text(parts: &[u16]) -> String {
+pub(crate) fn priority_text(parts: &[u16]) -> String {
     if parts.is_empty() {
         "root".to_string()
     } else {
@@ -218,6 +222,14 @@ pub fn run(prefix: &str, args: &ContractsArgs) -> Result<()> {
         bail!(
             "no hng system runs under prefix {prefix:?} (no supervisor, no contract tables); start one with `hng run` or pass --prefix"
         );
+    }
+    if args.follow {
+        if !has_tables {
+            bail!(
+                "no contract tables on prefix {prefix:?} yet (no module with contracts running?)"
+            );
+        }
+        return crate::contracts_follow::follow(prefix, args.json);
     }
     let tables = if has_tables {
         collect(prefix, wait)?

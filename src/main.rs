@@ -23,6 +23,7 @@ macro_rules! out {
 use hng::bench;
 mod behaviours;
 mod contracts;
+mod contracts_follow;
 mod doc;
 mod eval;
 mod eval_nav;

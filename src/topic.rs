@@ -238,7 +238,8 @@ fn dispatch(prefix: &str, name: &str, mode: Mode) -> Result<()> {
         hng_simulator::module::SimCollision,
         hng_modules::msgs::GoalStatus,
         hng_modules::msgs::Mission,
-        hng_modules::msgs::MissionStatus
+        hng_modules::msgs::MissionStatus,
+        hng_modules::reacher_module::ReachStatus
     );
     // A path's poses are printed too (an image's or a grid's bytes are not: only their
     // header and length).

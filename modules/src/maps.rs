@@ -5,8 +5,10 @@
 //! whose latest sample every late joiner receives. With `reload_s` set, the file is re-read
 //! that often and republished when it changed (edit a map while the robot runs).
 //!
-//! Quality Q: 1 when the map is loaded (a surveyed map is as good as maps get here); a map
-//! that fails to load stops the module at configure with the loader's message.
+//! Quality Q: `quality` (default 1: a surveyed map is as good as maps get here; lower for a
+//! survey trusted less, e.g. an old one) when the map is loaded; a map that fails to load
+//! stops the module at configure with the loader's message. Planning, its client, rates the
+//! map by agreement with the scans (client feedback, `crate::feedback::ScanMapAgreement`).
 
 use std::path::PathBuf;
 use std::time::Duration;
@@ -28,6 +30,8 @@ pub struct MapsModuleConfig {
     pub map_out: String,
     /// Re-read the file this often, s (default: never).
     pub reload_s: Option<f64>,
+    /// The self-evaluated quality Q of the map, in (0, 1] (default 1).
+    pub quality: f64,
 }
 
 impl Default for MapsModuleConfig {
@@ -36,6 +40,7 @@ impl Default for MapsModuleConfig {
             map: None,
             map_out: "maps/map".into(),
             reload_s: None,
+            quality: 1.0,
         }
     }
 }
@@ -115,6 +120,11 @@ impl Module for MapsModule {
         let path = cfg
             .map
             .ok_or_else(|| field_error("map", "missing: the map_server YAML file to publish"))?;
+        if !(cfg.quality > 0.0 && cfg.quality <= 1.0) {
+            return Err(
+                field_error("quality", format!("must be in (0, 1], got {}", cfg.quality)).into(),
+            );
+        }
         let grid = load_map(&path)?;
         if let Some(r) = cfg.reload_s {
             ctx.add_timer(seconds("reload_s", r)?.max(Duration::from_millis(100)));
@@ -124,7 +134,7 @@ impl Module for MapsModule {
         offer.channel = cfg.map_out.clone();
         ctx.provide(offer);
         let out = ctx.slice_publisher::<GridInfo>(&cfg.map_out, grid.data().len())?;
-        ctx.set_quality(true, 1.0);
+        ctx.set_quality(true, cfg.quality as f32);
         tracing::info!(
             module = ctx.name(),
             map = %path.display(),

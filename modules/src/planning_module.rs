@@ -538,6 +538,8 @@ pub struct PlanningModule {
     path_out: PathOut,
     last_pose: Option<Pose2D>,
     state: PlanningState,
+    /// Scans, and the rating of the Mapping provider by them (client feedback).
+    map_rating: crate::feedback::MapRating,
 }
 
 impl PlanningModule {
@@ -573,6 +575,7 @@ impl PlanningModule {
             && let Some((_, g)) = self.maps_seen.iter().find(|(s, _)| *s == from)
         {
             self.core.set_map(g);
+            self.map_rating.rater.set_map(g);
         }
         Ok(())
     }
@@ -686,10 +689,14 @@ impl Module for PlanningModule {
             path_out: PathOut::new(ctx, &cfg.path_out)?,
             last_pose: None,
             state: PlanningState::default(),
+            map_rating: crate::feedback::MapRating::new(ctx, &cfg.scan, cfg.map_feedback)?,
         })
     }
 
     fn on_input(&mut self, ctx: &mut Context, input: InputId) -> ModuleResult {
+        if self.map_rating.is(input) {
+            return self.map_rating.on_input(ctx, self.last_pose, MAPPING_NEED);
+        }
         if input == self.map.id() || self.map_followed.as_ref().is_some_and(|s| s.id() == input) {
             self.read_map(ctx)?;
         } else if input == self.goal.id() {
@@ -742,12 +749,16 @@ impl Module for PlanningModule {
             self.map_provider = provider.cloned();
             // No provider: a switch is in flight (no refusal is final until it settles).
             self.core.set_provider_settled(provider.is_some());
+            if changed {
+                self.map_rating.rater.reset();
+            }
             if changed && let Some(p) = provider {
                 tracing::info!(module = ctx.name(), provider = %p.module, channel = %p.channel, "map from the Mapping provider");
                 // Its map may have been seen already (a state channel, published rarely).
                 self.read_map(ctx)?;
                 if let Some((_, g)) = self.maps_seen.iter().find(|(s, _)| *s == p.module.0) {
                     self.core.set_map(g);
+                    self.map_rating.rater.set_map(g);
                 }
             }
         }

@@ -24,6 +24,12 @@
 //! without images for `frame_timeout_s`. Malformed images (payload not `width * height * 3`
 //! bytes of rgb8) are dropped and counted.
 //!
+//! The camera model comes from each image: its size and its horizontal field of view
+//! (`ImageInfo` v2 `hfov`, filled by the simulator from the world's camera). An image without
+//! a usable `hfov` (a camera that does not give it) is dropped and counted, said once in the
+//! log: the tracker cannot turn columns into bearings, and without usable images it is not apt
+//! (Q = -1 after `frame_timeout_s`).
+//!
 //! `lie = true` (tests of client feedback): the tracker claims Q = 1 and state "seen" for
 //! every image, reporting the bearing off by `lie_bearing_rad` and, once it loses the beacon,
 //! the last values it had; its clients' feedback is what exposes it.
@@ -46,7 +52,7 @@ use crate::tracker::{
     BeaconTrack as Track, CameraModel, ColourTracker, ColourTrackerConfig, Detection, TrackState,
 };
 use crate::tracker_hist::{HistogramTracker, HistogramTrackerConfig};
-use crate::video::{VideoInput, check_rgb8};
+use crate::video::{VideoInput, check_rgb8, image_hfov};
 
 /// The service the trackers provide.
 pub const TRACK_BEACON: &str = "Track beacon";
@@ -93,8 +99,6 @@ pub struct TrackerConfig<P> {
     pub track_out: String,
     /// Designations (default `operator/designation`).
     pub designation: String,
-    /// Horizontal field of view of the camera, rad (default 1.2, the simulator's).
-    pub fov: f64,
     /// Height of the beacon markers, m (default 0.6).
     pub beacon_height: f64,
     /// Radius of the beacon markers, m (default 0.1).
@@ -123,7 +127,6 @@ impl<P: Default> Default for TrackerConfig<P> {
             image: "camera/image".into(),
             track_out: String::new(),
             designation: DESIGNATION_CHANNEL.into(),
-            fov: 1.2,
             beacon_height: 0.6,
             beacon_radius: 0.1,
             hold_s: 1.5,
@@ -158,6 +161,8 @@ pub struct TrackerModule<D: Detector> {
     lied: Option<(f64, f64)>,
     last_frame: Option<Duration>,
     state: TrackerState,
+    /// An image without a usable field of view was reported (said once).
+    said_no_fov: bool,
     _d: PhantomData<D>,
 }
 
@@ -181,9 +186,6 @@ impl<D: Detector> Module for TrackerModule<D> {
     fn configure(ctx: &mut Context, mut cfg: Self::Config) -> ModuleResult<Self> {
         seconds("hold_s", cfg.hold_s)?;
         let timeout = seconds("frame_timeout_s", cfg.frame_timeout_s)?;
-        if !(cfg.fov.is_finite() && cfg.fov > 0.05 && cfg.fov < 3.0) {
-            return Err(field_error("fov", "must be in (0.05, 3.0) rad").into());
-        }
         for (f, v) in [
             ("beacon_height", cfg.beacon_height),
             ("beacon_radius", cfg.beacon_radius),
@@ -224,6 +226,7 @@ impl<D: Detector> Module for TrackerModule<D> {
             lied: None,
             last_frame: None,
             state: TrackerState::default(),
+            said_no_fov: false,
             cfg,
             _d: PhantomData,
         })
@@ -247,15 +250,21 @@ impl<D: Detector> Module for TrackerModule<D> {
         }
         while let Some(frame) = self.video.receive()? {
             let info = *frame.header();
-            if let Some(why) = check_rgb8(&info, frame.data().len()) {
+            let fov = image_hfov(&info);
+            if let Some(why) = check_rgb8(&info, frame.data().len()).or(fov.clone().err()) {
                 self.state.dropped += 1;
                 let c = &ctx.node().counters().msgs_dropped;
                 c.set(c.get() + 1);
-                tracing::warn!(
-                    module = ctx.name(),
-                    dropped = self.state.dropped,
-                    "image dropped: {why}"
-                );
+                let no_fov = fov.is_err();
+                if !(no_fov && self.said_no_fov) {
+                    tracing::warn!(
+                        module = ctx.name(),
+                        dropped = self.state.dropped,
+                        "image dropped: {why}{}",
+                        if no_fov { " (said once; counted)" } else { "" }
+                    );
+                }
+                self.said_no_fov |= no_fov;
                 continue;
             }
             self.state.frames += 1;
@@ -273,7 +282,7 @@ impl<D: Detector> Module for TrackerModule<D> {
             } else {
                 Vec::new()
             };
-            let detector = self.detector_for(info.width, info.height);
+            let detector = self.detector_for(info.width, info.height, info.hfov);
             let mut found = Vec::new();
             let detection = match (target, detector) {
                 (Some(id), Some(d)) => d.detect(frame.data(), id),
@@ -346,12 +355,13 @@ fn discovered(image: &Header, d: &Detection) -> BeaconTrack {
 }
 
 impl<D: Detector> TrackerModule<D> {
-    /// The detector for images of `width` x `height` (rebuilt when the size changes).
-    fn detector_for(&mut self, width: u32, height: u32) -> Option<&mut D> {
+    /// The detector for images of `width` x `height` seen with field of view `fov` (rebuilt
+    /// when either changes).
+    fn detector_for(&mut self, width: u32, height: u32, fov: f64) -> Option<&mut D> {
         let camera = CameraModel {
             width,
             height,
-            fov: self.cfg.fov,
+            fov,
             beacon_height: self.cfg.beacon_height,
             beacon_radius: self.cfg.beacon_radius,
         };

@@ -35,6 +35,26 @@ pub fn check_rgb8(info: &ImageInfo, len: usize) -> Option<String> {
     None
 }
 
+/// The image's horizontal field of view (`ImageInfo` v2 `hfov`, rad), or why it has none
+/// usable: a client that turns columns into bearings (the trackers) cannot use the image.
+pub fn image_hfov(info: &ImageInfo) -> Result<f64, String> {
+    let f = info.hfov;
+    if f.is_finite() && f > 0.05 && f < 3.1 {
+        Ok(f)
+    } else if f == 0.0 {
+        Err(
+            "the camera gives no field of view (ImageInfo hfov = 0): columns cannot be \
+             turned into bearings"
+                .into(),
+        )
+    } else {
+        Err(format!(
+            "field of view hfov = {f} rad is not in (0.05, 3.1): columns cannot be turned into \
+             bearings"
+        ))
+    }
+}
+
 /// A client's input from its "Video" provider; see the module documentation.
 #[derive(Debug, Default)]
 pub struct VideoInput {
@@ -150,5 +170,23 @@ mod tests {
         assert!(check_rgb8(&mono, 24).is_some_and(|e| e.contains("mono8")));
         let bad_step = ImageInfo { step: 13, ..info };
         assert!(check_rgb8(&bad_step, 26).is_some());
+    }
+
+    #[test]
+    fn an_image_without_a_usable_field_of_view_is_named() {
+        let mut info = ImageInfo {
+            hfov: 1.0,
+            ..Default::default()
+        };
+        assert_eq!(image_hfov(&info), Ok(1.0));
+        info.hfov = 0.0;
+        assert!(image_hfov(&info).is_err_and(|e| e.contains("no field of view")));
+        for bad in [f64::NAN, -1.0, 4.0] {
+            info.hfov = bad;
+            assert!(
+                image_hfov(&info).is_err_and(|e| e.contains("not in")),
+                "{bad}"
+            );
+        }
     }
 }

@@ -431,7 +431,7 @@ impl Context {
     }
 
     /// The module's evaluation `e` in [-1, 1] of the provider currently serving need `need`
-    /// (paper 4.2): sent to it as feedback with each refresh, it enters its value V. Without
+    /// (paper 4.2): sent to it once, as feedback with the next refresh, it enters its value V. Without
     /// one, the module forwards the feedback it receives from its own clients.
     pub fn evaluate_provider(&mut self, need: u16, e: f64) {
         let Some(provider) = self.provider(need) else {

@@ -3,6 +3,11 @@
 //! a claimed 2 cm uncertainty) wins the Servo's and Planning's "Localization" at first; once
 //! the robot moves, the Servo rates it by consistency with odometry, and the feedback takes
 //! the contract from it (to SLAM) within a bounded time.
+//!
+//! The same run shows Planning's rating of its "Mapping" provider by agreement with the scans:
+//! a second Maps, `wrong_map`, serves the surveyed map with its origin 1.5 m off and claims
+//! Q = 1, more than the true map's 0.95, so Planning takes it first; Planning's feedback takes
+//! the contract from it to `maps` before the goal is given.
 
 use hng_runtime::msg::OrderKind;
 use hng_runtime::shm;
@@ -21,9 +26,21 @@ fn a_lying_localization_loses_its_contract_through_the_servos_feedback() {
     let dir = crate::signals::test_dir(&prefix);
     std::fs::create_dir_all(&dir).expect("dir");
     let map = write_map(&dir, None);
-    let mut plan = launch(&map, None, (2.0, 2.0, 0.0), &[]);
+    let wrong = shifted_map(&map, 1.5);
+    // The true map claims a little less (Q 0.95, an older survey, within the contracts'
+    // hysteresis of 0.1) than the wrong one (Q 1), so Planning takes the wrong one first.
+    let mut plan = launch(&map, None, (2.0, 2.0, 0.0), &[])
+        .replacen("wait_for = [", "wait_for = [\"wrong_map\", ", 1)
+        .replacen(
+            &format!("map = {map:?}\n"),
+            &format!("map = {map:?}\nquality = 0.95\n"),
+            1,
+        );
     plan.push_str(&format!(
         "\n[[module]]\nname = \"liar\"\ncommand = [{TESTMOD:?}, \"liar\"]\n[module.config]\nstart = {{ x = 2.0, y = 2.0, theta = 0.0 }}\n"
+    ));
+    plan.push_str(&format!(
+        "\n[[module]]\nname = \"wrong_map\"\ncommand = [\"hng\", \"module\", \"maps\"]\n[module.config]\nmap = {wrong:?}\nmap_out = \"wrong_map/map\"\n"
     ));
     let file = dir.join("feedback.toml");
     std::fs::write(&file, plan).expect("launch");
@@ -34,6 +51,17 @@ fn a_lying_localization_loses_its_contract_through_the_servos_feedback() {
             && w.provider_of("servo", 2).as_deref() == Some("liar")
             && w.provider_of("planning", 3).as_deref() == Some("liar")
     });
+    // Planning's Mapping: the wrong map first (the tie), then away from it by its feedback.
+    let mut wrong_first = false;
+    watch.until("Planning's Mapping from wrong_map to maps", |w| {
+        let p = w.provider_of("planning", 2);
+        wrong_first |= p.as_deref() == Some("wrong_map");
+        wrong_first && p.as_deref() == Some("maps")
+    });
+    let t_map = watch.sim_s();
+    eprintln!(
+        "feedback: Planning's Mapping moved from wrong_map to maps at {t_map:.2} s (simulated)"
+    );
     let s = watch.order(goal(OrderKind::Goal, &[(5.5, 3.0)]));
     assert_eq!(s.accepted, 1, "{}", s.reason());
     watch.until("the liar still selected (Planning and Servo active)", |w| {
@@ -58,6 +86,7 @@ fn a_lying_localization_loses_its_contract_through_the_servos_feedback() {
         t_planning - t_move
     );
     assert_eq!(to.as_deref(), Some("slam"));
+    assert!(t_map <= 6.0, "{t_map:.2} s");
     assert!(t_switch - t_move <= 3.0, "{:.2} s", t_switch - t_move);
     assert!(t_planning - t_move <= 3.5, "{:.2} s", t_planning - t_move);
 
@@ -66,4 +95,32 @@ fn a_lying_localization_loses_its_contract_through_the_servos_feedback() {
     let status = run.wait();
     run.assert_left_nothing();
     assert_eq!(status.code(), Some(0));
+}
+
+/// A copy of the map_server map `yaml` with its origin moved by `d` m in x and y (the same
+/// picture, the walls in the wrong places), written beside it; its path.
+fn shifted_map(yaml: &str, d: f64) -> String {
+    let text = std::fs::read_to_string(yaml).expect("map yaml");
+    let dir = std::path::Path::new(yaml).parent().expect("dir");
+    let mut out = String::new();
+    for line in text.lines() {
+        if let Some(rest) = line.trim().strip_prefix("origin:") {
+            let v: Vec<f64> = rest
+                .trim()
+                .trim_matches(['[', ']'])
+                .split(',')
+                .map(|x| x.trim().parse().expect("origin"))
+                .collect();
+            out.push_str(&format!("origin: [{}, {}, {}]\n", v[0] + d, v[1] + d, v[2]));
+        } else if let Some(img) = line.trim().strip_prefix("image:") {
+            let img = dir.join(img.trim());
+            out.push_str(&format!("image: {}\n", img.display()));
+        } else {
+            out.push_str(line);
+            out.push('\n');
+        }
+    }
+    let path = dir.join("wrong_map.yaml");
+    std::fs::write(&path, out).expect("wrong map");
+    path.to_str().expect("path").to_owned()
 }

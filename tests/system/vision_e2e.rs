@@ -67,6 +67,11 @@ enabled = false
 
 [sensors.lidar]
 enabled = false
+
+# Not the default 1.2 rad: the trackers must take the field of view from the images
+# (ImageInfo hfov); with 1.2 they would read ranges 20 % short and stop 25 % too far out.
+[sensors.camera]
+fov = 1.0
 {script}
 "#,
         BEACON[0], BEACON[1]
@@ -411,6 +416,18 @@ fn the_reacher_ignores_an_unknown_beacon_then_reaches_the_designated_one_within_
         "{:?}",
         r.log()
     );
+    // The terminal form of the reacher's state (#20): `hng topic echo` prints ReachStatus, the
+    // latest one (a state channel) for a late joiner.
+    let out = Command::new(env!("CARGO_BIN_EXE_hng"))
+        .args(["--prefix", &r.prefix, "topic", "echo", "reacher/status"])
+        .args(["--json", "--count", "1", "--timeout", "10"])
+        .output()
+        .expect("hng topic echo");
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{out:?}");
+    let v: serde_json::Value = serde_json::from_str(text.trim()).expect("one JSON object");
+    assert_eq!(v["beacon_id"], BEACON_ID, "{text}");
+    assert_eq!(v["state"], REACH_REACHED, "{text}");
     r.finish();
 }
 
@@ -511,6 +528,14 @@ fn track_beacon_moves_to_the_histogram_tracker_in_the_dark_and_back_in_the_light
     // Slow, so the beacon stays far and in view while the light changes.
     let mut r = Run::start("vis_attn", DUSK, "law = { max_speed = 0.05 }", "");
     assert!(r.until(30.0, |r| r.now_ns > 0), "the simulation started");
+    // The terminal form of the page's timeline (#20): the switches as JSON lines.
+    let mut follow = Command::new(env!("CARGO_BIN_EXE_hng"))
+        .args(["--prefix", &r.prefix, "contracts", "--follow", "--json"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("hng contracts --follow");
+    let lines = crate::common::stdout_lines(follow.stdout.take().expect("stdout"));
     r.designate(BEACON_ID);
     assert!(
         r.until(3.0, |r| r.tracker().as_deref() == Some("tracker_colour")),
@@ -530,6 +555,35 @@ fn track_beacon_moves_to_the_histogram_tracker_in_the_dark_and_back_in_the_light
     println!("light at 7 s: Track beacon back to the colour tracker after {t_back:.2} s simulated");
     assert!(back, "{:?}", r.log());
     println!("contract log: {:?}", r.log());
+    // The stream saw the same switches of the reacher's "Track beacon", at the same times.
+    let mut seen: Vec<(f64, String)> = Vec::new();
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while seen.len() < 3 && Instant::now() < deadline {
+        let Ok(l) = lines.recv_timeout(Duration::from_millis(200)) else {
+            continue;
+        };
+        let v: serde_json::Value = serde_json::from_str(&l).expect("a JSON line");
+        if v["client"] == "reacher" && v["service"] == "Track beacon" && v["kind"] != "ended" {
+            seen.push((
+                v["t_s"].as_f64().expect("t_s"),
+                v["to"].as_str().expect("to").to_owned(),
+            ));
+        }
+    }
+    let _ = follow.kill();
+    let _ = follow.wait();
+    println!("hng contracts --follow: {seen:?}");
+    let to: Vec<&str> = seen.iter().map(|s| s.1.as_str()).collect();
+    assert_eq!(
+        to,
+        ["tracker_colour", "tracker_histogram", "tracker_colour"],
+        "{seen:?}"
+    );
+    // The two switches (the first line is the contract as the stream found it, stamped then).
+    for ((t, _), (when, _)) in seen.iter().zip(r.log()).skip(1) {
+        let when: f64 = when.trim_end_matches(" s").parse().expect("time");
+        assert!((t - when).abs() <= 0.5, "stream {t:.2} s, test {when:.2} s");
+    }
     r.finish();
 }
 

@@ -26,6 +26,11 @@ pub struct PlanningModuleConfig {
     pub path_out: String,
     /// Planner parameters.
     pub params: PlanningParams,
+    /// Scans, to rate the "Mapping" provider by agreement with them (client feedback,
+    /// [`crate::feedback::ScanMapAgreement`]; default `laser/scan`, empty: no rating).
+    pub scan: String,
+    /// The rating's parameters.
+    pub map_feedback: crate::feedback::MapFeedbackParams,
     /// Longest computation (map inflation, a search) during which heartbeats go on, s
     /// (default 120); a longer one is a hang for the watchdog. See [`crate::heartbeat`].
     pub max_compute_s: f64,
@@ -42,6 +47,8 @@ impl Default for PlanningModuleConfig {
             progress_out: crate::planning::progress::PROGRESS_CHANNEL.into(),
             path_out: PLANNED_PATH_CHANNEL.into(),
             params: PlanningParams::default(),
+            scan: "laser/scan".into(),
+            map_feedback: crate::feedback::MapFeedbackParams::default(),
             max_compute_s: 120.0,
         }
     }

@@ -270,8 +270,8 @@ struct NeedSlot {
     state: NeedState,
     /// Proposals of the last call, best first: the next best on failure.
     candidates: Vec<Proposal>,
-    /// Explicit evaluation of a given provider by the module code.
-    evaluation: Option<(ModuleId, f64)>,
+    /// Explicit evaluation of a given provider by the module code, and whether it was sent.
+    evaluation: Option<(ModuleId, f64, bool)>,
     /// The last attempt to serve this optional need failed.
     optional_unmet: bool,
     /// The provider of the latest contract (kept when it ends).
@@ -524,11 +524,15 @@ impl ContractAgent {
     }
 
     /// The module code's evaluation `e ∈ [-1, 1]` of `provider` serving need
-    /// `need`. Sent as feedback with each refresh while `provider` serves the
-    /// need (and ignored after a switch). NaN clears it.
+    /// `need`. Sent once, as feedback with the next refresh while `provider`
+    /// serves the need (one judgement is one `E_n` of eq. 3: re-sent with every
+    /// refresh, a mild −0.1 piled up to −2.7 and took "Track beacon" from a
+    /// tracker that was merely biased; refreshes after it carry no evaluation
+    /// until the next one); ignored after a switch, and forgotten when a new
+    /// contract is made. NaN clears it.
     pub fn evaluate_provider(&mut self, need: u16, provider: ModuleId, e: f64) {
         if let Some(slot) = self.needs.iter_mut().find(|s| s.spec.rank == need) {
-            slot.evaluation = (!e.is_nan()).then(|| (provider, e.clamp(-1.0, 1.0)));
+            slot.evaluation = (!e.is_nan()).then(|| (provider, e.clamp(-1.0, 1.0), false));
         }
     }
 

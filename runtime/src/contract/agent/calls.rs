@@ -152,6 +152,10 @@ impl ContractAgent {
         });
         let slot = &mut self.needs[i];
         slot.optional_unmet = false;
+        // An evaluation belongs to the contract it was made in: a provider that comes back
+        // starts clean (the stale one, re-sent at every refresh, took the contract from it
+        // again right after the dwell time).
+        slot.evaluation = None;
         if let Some(prev) = slot.last_provider
             && prev != p.provider
         {
@@ -261,13 +265,17 @@ impl ContractAgent {
     }
 
     pub(super) fn outgoing_feedback(
-        &self,
+        &mut self,
         i: usize,
         provider: ModuleId,
         now: Duration,
     ) -> Option<f32> {
-        match self.needs[i].evaluation {
-            Some((p, e)) if p == provider => Some(e as f32),
+        match &mut self.needs[i].evaluation {
+            // The module's own judgement of this provider: once.
+            Some((p, e, sent)) if *p == provider => {
+                let first = !std::mem::replace(sent, true);
+                first.then_some(*e as f32)
+            }
             _ => self.feedback.mean(now).map(|m| m as f32),
         }
     }

@@ -115,3 +115,50 @@ fn a_zero_dwell_switches_back_with_the_next_better_offer() {
     until_provider(&mut s, A, ms(1000)).expect("never went back to A");
     assert!(s.now() - switched < ms(600), "{:?}", s.now() - switched);
 }
+
+#[test]
+fn a_provider_that_comes_back_is_not_judged_by_its_last_contracts_evaluation() {
+    let mut s = setup();
+    // The client rates A badly once (its clients' feedback) and never rates B (a tracker that
+    // sees nothing gets no evaluation).
+    s.with(CLIENT, |a, _| {
+        a.evaluate_provider(1, A, -1.0);
+        Vec::new()
+    });
+    until_provider(&mut s, B, ms(2000)).expect("never switched to B");
+    // A's penalty decays (tau 5 s) until its offer wins again.
+    until_provider(&mut s, A, ms(30_000)).expect("never went back to A");
+    // Nothing new was said about A: the old -1 must not be sent again, so A keeps the
+    // contract (it lost it again right after the dwell time when the stale one was re-sent).
+    let back = s.now();
+    while s.now() < back + ms(3000) {
+        s.run_for(ms(10));
+        assert_eq!(
+            s.provider_of(CLIENT, 1),
+            Some(A),
+            "A lost the contract again {:?} after it came back",
+            s.now() - back
+        );
+    }
+}
+
+#[test]
+fn one_judgement_counts_once_however_many_refreshes_follow() {
+    let mut s = setup();
+    // A mild judgement once a second (the reacher's judge on a biased tracker), for 3 s: each
+    // is one E_n of eq. 3. Re-sent with every refresh (5 a second) they piled up to -1.5 and
+    // A, still the better provider, lost to B.
+    for _ in 0..3 {
+        s.with(CLIENT, |a, _| {
+            a.evaluate_provider(1, A, -0.1);
+            Vec::new()
+        });
+        s.run_for(ms(1000));
+        assert_eq!(s.provider_of(CLIENT, 1), Some(A));
+    }
+    let v = s.agent(A).expect("A").value(s.now()).expect("value");
+    assert!(
+        v > 0.5 && v < 0.75,
+        "three judgements of -0.1, decayed: V_A {v}"
+    );
+}

@@ -7,9 +7,16 @@
 //! the two frames does not matter). An error within the provider's own claimed uncertainty
 //! (3 σ of its covariance, plus an odometry allowance of `odom_rel` of the distance moved and
 //! `floor_m`) is consistent; beyond it, the evaluation falls linearly to −1 at twice the
-//! allowance. Only inconsistency is reported (E ≤ 0): eq. 3 adds every refresh's E with a
-//! decay τ, so a positive E sent at every refresh would pile up and entrench whichever provider
+//! allowance. Only inconsistency is reported (E ≤ 0): eq. 3 adds every judgement's E (each sent
+//! once) with a decay τ, so a positive E sent every window would pile up and entrench whichever provider
 //! is in use, whatever the others offer.
+//!
+//! [`ScanMapAgreement`] (`scan_map.rs`): Planning rates its "Mapping" provider by agreement
+//! of the map with the scans.
+
+mod scan_map;
+
+pub use scan_map::{MapFeedbackParams, MapRating, ScanMapAgreement};
 
 use hng_runtime::msg::Pose2D;
 
