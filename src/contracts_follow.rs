@@ -161,7 +161,7 @@ pub fn follow(prefix: &str, json: bool) -> Result<()> {
     let mut first = Vec::new();
     loop {
         while let Some(t) = sub.receive()? {
-            log.learn(&*t);
+            log.learn(&t);
             first.push(*t);
         }
         let left = names_until.saturating_duration_since(Instant::now());
@@ -185,7 +185,7 @@ pub fn follow(prefix: &str, json: bool) -> Result<()> {
     }
     loop {
         while let Some(t) = sub.receive()? {
-            print(&mut log, &*t)?;
+            print(&mut log, &t)?;
         }
         waiter.wait(Some(Duration::from_secs(1)))?;
     }
@@ -197,8 +197,11 @@ mod tests {
     use hng_runtime::system::ContractEntry;
 
     fn table(name: &str, stamp_s: f64, entries: &[(u16, &str, &str)]) -> ContractTable {
-        let mut t = ContractTable::default();
-        t.module_id = hng_runtime::msg::module_id(name);
+        let mut t = ContractTable {
+            module_id: hng_runtime::msg::module_id(name),
+            count: entries.len() as u32,
+            ..ContractTable::default()
+        };
         t.module[..name.len()].copy_from_slice(name.as_bytes());
         t.header.stamp_ns = (stamp_s * 1e9) as u64;
         for (i, (need, service, peer)) in entries.iter().enumerate() {
@@ -212,7 +215,6 @@ mod tests {
             e.service[..service.len()].copy_from_slice(service.as_bytes());
             t.entries[i] = e;
         }
-        t.count = entries.len() as u32;
         t
     }
 
