@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context as _, Result, bail};
 use hng_runtime::Node;
-use hng_runtime::channel::NodeOptions;
+use hng_runtime::channel::{NodeOptions, Subscriber};
 use hng_runtime::control::TABLE_PERIOD;
 use hng_runtime::system::{CONTRACTS, ContractRole, ContractTable, SUPERVISOR_STATUS};
 use hng_runtime::wait::{WaitMode, Waiter};
@@ -81,8 +81,9 @@ pub(crate) fn priority_text(parts: &[u16]) -> String {
     }
 }
 
-/// Collects the latest table of every module for `wait`.
-pub fn collect(prefix: &str, wait: Duration) -> Result<BTreeMap<u32, ContractTable>> {
+/// A reader of the contract tables every module publishes: the node (keep it alive), its
+/// subscriber, and a waiter attached to it.
+pub(crate) fn table_reader(prefix: &str) -> Result<(Node, Subscriber<ContractTable>, Waiter)> {
     let node = Node::new(
         NodeOptions::new(&format!("hng-contracts-{}", std::process::id())).prefix(prefix),
     )
@@ -94,6 +95,12 @@ pub fn collect(prefix: &str, wait: Duration) -> Result<BTreeMap<u32, ContractTab
         max_spin: Duration::ZERO,
     })?;
     waiter.attach(&sub)?;
+    Ok((node, sub, waiter))
+}
+
+/// Collects the latest table of every module for `wait`.
+pub fn collect(prefix: &str, wait: Duration) -> Result<BTreeMap<u32, ContractTable>> {
+    let (_node, sub, mut waiter) = table_reader(prefix)?;
     let end = Instant::now() + wait;
     let mut tables = BTreeMap::new();
     loop {

@@ -9,12 +9,9 @@ use std::collections::BTreeMap;
 use std::io::IsTerminal as _;
 use std::time::{Duration, Instant};
 
-use anyhow::{Context as _, Result};
-use hng_runtime::Node;
-use hng_runtime::channel::NodeOptions;
+use anyhow::Result;
 use hng_runtime::control::TABLE_PERIOD;
-use hng_runtime::system::{CONTRACTS, ContractRole, ContractTable};
-use hng_runtime::wait::{WaitMode, Waiter};
+use hng_runtime::system::{ContractRole, ContractTable};
 use serde::Serialize;
 
 /// One change of a client's provider.
@@ -143,17 +140,7 @@ impl SwitchLog {
 
 /// `hng contracts --follow`: prints every change until stopped (Ctrl-C).
 pub fn follow(prefix: &str, json: bool) -> Result<()> {
-    let node = Node::new(
-        NodeOptions::new(&format!("hng-contracts-{}", std::process::id())).prefix(prefix),
-    )
-    .context("cannot join the system (is the prefix right?)")?;
-    let sub = node
-        .subscriber::<ContractTable>(CONTRACTS)
-        .context("cannot subscribe to the contract tables")?;
-    let mut waiter = Waiter::new(WaitMode::Blocking {
-        max_spin: Duration::ZERO,
-    })?;
-    waiter.attach(&sub)?;
+    let (_node, sub, mut waiter) = crate::contracts::table_reader(prefix)?;
     let json = json || !std::io::stdout().is_terminal();
     let mut log = SwitchLog::default();
     // First every module's name (two table periods), so the first lines name the providers.
