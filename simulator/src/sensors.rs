@@ -4,7 +4,6 @@
 //! drifts, `base_link` is the robot (x forward, y left). Units: metres, radians, seconds.
 
 use serde::{Deserialize, Serialize};
-use smart_default::SmartDefault;
 
 /// Which sensor; used to switch simulated sensors on and off at run time.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -170,7 +169,7 @@ impl SensorOutput {
 }
 
 /// Counters kept by the simulator.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, SmartDefault)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct SimStats {
     /// Physics steps taken.
     pub steps: u64,
@@ -181,6 +180,17 @@ pub struct SimStats {
     /// Times the robot was stopped because commands stopped arriving.
     pub command_timeouts: u64,
     /// Smallest gap seen between the robot disc and an obstacle, metres (+inf if none in range).
-    #[default(f64::INFINITY)]
     pub min_clearance: f64,
+}
+
+impl Default for SimStats {
+    fn default() -> Self {
+        Self {
+            steps: 0,
+            collisions: 0,
+            rejected_commands: 0,
+            command_timeouts: 0,
+            min_clearance: f64::INFINITY,
+        }
+    }
 }
