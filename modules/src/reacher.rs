@@ -3,9 +3,9 @@
 //! its tracker (paper eq. 3).
 //!
 //! **Command.** Turn rate `k_turn * bearing` (at most `max_turn`); forward speed
-//! `k_speed * (range - stop_distance)` (at most `max_speed`), none while the bearing is over
-//! `turn_in_place_rad`, half while the track is only predicted; a stop once the beacon is seen
-//! within `stop_distance` (reached) or not seen for `lost_timeout_s` (lost).
+//! `k_speed * (range - stop_distance)` (between `min_speed` and `max_speed`), none while the
+//! bearing is over `turn_in_place_rad`, half while the track is only predicted; a stop once the
+//! beacon is seen within `stop_distance` (reached) or not seen for `lost_timeout_s` (lost).
 //!
 //! **Feedback: progress toward the beacon.** A beacon does not move, so what the tracker says
 //! now follows from what it said before and how the robot moved since (odometry): the judge
@@ -34,10 +34,14 @@ use crate::common::{relative, wrap_angle};
 #[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct ReachParams {
-    /// Stop this far from the beacon, m (default 0.4).
+    /// Stop this far from the beacon's axis (the tracker's range), m (default 0.45: 0.15 m
+    /// between a 0.2 m robot and a 0.1 m marker, more than Security's 0.10 m).
     pub stop_distance_m: f64,
     /// Top forward speed, m/s (default 0.4).
     pub max_speed: f64,
+    /// Least forward speed while short of the stop distance, m/s (default 0.05): the
+    /// proportional law alone would approach the stop distance without ever reaching it.
+    pub min_speed: f64,
     /// Top turn rate, rad/s (default 1.0).
     pub max_turn: f64,
     /// Speed per metre of range left, 1/s (default 0.6).
@@ -53,8 +57,9 @@ pub struct ReachParams {
 impl Default for ReachParams {
     fn default() -> Self {
         ReachParams {
-            stop_distance_m: 0.4,
+            stop_distance_m: 0.45,
             max_speed: 0.4,
+            min_speed: 0.05,
             max_turn: 1.0,
             k_speed: 0.6,
             k_turn: 1.5,
@@ -95,7 +100,7 @@ impl ReachLaw {
             return Reach::Reached;
         }
         let w = (p.k_turn * bearing).clamp(-p.max_turn, p.max_turn);
-        let mut v = (p.k_speed * (range - p.stop_distance_m)).clamp(0.0, p.max_speed);
+        let mut v = (p.k_speed * (range - p.stop_distance_m)).clamp(p.min_speed, p.max_speed);
         if bearing.abs() > p.turn_in_place_rad {
             v = 0.0;
         }
@@ -260,7 +265,8 @@ mod tests {
         let Reach::Drive(vp, _) = law.command(0.0, 1.0, false, 0.5) else {
             panic!("drive");
         };
-        assert!((vp - 0.18).abs() < 1e-9, "half speed while predicted: {vp}");
+        let half = 0.5 * 0.6 * (1.0 - law.params.stop_distance_m);
+        assert!((vp - half).abs() < 1e-9, "half speed while predicted: {vp}");
         assert_eq!(law.command(0.0, 0.35, true, 0.0), Reach::Reached);
         assert_eq!(law.command(0.0, 2.0, false, 1.6), Reach::Lost);
         assert_eq!(law.command(f64::NAN, 2.0, true, 0.0), Reach::Lost);

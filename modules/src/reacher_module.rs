@@ -2,7 +2,9 @@
 //! control" (rank 1) and "Track beacon" (rank 2), both required; drives toward the designated
 //! beacon as its tracker reports it ([`crate::reacher::ReachLaw`]), stops at
 //! `stop_distance_m`, and stops when the beacon has not been seen for `lost_timeout_s`
-//! (predicted tracks are followed at half speed until then). It publishes a [`ReachStatus`]
+//! (predicted tracks are followed at half speed until then). A lost beacon seen again by the
+//! tracker is approached again (re-acquisition): a track that drops out for longer than the
+//! timeout stops the robot and is reported, but does not end the approach for good. It publishes a [`ReachStatus`]
 //! on its offer's data channel (`status_out`, `reacher/status`) at every track and on every
 //! change, and rates its tracker by progress toward the beacon
 //! ([`crate::reacher::ProgressJudge`], `ctx.evaluate_provider`) from the odometry on `odom`
@@ -136,6 +138,7 @@ impl Module for ReacherModule {
         for (f, v) in [
             ("law.stop_distance_m", l.stop_distance_m),
             ("law.max_speed", l.max_speed),
+            ("law.min_speed", l.min_speed),
             ("law.max_turn", l.max_turn),
             ("law.k_speed", l.k_speed),
             ("law.k_turn", l.k_turn),
@@ -209,6 +212,13 @@ impl Module for ReacherModule {
             .last_track_s
             .is_none_or(|t| now - t > self.cfg.law.lost_timeout_s);
         if self.working() && silent && self.current.state == REACH_APPROACHING {
+            tracing::warn!(
+                module = ctx.name(),
+                beacon = self.current.beacon_id,
+                silent_s = self.last_track_s.map(|t| now - t),
+                "no track from the tracker: beacon lost, stopped"
+            );
+            self.state.lost += 1;
             self.set_state(ctx, REACH_LOST)?;
             self.halt()?;
         }
@@ -297,9 +307,19 @@ impl ReacherModule {
         } else {
             (t.bearing, t.range)
         };
-        // Lost stays lost until a new designation or activation; reached holds still.
+        // Reached holds still; lost holds still until the beacon is seen again.
         match self.current.state {
-            REACH_LOST | REACH_REACHED => return self.halt(),
+            REACH_REACHED => return self.halt(),
+            REACH_LOST if !seen => return self.halt(),
+            REACH_LOST => {
+                tracing::info!(
+                    module = ctx.name(),
+                    beacon = t.beacon_id,
+                    range = t.range,
+                    "beacon seen again: approaching"
+                );
+                self.set_state(ctx, REACH_APPROACHING)?;
+            }
             _ => {}
         }
         if t.state == TRACK_LOST && unseen <= self.cfg.law.lost_timeout_s {
@@ -366,6 +386,21 @@ impl ReacherModule {
     }
 
     fn set_state(&mut self, ctx: &mut Context, state: u8) -> ModuleResult {
+        if state != self.current.state {
+            let name = |s: u8| match s {
+                REACH_APPROACHING => "approaching",
+                REACH_REACHED => "reached",
+                REACH_LOST => "lost",
+                _ => "idle",
+            };
+            tracing::info!(
+                module = ctx.name(),
+                beacon = self.current.beacon_id,
+                from = name(self.current.state),
+                to = name(state),
+                "reach state"
+            );
+        }
         self.current.state = state;
         let q = match state {
             REACH_APPROACHING | REACH_REACHED => 1.0,

@@ -4,8 +4,9 @@
 //! ([`hng_runtime::msg::beacon_colors`]). [`ColourTracker`] segments an RGB8 image by
 //! chromaticity (each colour divided by its brightness, so a uniformly darker scene keeps its
 //! hues), keeps the columns where the designated beacon's top band lies above its bottom band,
-//! and reports the blob's bearing (from its centre column) and range (from its height in pixels,
-//! since the marker's height is known). Pixels darker than `min_brightness` carry no usable hue
+//! and reports the blob's bearing (from its centre column) and range to the marker's axis (from
+//! its height in pixels, since the marker's height is known: that gives the distance to its
+//! near face, plus its radius). Pixels darker than `min_brightness` carry no usable hue
 //! and are ignored, so in poor light the blob thins out and the quality falls: the honest
 //! self-evaluation attention needs to switch trackers.
 //!
@@ -227,10 +228,12 @@ pub(crate) fn marker(
     let height_px = f64::from(v1 - v0);
     let width_px = (u1 - u0) as f64;
     let clipped = v0 == 0 || v1 >= camera.height;
+    // Range to the marker's axis: its width subtends its diameter seen from the axis's
+    // distance; its height is seen on its near face, one radius closer.
     let range = if clipped && u0 > 0 && u1 < w {
         f * 2.0 * camera.beacon_radius / width_px / bearing.cos()
     } else {
-        f * camera.beacon_height / height_px / bearing.cos()
+        f * camera.beacon_height / height_px / bearing.cos() + camera.beacon_radius
     };
     // Quality: how much of the box is band-coloured, how big the blob is (a few pixels say
     // little about range), and how bright its pixels are (dim colours are noisy hues).
@@ -266,6 +269,14 @@ pub enum TrackState {
 }
 
 impl BeaconTrack {
+    /// A track that starts from a sighting `d` taken before the designation, counted as seen
+    /// at `t` (s): it is predicted from there for `hold`, so a client turns toward where the
+    /// beacon was seen until the tracker sees it again.
+    #[must_use]
+    pub fn seeded(d: Detection, t: f64) -> Self {
+        BeaconTrack { last: Some((d, t)) }
+    }
+
     /// Feeds the result of one image at time `t` (s); `hold` is how long (s) a beacon is
     /// predicted after it was last seen.
     pub fn update(&mut self, detection: Option<Detection>, t: f64, hold: f64) -> TrackState {
@@ -317,14 +328,15 @@ mod tests {
     fn finds_the_designated_beacon_with_bearing_and_range() {
         let cam = CameraModel::default();
         let f = cam.focal_px();
-        // A marker 2 m away straight ahead: f * 0.6 / 2 pixels tall, 2 * f * 0.1 / 2 wide.
+        // A marker whose near face is 2 m away straight ahead: f * 0.6 / 2 pixels tall; its
+        // axis (the range) 2.1 m away.
         let hpx = (f * 0.6 / 2.0).round() as usize;
         let wpx = (f * 0.2 / 2.0).round() as usize;
         let img = painted(3, 160 - wpx / 2, 160 + wpx / 2, 100, 100 + hpx, 1.0);
         let mut t = ColourTracker::new(ColourTrackerConfig::default(), cam);
         let d = t.detect(&img, 3).expect("beacon 3 seen");
         assert!(d.bearing.abs() < 0.01, "{d:?}");
-        assert!((d.range - 2.0).abs() < 0.05, "{d:?}");
+        assert!((d.range - 2.1).abs() < 0.05, "{d:?}");
         assert!(d.quality > 0.9, "{d:?}");
         // Another id (other colours) is not there.
         assert_eq!(t.detect(&img, 4), None);
@@ -387,5 +399,27 @@ mod tests {
         assert_eq!(p.bearing, 0.2);
         assert_eq!(track.update(None, 1.6, 1.5), TrackState::Lost);
         assert_eq!(track.update(None, 1.7, 1.5), TrackState::Lost);
+    }
+
+    #[test]
+    fn a_seeded_track_is_predicted_from_its_sighting_until_seen_or_lost() {
+        let d = Detection {
+            id: 3,
+            bearing: 0.6,
+            range: 3.5,
+            quality: 0.8,
+            bbox: [0, 1, 0, 1],
+        };
+        // Designated at 10 s from a sighting: predicted with its bearing, quality falling.
+        let mut track = BeaconTrack::seeded(d, 10.0);
+        let TrackState::Predicted(p, age) = track.update(None, 10.5, 1.5) else {
+            panic!("a seeded track is predicted");
+        };
+        assert!((age - 0.5).abs() < 1e-9 && p.bearing == 0.6 && p.quality < 0.8);
+        let seen = Detection { bearing: 0.1, ..d };
+        assert_eq!(track.update(Some(seen), 10.6, 1.5), TrackState::Seen(seen));
+        // Never seen after its seed: lost once `hold` has passed.
+        let mut track = BeaconTrack::seeded(d, 10.0);
+        assert_eq!(track.update(None, 11.6, 1.5), TrackState::Lost);
     }
 }

@@ -15,7 +15,10 @@
 //! While no beacon is designated it looks, in one image of `discover_every`, for each beacon
 //! id of `discover` and publishes a seen track for each one found (on the same channel; the
 //! reacher ignores tracks of beacons it was not told to reach), so that attention can offer
-//! "reach beacon N" for a beacon in view before anyone designated it.
+//! "reach beacon N" for a beacon in view before anyone designated it. When beacon N is then
+//! designated, a sighting of it at most `seed_s` old starts the track: predicted from the
+//! designation for `hold_s`, so the reacher turns toward where the beacon was seen even if it
+//! has left the image since (the operator's order comes after the offer).
 //!
 //! Quality Q (`ctx.set_quality`): the track's quality (the detector's fill x size x
 //! brightness; the histogram tracker's at most 0.75), half of it, falling to 0 over `hold_s`,
@@ -117,6 +120,9 @@ pub struct TrackerConfig<P> {
     /// Look for them in one image of this many, while none is designated (default 5: 3 Hz
     /// at 15 Hz; attention forgets a beacon after 1 s).
     pub discover_every: u32,
+    /// A designated beacon discovered at most this long before its designation starts its
+    /// track from that sighting, s (default 3.0; 0: never).
+    pub seed_s: f64,
     /// The algorithm's parameters.
     pub algorithm: P,
 }
@@ -135,6 +141,7 @@ impl<P: Default> Default for TrackerConfig<P> {
             lie_bearing_rad: 0.5,
             discover: (1..=9).collect(),
             discover_every: 5,
+            seed_s: 3.0,
             algorithm: P::default(),
         }
     }
@@ -157,6 +164,8 @@ pub struct TrackerModule<D: Detector> {
     target: Option<u32>,
     detector: Option<(CameraModel, D)>,
     track: Track,
+    /// The latest discovery of each beacon id while none was designated: (detection, s).
+    sightings: Vec<(Detection, f64)>,
     /// The liar's last report.
     lied: Option<(f64, f64)>,
     last_frame: Option<Duration>,
@@ -185,6 +194,11 @@ impl<D: Detector> Module for TrackerModule<D> {
 
     fn configure(ctx: &mut Context, mut cfg: Self::Config) -> ModuleResult<Self> {
         seconds("hold_s", cfg.hold_s)?;
+        if !(cfg.seed_s.is_finite() && cfg.seed_s >= 0.0) {
+            return Err(
+                field_error("seed_s", "must be a finite number of seconds, 0 or more").into(),
+            );
+        }
         let timeout = seconds("frame_timeout_s", cfg.frame_timeout_s)?;
         for (f, v) in [
             ("beacon_height", cfg.beacon_height),
@@ -223,6 +237,7 @@ impl<D: Detector> Module for TrackerModule<D> {
             target: None,
             detector: None,
             track: Track::default(),
+            sightings: Vec::new(),
             lied: None,
             last_frame: None,
             state: TrackerState::default(),
@@ -237,8 +252,19 @@ impl<D: Detector> Module for TrackerModule<D> {
             while let Some(d) = self.designation.receive()? {
                 let next = (d.active != 0).then_some(d.beacon_id);
                 if next != self.target {
-                    tracing::info!(module = ctx.name(), beacon = ?next, "designation");
-                    self.track = Track::default();
+                    let now = ctx.now().as_secs_f64();
+                    let seed = next.and_then(|id| {
+                        self.sightings
+                            .iter()
+                            .find(|(d, t)| d.id == id && now - t <= self.cfg.seed_s)
+                    });
+                    tracing::info!(
+                        module = ctx.name(),
+                        beacon = ?next,
+                        seen_s_ago = seed.map(|(_, t)| now - t),
+                        "designation"
+                    );
+                    self.track = seed.map_or_else(Track::default, |(d, _)| Track::seeded(*d, now));
                     self.lied = None;
                 }
                 self.target = next;
@@ -297,6 +323,8 @@ impl<D: Detector> Module for TrackerModule<D> {
             self.report(ctx, state)?;
             for d in found {
                 self.out.publish(discovered(&info.header, &d))?;
+                self.sightings.retain(|(s, _)| s.id != d.id);
+                self.sightings.push((d, t));
             }
         }
         Ok(())

@@ -212,7 +212,13 @@ impl Drop for Run {
             let _ = nix::sys::signal::kill(Pid::from_raw(p), Signal::SIGKILL);
         }
         shm::remove_prefix_files(&self.prefix);
-        let _ = std::fs::remove_dir_all(&self.dir);
+        if std::thread::panicking() || std::env::var_os("HNG_KEEP_TEST_LOGS").is_some() {
+            // A failed test keeps its logs (run directory, module logs) for the diagnosis, and
+            // so does every test with HNG_KEEP_TEST_LOGS set.
+            eprintln!("the run's logs are kept in {}", self.dir.display());
+        } else {
+            let _ = std::fs::remove_dir_all(&self.dir);
+        }
     }
 }
 
