@@ -165,7 +165,9 @@ fn eval_slam_reports_relative_and_absolute_errors_and_writes_the_map() {
 #[test]
 fn eval_slam_all_evaluates_every_log_in_a_folder() {
     let dir = Scratch::new("all");
-    for name in ["orebro-corrected.log", "seattle-corrected.log"] {
+    // Two geometries (180 and 361 beams) from the two quickest logs: every log's accuracy is
+    // real_data's subject; this test's is the folder form.
+    for name in ["aces-corrected.log", "seattle-corrected.log"] {
         std::fs::copy(carmen(name), dir.0.join(name)).expect("copy log");
     }
     std::fs::write(dir.0.join("notes.txt"), "not a log").expect("write");
@@ -187,7 +189,7 @@ fn eval_slam_all_evaluates_every_log_in_a_folder() {
         .map(|l| serde_json::from_str(l).expect("one JSON object per line"))
         .collect();
     assert_eq!(rows.len(), 2, "{rows:?}");
-    assert_eq!(rows[0]["beams"], 181);
+    assert_eq!(rows[0]["beams"], 180);
     assert_eq!(rows[1]["beams"], 361);
     for r in &rows {
         assert!(
