@@ -368,10 +368,21 @@ fn a_real_browser_sees_the_robot_sends_it_to_a_goal_and_stops_it() {
         .args([goal.0.to_string(), goal.1.to_string(), "240000".into()])
         .current_dir(&js)
         .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
         .spawn()
         .expect("node gui.mjs");
     let (tx, events) = mpsc::channel::<Value>();
     let out = driver.stdout.take().expect("stdout");
+    // The driver's stderr, kept for the failure report (read on a thread so a full pipe
+    // never blocks it).
+    let stderr = {
+        let mut err = driver.stderr.take().expect("stderr");
+        std::thread::spawn(move || {
+            let mut s = String::new();
+            let _ = std::io::Read::read_to_string(&mut err, &mut s);
+            s
+        })
+    };
     std::thread::spawn(move || {
         for l in BufReader::new(out).lines().map_while(Result::ok) {
             let v = serde_json::from_str(&l).unwrap_or(Value::String(l));
@@ -426,11 +437,21 @@ fn a_real_browser_sees_the_robot_sends_it_to_a_goal_and_stops_it() {
             }
         }
     }
+    if !done {
+        // The deadline passed: the driver is stopped, and its report says so.
+        let _ = driver.kill();
+    }
     let status = driver.wait().expect("driver");
+    let stderr = stderr.join().unwrap_or_default();
     let text = format!("{log:#?}");
     assert!(
         status.success() && done,
-        "the browser driver failed: {text}"
+        "the browser driver failed ({status}{}): {text}\nits stderr:\n{stderr}",
+        if done {
+            ""
+        } else {
+            ", no end within the test's deadline"
+        }
     );
     assert!(log.iter().any(|e| e["event"] == "live"), "{text}");
     let labels = log
@@ -563,7 +584,7 @@ fn a_beacon_clicked_in_the_camera_image_is_designated_with_the_cameras_field_of_
         .arg(column_of(hit, hfov).to_string())
         .arg(column_of(miss, hfov).to_string())
         .current_dir(&js)
-        .stderr(Stdio::inherit())
+        .stderr(Stdio::piped())
         .output()
         .expect("node designate.mjs");
     stop.store(true, std::sync::atomic::Ordering::Release);
@@ -583,7 +604,9 @@ fn a_beacon_clicked_in_the_camera_image_is_designated_with_the_cameras_field_of_
     let text = format!("{log:#?}");
     assert!(
         out.status.success() && log.iter().any(|e| e["event"] == "done"),
-        "the browser driver failed: {text}"
+        "the browser driver failed ({}): {text}\nits stderr:\n{}",
+        out.status,
+        String::from_utf8_lossy(&out.stderr)
     );
     let tracked = log
         .iter()
