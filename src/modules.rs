@@ -37,7 +37,9 @@ pub fn run(name: &str) -> ExitCode {
     match name {
         "heartbeat-probe" => hng_runtime::run_module::<crate::run::probe::Probe>(),
         "simulator" => hng_simulator::module::main(),
-        "rm" => hng_runtime::run_module::<hng_rm::RmModule>(),
+        // The RM measures wall-clock CPU: it never follows a simulation clock (which would
+        // wake it for every clock sample).
+        "rm" => hng_runtime::run_module_on_wall_clock::<hng_rm::RmModule>(),
         "contract-probe" => hng_runtime::run_module::<hng::contract_probe::Probe>(),
         "manager" => hng_runtime::run_module::<hng_modules::manager::ManagerModule>(),
         "security" => hng_runtime::run_module::<hng_modules::security::SecurityModule>(),

@@ -46,29 +46,40 @@ let ws = null;
 function connect() {
   const url = `${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws${token ? "?token=" + encodeURIComponent(token) : ""}`;
   ws = new WebSocket(url);
+  // Images and grids come as binary frames: a 4-byte little-endian length, that many bytes
+  // of JSON {"t", "v"} describing them, then the raw bytes (no base64, no big JSON to parse).
+  ws.binaryType = "arraybuffer";
   ws.onopen = () => { $("conn").textContent = "live"; $("conn").className = "good"; };
   ws.onclose = () => {
     $("conn").textContent = "disconnected (retrying)"; $("conn").className = "bad";
     setTimeout(connect, 1000);
   };
   ws.onmessage = (ev) => {
-    const m = JSON.parse(ev.data);
+    let m, bytes = null;
+    if (typeof ev.data === "string") m = JSON.parse(ev.data);
+    else {
+      const n = new DataView(ev.data).getUint32(0, true);
+      m = JSON.parse(utf8.decode(new Uint8Array(ev.data, 4, n)));
+      bytes = new Uint8Array(ev.data, 4 + n);
+    }
     state.counts[m.t] = (state.counts[m.t] || 0) + 1;
     state[m.t] = m.v;
-    if (m.t === "map" || m.t === "slam_map") gridImage(m.t, m.v);
-    if (m.t === "image") cameraImage(m.v);
-    if (m.t === "tracks") drawCamera();
+    // Decoded once per message; drawn at most once per display frame (changed()).
+    if (m.t === "map" || m.t === "slam_map") gridImage(m.t, m.v, bytes);
+    if (m.t === "image") cameraImage(m.v, bytes);
     if (m.t === "hello") $("prefix").textContent = m.v.prefix;
     if (m.t === "clock") pace.sample(m.v.sim_s);
     if (m.t === "error") { $("answer").textContent = "stream: " + m.v; $("answer").className = "bar bad"; }
-    dirty = true;
+    changed(m.t);
   };
 }
 
+const utf8 = new TextDecoder();
+
 // ---- map view -----------------------------------------------------------------------------
 const grids = {};
-function gridImage(name, g) {
-  const bytes = Uint8Array.from(atob(g.cells), (c) => c.charCodeAt(0));
+function gridImage(name, g, bytes) {
+  if (!bytes || bytes.length < g.width * g.height) return;
   const c = document.createElement("canvas");
   c.width = g.width; c.height = g.height;
   const ctx = c.getContext("2d");
@@ -213,17 +224,17 @@ mapCanvas.addEventListener("click", (ev) => {
     state.waypoints = [];
     order({ kind: "goal", points: [p] }, `goal (${p.x}, ${p.y})`);
   }
-  updateWaypointButton(); dirty = true;
+  updateWaypointButton(); changed("ui");
 });
 function updateWaypointButton() {
   $("send-wp").textContent = `send waypoints (${state.waypoints.length})`;
   $("send-wp").disabled = state.waypoints.length === 0;
 }
-$("send-wp").onclick = () => { order({ kind: "waypoints", points: state.waypoints }, "waypoints"); state.waypoints = []; updateWaypointButton(); dirty = true; };
-$("clear-wp").onclick = () => { state.waypoints = []; updateWaypointButton(); dirty = true; };
+$("send-wp").onclick = () => { order({ kind: "waypoints", points: state.waypoints }, "waypoints"); state.waypoints = []; updateWaypointButton(); changed("ui"); };
+$("clear-wp").onclick = () => { state.waypoints = []; updateWaypointButton(); changed("ui"); };
 $("release").onclick = () => order({ kind: "release" });
 $("stop").onclick = () => { teleopRelease(); order({ kind: "stop" }, "STOP"); };
-$("show-slam").onchange = () => { dirty = true; };
+$("show-slam").onchange = () => changed("ui");
 
 // ---- teleop with a deadman: commands flow only while a key or button is held ---------------
 const keys = { ArrowUp: [0.4, 0], w: [0.4, 0], ArrowDown: [-0.3, 0], s: [-0.3, 0], ArrowLeft: [0, 1], a: [0, 1], ArrowRight: [0, -1], d: [0, -1] };
@@ -312,8 +323,8 @@ function cameraFocal() {
 function bearingColumn(bearing) { const f = cameraFocal(); return f && camCanvas.width / 2 - f * Math.tan(bearing); }
 function columnBearing(u) { const f = cameraFocal(); return f && Math.atan2(camCanvas.width / 2 - u, f); }
 let cameraPixels = null;
-function cameraImage(im) {
-  const bytes = Uint8Array.from(atob(im.data), (c) => c.charCodeAt(0));
+function cameraImage(im, bytes) {
+  if (!bytes || bytes.length < im.step * im.height) return;
   if (camCanvas.width !== im.width) { camCanvas.width = im.width; camCanvas.height = im.height; }
   const img = cctx.createImageData(im.width, im.height);
   const rgb = im.encoding !== "mono8";
@@ -324,7 +335,6 @@ function cameraImage(im) {
     }
   }
   cameraPixels = img;
-  drawCamera();
 }
 // The image and, over it, a mark at the column of each beacon tracked.
 function drawCamera() {
@@ -360,12 +370,12 @@ function seenBeacons() {
 window.hng.seenBeacons = seenBeacons;
 function drawTracks() {
   const list = (state.tracks && state.tracks.tracks) || [];
-  $("tracks").innerHTML = list.length ? list.map((t) =>
+  setHTML($("tracks"), list.length ? list.map((t) =>
     `<li class="${t.state}">beacon ${t.beacon_id}: ${t.state} by ${t.tracker}` +
     (t.state === "lost" ? "" : `, ${t.range.toFixed(2)} m, ${t.bearing.toFixed(2)} rad`) +
     `, Q ${t.quality.toFixed(2)}` +
     (t.contracted_by.length ? ` <b>(tracker of ${t.contracted_by.join(", ")})</b>` : "") + `</li>`).join("")
-    : "<li><em>no beacon tracked</em></li>";
+    : "<li><em>no beacon tracked</em></li>");
 }
 function designate(id) {
   post("/api/designate", { beacon_id: id }).then((r) => showAnswer(`designate beacon ${id}`, r));
@@ -386,6 +396,11 @@ camCanvas.addEventListener("click", (ev) => {
 });
 
 // ---- panels -----------------------------------------------------------------------------
+// The DOM is touched only when a panel's content changed: an unchanged panel costs no
+// layout or paint.
+const shown = new WeakMap();
+function setHTML(el, html) { if (shown.get(el) !== html) { shown.set(el, html); el.innerHTML = html; } }
+function setText(el, text) { if (el.textContent !== text) el.textContent = text; }
 function fmtBytes(b) { return b == null ? "-" : (b / 1048576).toFixed(1) + "M"; }
 function drawModules() {
   const st = state.status; if (!st) return;
@@ -400,8 +415,8 @@ function drawModules() {
       `<td>${m.restarts}</td><td>${c.value != null ? c.value.toFixed(2) : "-"}</td>` +
       `<td><button data-op="kill" data-m="${m.name}">kill</button><button data-op="restart" data-m="${m.name}">restart</button></td></tr>`;
   });
-  $("modules").tBodies[0].innerHTML = rows.join("");
-  $("stream").textContent = st.stream ? `stream: ${st.stream.clients} client(s), ${st.stream.frames_sent} frames sent, ${st.stream.frames_skipped} skipped (latest wins), ${st.stream.clients_dropped} slow client(s) dropped` : "";
+  setHTML($("modules").tBodies[0], rows.join(""));
+  setText($("stream"), st.stream ? `stream: ${st.stream.clients} client(s), ${st.stream.frames_sent} frames sent, ${st.stream.frames_skipped} skipped (latest wins), ${st.stream.clients_dropped} slow client(s) dropped` : "");
 }
 $("modules").addEventListener("click", (ev) => {
   const b = ev.target.closest("button"); if (!b) return;
@@ -443,9 +458,13 @@ function layoutLabels(svg) {
   svg.setAttribute("height", Math.max(Number(svg.getAttribute("height")), bottom + 6));
 }
 
+let contractsShown = null;
 function drawContracts() {
   const c = state.contracts; if (!c) return;
   const svg = $("contracts");
+  const key = JSON.stringify(c) + "@" + svg.clientWidth;
+  if (key === contractsShown) return;
+  contractsShown = key;
   // Depth of each module: the length of its priority (the root has none).
   const depth = {};
   for (const m of c.modules) depth[m.name] = m.root ? 0 : m.priority === "-" ? null : m.priority.split(".").length;
@@ -482,12 +501,16 @@ function drawContracts() {
 
 function drawTimeline() {
   const ev = state.events || [];
-  $("timeline").innerHTML = ev.slice().reverse().map((e) => `<li class="${e.kind}">[${e.sim_s.toFixed(1)} s] ${e.text}</li>`).join("");
+  setHTML($("timeline"), ev.slice().reverse().map((e) => `<li class="${e.kind}">[${e.sim_s.toFixed(1)} s] ${e.text}</li>`).join(""));
 }
 
+let behavioursShown = null;
 function drawBehaviours() {
   const b = state.behaviours, el = $("behaviours");
   const items = (b && b.items) || [];
+  const key = JSON.stringify(items);
+  if (key === behavioursShown) return;
+  behavioursShown = key;
   if (!items.length) { el.innerHTML = "<em>none offered</em>"; return; }
   el.innerHTML = "";
   for (const it of items) {
@@ -502,25 +525,46 @@ function drawBehaviours() {
 }
 
 function drawHeader() {
-  if (state.clock) $("simtime").textContent = state.clock.sim_s.toFixed(1) + " s";
+  if (state.clock) setText($("simtime"), state.clock.sim_s.toFixed(1) + " s");
   const os = state.order_status;
-  $("level").textContent = os && os.active ? `operator: ${os.in_force}` : "autonomy (mission)";
-  if (state.odom) $("speed").textContent = `v ${state.odom.vx.toFixed(2)} m/s`;
+  setText($("level"), os && os.active ? `operator: ${os.in_force}` : "autonomy (mission)");
+  if (state.odom) setText($("speed"), `v ${state.odom.vx.toFixed(2)} m/s`);
   const list = seenBeacons().map((b) => `<button data-b="${b.id}">designate ${b.id}</button>`).join(" ");
-  $("beacons").innerHTML = list;
+  setHTML($("beacons"), list);
 }
 $("beacons").addEventListener("click", (ev) => { const b = ev.target.closest("button"); if (b) designate(Number(b.dataset.b)); });
 
-let dirty = true;
-let lastPanels = 0;
+// ---- drawing: only what changed, at most once per display frame ---------------------------
+// Messages mark their topic changed and ask for one animation frame; nothing runs between
+// messages (no animation loop), and a burst of messages costs one drawing. The panels are
+// redrawn at most every 250 ms, and only when their data changed.
+const MAP_TOPICS = new Set(["pose", "truth", "scan", "path", "waypoint", "goal", "mission", "tracks", "beacons", "map", "slam_map", "ui"]);
+const HEADER_TOPICS = new Set(["clock", "order_status", "odom", "tracks", "beacons"]);
+const CAMERA_TOPICS = new Set(["image", "tracks", "beacons"]);
+const PANEL_TOPICS = new Set(["status", "contracts", "events", "behaviours", "tracks"]);
+let pending = new Set(["ui"]), scheduled = false, panelsDue = true, lastPanels = -1e9, panelTimer = null;
+function changed(topic) {
+  pending.add(topic);
+  if (!scheduled) { scheduled = true; requestAnimationFrame(frame); }
+}
 function frame(t) {
-  if (dirty) {
-    dirty = false;
-    drawMap();
-    drawHeader();
-    if (t - lastPanels > 250) { lastPanels = t; drawModules(); drawContracts(); drawTimeline(); drawBehaviours(); drawTracks(); }
+  scheduled = false;
+  const p = pending;
+  pending = new Set();
+  const any = (set) => { for (const x of p) if (set.has(x)) return true; return false; };
+  if (any(MAP_TOPICS)) drawMap();
+  if (any(HEADER_TOPICS)) drawHeader();
+  if (any(CAMERA_TOPICS)) drawCamera();
+  if (any(PANEL_TOPICS)) panelsDue = true;
+  if (panelsDue) {
+    const wait = 250 - (t - lastPanels);
+    if (wait <= 0) {
+      panelsDue = false; lastPanels = t;
+      drawModules(); drawContracts(); drawTimeline(); drawBehaviours(); drawTracks();
+    } else if (!panelTimer) {
+      panelTimer = setTimeout(() => { panelTimer = null; changed("panels"); }, wait);
+    }
   }
-  requestAnimationFrame(frame);
 }
 connect();
-requestAnimationFrame(frame);
+changed("ui");

@@ -3,12 +3,12 @@
 //! at a bounded rate ([`min_interval`]) into the [`Hub`], and only while a page is connected.
 //! It never waits on a client.
 
+use std::borrow::Cow;
 use std::collections::{BTreeMap, VecDeque};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use base64::Engine as _;
 use hng_runtime::clock::CLOCK_CHANNEL;
 use hng_runtime::msg::{
     BEHAVIOURS_CHANNEL, BeaconObservation, BeaconTrack, Behaviours, Clock, DESIGNATION_CHANNEL,
@@ -337,7 +337,9 @@ pub fn run(opts: &BusOptions, hub: &Arc<Hub>, stop: &AtomicBool) -> Result<(), c
                 if due <= now {
                     st.dirty[i] = false;
                     st.last_put[i] = Some(now);
-                    if let Some((v, stamp)) = encode(topic, &src, &st) {
+                    if let Some((v, bytes, stamp)) = encode_bulk(topic, &src) {
+                        hub.put_binary(topic, &v, &bytes, stamp);
+                    } else if let Some((v, stamp)) = encode(topic, &src, &st) {
                         hub.put_json(topic, &v, stamp);
                     }
                 } else {
@@ -513,13 +515,8 @@ fn priority_text(parts: &[u16]) -> String {
     }
 }
 
-fn b64(bytes: &[u8]) -> String {
-    base64::engine::general_purpose::STANDARD.encode(bytes)
-}
-
-fn grid(g: &Option<Sliced<GridInfo>>) -> Option<(Value, u64)> {
+fn grid(g: &Option<Sliced<GridInfo>>) -> Option<(Value, Cow<'_, [u8]>, u64)> {
     let (info, cells) = g.as_ref()?.latest.as_ref()?;
-    let bytes: Vec<u8> = cells.iter().map(|c| *c as u8).collect();
     Some((
         json!({
             "resolution": info.resolution,
@@ -527,10 +524,33 @@ fn grid(g: &Option<Sliced<GridInfo>>) -> Option<(Value, u64)> {
             "height": info.height,
             "origin": info.origin,
             "stamp_ns": info.header.stamp_ns,
-            "cells": b64(&bytes),
         }),
+        // Occupancy as bytes: -1 (unknown) is 255.
+        Cow::Owned(cells.iter().map(|c| *c as u8).collect()),
         info.header.stamp_ns,
     ))
+}
+
+/// The topics sent as binary frames (a JSON description, then the raw bytes: no base64):
+/// the grids and the camera image.
+fn encode_bulk<'a>(topic: &str, src: &'a Sources) -> Option<(Value, Cow<'a, [u8]>, u64)> {
+    match topic {
+        "map" => grid(&src.map),
+        "slam_map" => grid(&src.slam_map),
+        "image" => {
+            let (info, data) = src.image.as_ref()?.latest.as_ref()?;
+            Some((
+                json!({
+                    "width": info.width, "height": info.height, "step": info.step,
+                    "encoding": info.encoding, "stamp_ns": info.header.stamp_ns,
+                    "hfov": (info.hfov.is_finite() && info.hfov > 0.0).then_some(info.hfov),
+                }),
+                Cow::Borrowed(data.as_slice()),
+                info.header.stamp_ns,
+            ))
+        }
+        _ => None,
+    }
 }
 
 /// The channel of the Localization provider Planning (else Servo) holds a contract with.
@@ -651,8 +671,6 @@ fn encode(topic: &str, src: &Sources, st: &State) -> Option<(Value, u64)> {
                 o.header.stamp_ns,
             ))
         }
-        "map" => grid(&src.map),
-        "slam_map" => grid(&src.slam_map),
         "waypoint" => plain(&src.waypoint),
         "path" => {
             let (info, poses) = src.path.as_ref()?.latest.as_ref()?;
@@ -686,18 +704,6 @@ fn encode(topic: &str, src: &Sources, st: &State) -> Option<(Value, u64)> {
         "mission" => {
             let (_, bytes) = src.mission.as_ref()?.latest.as_ref()?;
             Some((serde_json::from_slice(bytes).ok()?, 0))
-        }
-        "image" => {
-            let (info, data) = src.image.as_ref()?.latest.as_ref()?;
-            Some((
-                json!({
-                    "width": info.width, "height": info.height, "step": info.step,
-                    "encoding": info.encoding, "stamp_ns": info.header.stamp_ns,
-                    "hfov": (info.hfov.is_finite() && info.hfov > 0.0).then_some(info.hfov),
-                    "data": b64(data),
-                }),
-                info.header.stamp_ns,
-            ))
         }
         "status" => {
             let doc = |l: &Latest| match l {

@@ -6,16 +6,49 @@
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
 
+use axum::body::Bytes;
+use axum::extract::ws::{Message, Utf8Bytes};
 use tokio::sync::watch;
 
-/// One encoded frame: the WebSocket text message `{"t": TOPIC, "v": ...}`.
+/// One encoded frame, encoded once for every client (a clone is a reference count).
 #[derive(Debug)]
 pub struct Frame {
-    /// The message as sent.
-    pub text: Arc<str>,
+    /// The message as sent: text `{"t": TOPIC, "v": ...}`, or, for bulk bytes (images,
+    /// grids), binary: a 4-byte little-endian length, that many bytes of the JSON
+    /// `{"t": TOPIC, "v": ...}` describing them, then the raw bytes (no base64).
+    pub payload: Payload,
+    /// The topic is the scan (the latency benchmark's frames).
+    pub is_scan: bool,
     /// The source message's stamp (ns of its publisher's clock; 0 if none): what the
     /// latency benchmark measures against.
     pub stamp_ns: u64,
+}
+
+/// A frame's bytes on the WebSocket.
+#[derive(Debug, Clone)]
+pub enum Payload {
+    /// A text message (JSON).
+    Text(Utf8Bytes),
+    /// A binary message (length-prefixed JSON header, then raw bytes).
+    Binary(Bytes),
+}
+
+impl Payload {
+    /// The WebSocket message.
+    pub fn message(&self) -> Message {
+        match self {
+            Payload::Text(t) => Message::Text(t.clone()),
+            Payload::Binary(b) => Message::Binary(b.clone()),
+        }
+    }
+
+    /// The text, for a text frame.
+    pub fn text(&self) -> Option<&str> {
+        match self {
+            Payload::Text(t) => Some(t.as_str()),
+            Payload::Binary(_) => None,
+        }
+    }
 }
 
 /// A topic's slot.
@@ -125,7 +158,31 @@ impl Hub {
         self.put(
             i,
             Frame {
-                text: text.into(),
+                payload: Payload::Text(text.into()),
+                is_scan: topic == "scan",
+                stamp_ns,
+            },
+        );
+    }
+
+    /// Encodes `value` (the description) and `bytes` as the binary frame of `topic`.
+    pub fn put_binary(&self, topic: &str, value: &serde_json::Value, bytes: &[u8], stamp_ns: u64) {
+        let Some(i) = Hub::index(topic) else {
+            return;
+        };
+        let head = serde_json::json!({ "t": topic, "v": value }).to_string();
+        let Ok(len) = u32::try_from(head.len()) else {
+            return;
+        };
+        let mut buf = Vec::with_capacity(4 + head.len() + bytes.len());
+        buf.extend_from_slice(&len.to_le_bytes());
+        buf.extend_from_slice(head.as_bytes());
+        buf.extend_from_slice(bytes);
+        self.put(
+            i,
+            Frame {
+                payload: Payload::Binary(buf.into()),
+                is_scan: topic == "scan",
                 stamp_ns,
             },
         );
@@ -196,9 +253,9 @@ impl Hub {
         vec![0; self.slots.len()]
     }
 
-    pub(crate) fn sent(&self, frame: &Frame, topic_is_scan: bool) {
+    pub(crate) fn sent(&self, frame: &Frame) {
         self.sent.fetch_add(1, Ordering::Relaxed);
-        if topic_is_scan && frame.stamp_ns > 0 {
+        if frame.is_scan && frame.stamp_ns > 0 {
             let now = hng_runtime::clock::monotonic_ns();
             if let Some(l) = self
                 .latencies
@@ -259,15 +316,41 @@ mod tests {
         let (frames, skipped) = hub.newer(&mut seen);
         // The first frame a client sees is not a skip; a new client starts from the latest.
         assert_eq!(frames.len(), 1);
-        assert!(frames[0].text.contains("\"v\":4"), "{}", frames[0].text);
+        let text = frames[0].payload.text().expect("text");
+        assert!(text.contains("\"v\":4"), "{text}");
         assert_eq!(skipped, 0);
         for k in 5..8 {
             hub.put_json("scan", &serde_json::json!(k), 0);
         }
         let (frames, skipped) = hub.newer(&mut seen);
-        assert!(frames[0].text.contains("\"v\":7"));
+        assert!(
+            frames[0]
+                .payload
+                .text()
+                .is_some_and(|t| t.contains("\"v\":7"))
+        );
         assert_eq!(skipped, 2);
         assert_eq!(seen[scan], 8);
         assert!(hub.newer(&mut seen).0.is_empty());
+    }
+
+    #[test]
+    fn a_binary_frame_is_its_header_length_the_json_header_and_the_raw_bytes() {
+        let hub = Hub::default();
+        let mut seen = hub.fresh();
+        hub.put_binary("image", &serde_json::json!({ "width": 2 }), &[0, 255, 7], 5);
+        let (frames, _) = hub.newer(&mut seen);
+        let Payload::Binary(b) = &frames[0].payload else {
+            panic!("not binary: {:?}", frames[0].payload);
+        };
+        let len = u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as usize;
+        let head: serde_json::Value = serde_json::from_slice(&b[4..4 + len]).expect("JSON");
+        assert_eq!(
+            head,
+            serde_json::json!({ "t": "image", "v": { "width": 2 } })
+        );
+        assert_eq!(&b[4 + len..], &[0, 255, 7]);
+        assert_eq!(frames[0].stamp_ns, 5);
+        assert!(!frames[0].is_scan);
     }
 }

@@ -307,10 +307,9 @@ async fn client(socket: WebSocket, app: Arc<App>) {
                 }
                 let (frames, _) = hub.newer(&mut seen);
                 for f in frames {
-                    let text: String = f.text.as_ref().to_owned();
-                    let is_scan = text.starts_with("{\"t\":\"scan\"");
-                    match tokio::time::timeout(SEND_TIMEOUT, tx.send(Message::Text(text.into()))).await {
-                        Ok(Ok(())) => hub.sent(&f, is_scan),
+                    // Encoded once for all clients: the message shares the frame's bytes.
+                    match tokio::time::timeout(SEND_TIMEOUT, tx.send(f.payload.message())).await {
+                        Ok(Ok(())) => hub.sent(&f),
                         Ok(Err(_)) => { alive = false; break; }
                         Err(_) => {
                             tracing::warn!("operator page: a client took no frame for {SEND_TIMEOUT:?}: dropped");

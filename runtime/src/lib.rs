@@ -33,4 +33,7 @@ mod wake;
 
 pub use channel::{Node, NodeOptions, Publisher, SlicePublisher, SliceSubscriber, Subscriber};
 pub use error::Error;
-pub use module::{Context, Module, ModuleResult, RunOptions, TimerId, run_module, run_module_with};
+pub use module::{
+    Context, Module, ModuleResult, RunOptions, TimerId, run_module, run_module_on_wall_clock,
+    run_module_with,
+};

@@ -36,12 +36,14 @@ use crate::error::Error;
 use crate::msg::{self, Message, ModuleReport, ModuleState, SliceMessage};
 use crate::wait::{WaitMode, Waiter, Wake};
 
+mod beat;
 mod checkpoints;
 mod due;
 mod logging;
 mod options;
 mod rounds;
 
+use beat::Beat;
 use checkpoints::{Checkpoints, save_checkpoint};
 pub use logging::init_tracing;
 pub use options::RunOptions;
@@ -490,6 +492,18 @@ impl Context {
 
 /// Runs module `M` as this process, configured from the environment; returns the exit code.
 pub fn run_module<M: Module>() -> ExitCode {
+    run_module_env::<M>(false)
+}
+
+/// [`run_module`] on the wall clock whatever `HNG_CLOCK` says (a simulated system sets it
+/// for every module): for processes outside simulated time, such as the simulator (the
+/// clock's source) and the resource manager (it measures wall-clock CPU, and following the
+/// simulation clock would wake it for every clock sample).
+pub fn run_module_on_wall_clock<M: Module>() -> ExitCode {
+    run_module_env::<M>(true)
+}
+
+fn run_module_env<M: Module>(wall_clock: bool) -> ExitCode {
     init_tracing();
     if let Err(e) = crate::fatal::install() {
         tracing::warn!("fatal-signal handler not installed: {e}");
@@ -502,13 +516,16 @@ pub fn run_module<M: Module>() -> ExitCode {
                 .map(|s| s.to_string_lossy().into_owned())
         })
         .unwrap_or_else(|| "module".into());
-    let opts = match RunOptions::from_env(&default_name) {
+    let mut opts = match RunOptions::from_env(&default_name) {
         Ok(o) => o,
         Err(e) => {
             tracing::error!("{e}");
             return ExitCode::from(2);
         }
     };
+    if wall_clock {
+        opts.clock = ClockMode::Wall;
+    }
     match run_module_with::<M>(&opts) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
@@ -610,20 +627,28 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
     let report_ns = opts.report_period.as_nanos() as u64;
     let checkpoint_ns = opts.checkpoint_period.as_nanos() as u64;
     let _ = reports.publish(ctx.report(report_ns));
-    let mut next_report = monotonic_ns().saturating_add(report_ns);
+    // The heartbeat, stretched while the module has nothing to do (module/beat.rs).
+    let mut beat = Beat::new(
+        report_ns,
+        opts.idle_report_period.as_nanos() as u64,
+        monotonic_ns(),
+    );
     let mut next_checkpoint = monotonic_ns().saturating_add(checkpoint_ns);
     let clock_id = rounds.as_ref().map(|r| r.common.id());
     while !ctx.stop_requested {
         // Wall-clock wake-ups: report and checkpoint; clock-time ones: timers and deadlines
         // (in simulation they are checked at every clock sample instead).
         let wall_now = monotonic_ns();
-        let mut wake_at = next_report;
+        let mut wake_at = beat.next_ns();
         if store.is_some() {
             wake_at = wake_at.min(next_checkpoint);
         }
+        // When a timer or an input deadline is due (wall clock): work, not idleness.
+        let mut work_at = u64::MAX;
         if !clock.is_sim() {
             let in_ns = ctx.next_due_ns().saturating_sub(clock.now_ns());
-            wake_at = wake_at.min(wall_now.saturating_add(in_ns));
+            work_at = wall_now.saturating_add(in_ns);
+            wake_at = wake_at.min(work_at);
         }
         let timeout = Duration::from_nanos(wake_at.saturating_sub(wall_now));
         // Between answering a round and being called to the next one, inputs wait: they
@@ -632,12 +657,22 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
             Some(r) if r.holds() => &mut r.waiter,
             _ => &mut ctx.waiter,
         };
-        match waiter.wait(Some(timeout))? {
-            Wake::Signal(sig) => {
-                tracing::info!(module = %opts.name, signal = sig, "stopping on signal");
-                break;
+        let woke = waiter.wait(Some(timeout))?;
+        let mut reported = 0;
+        if let Wake::Signal(sig) = woke {
+            tracing::info!(module = %opts.name, signal = sig, "stopping on signal");
+            break;
+        }
+        // Woken by an input (a round in simulation) or a timer: the module is not idle, and
+        // a stretched heartbeat goes back to its period before the work (module/beat.rs).
+        let woke_at = monotonic_ns();
+        if (woke == Wake::Data || woke_at >= work_at)
+            && let Some(period) = beat.work(woke_at)
+        {
+            match reports.publish(ctx.report(period)) {
+                Ok(()) => reported += 1,
+                Err(e) => tracing::warn!(module = %opts.name, "report: {e}"),
             }
-            Wake::Data | Wake::Timeout => {}
         }
 
         ctx.node.update_connections();
@@ -702,11 +737,9 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
             next_checkpoint = wall_now.saturating_add(checkpoint_ns);
             save_checkpoint(&module, store, &mut ctx, &opts.name);
         }
-        let mut reported = 0;
-        if wall_now >= next_report {
-            next_report = wall_now.saturating_add(report_ns);
-            match reports.publish(ctx.report(report_ns)) {
-                Ok(()) => reported = 1,
+        if let Some(period) = beat.due(wall_now) {
+            match reports.publish(ctx.report(period)) {
+                Ok(()) => reported += 1,
                 Err(e) => tracing::warn!(module = %opts.name, "report: {e}"),
             }
         }
@@ -728,7 +761,7 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
     if let Some(store) = &store {
         save_checkpoint(&module, store, &mut ctx, &opts.name);
     }
-    let _ = reports.publish(ctx.report(report_ns));
+    let _ = reports.publish(ctx.report(beat.normal_ns()));
     Ok(())
 }
 

@@ -643,7 +643,9 @@ impl Runner {
         if let Ok(Some(pid)) = self.sup.pid(name)
             && pid == report.pid
         {
-            let _ = self.sup.heartbeat(name, at);
+            // The report announces when the next comes (an idle module stretches it).
+            let next = (report.period_ns > 0).then(|| Duration::from_nanos(report.period_ns));
+            let _ = self.sup.heartbeat_promising(name, at, next);
             self.reports.insert(name.to_owned(), (report, at));
         }
     }

@@ -64,6 +64,10 @@ struct Proc {
     pid: u32,
     started: Instant,
     last_heartbeat: Option<Instant>,
+    /// The period the last heartbeat announced for the next one, when longer than the
+    /// configured period (an idle module's stretched heartbeat); the hang deadline moves by
+    /// the difference.
+    promised: Option<Duration>,
     /// Set when the supervisor killed it on purpose: overrides the wait status.
     kill_cause: Option<ExitCause>,
     sent_sigkill: bool,
@@ -239,11 +243,29 @@ impl<H: SupervisorHooks> Supervisor<H> {
     /// the module from Starting to Running. Heartbeats for a module without a
     /// live process are ignored (returns false).
     pub fn heartbeat(&mut self, name: &str, now: Instant) -> Result<bool, SupervisorError> {
+        self.heartbeat_promising(name, now, None)
+    }
+
+    /// [`Supervisor::heartbeat`] from a module that announces when its next heartbeat comes
+    /// (`next_within`, the period its report carries). A module with nothing to do stretches
+    /// its heartbeat (the SDK does, up to its idle report period, and heartbeats again at
+    /// once when work comes); the hang timeout then follows: a heartbeat promised later than
+    /// the configured period moves the deadline by the difference. `None`, or a period not
+    /// longer than the configured one, keeps the configured timeout.
+    pub fn heartbeat_promising(
+        &mut self,
+        name: &str,
+        now: Instant,
+        next_within: Option<Duration>,
+    ) -> Result<bool, SupervisorError> {
         let i = self.slot_index(name)?;
         let slot = &mut self.slots[i];
         let Some(p) = slot.proc_.as_mut() else {
             return Ok(false);
         };
+        if p.last_heartbeat.is_none_or(|t| now >= t) {
+            p.promised = next_within;
+        }
         p.last_heartbeat = Some(p.last_heartbeat.map_or(now, |t| t.max(now)));
         if slot.state == ModuleState::Starting {
             slot.state = ModuleState::Running;
@@ -704,8 +726,11 @@ fn hang_deadline(spec: &ModuleSpec, p: &Proc) -> Option<Instant> {
         return None;
     }
     let hb = spec.heartbeat?;
+    let stretched = p
+        .promised
+        .map_or(Duration::ZERO, |d| d.saturating_sub(hb.period));
     Some(match p.last_heartbeat {
-        Some(t) => t + hb.timeout,
+        Some(t) => t + hb.timeout + stretched,
         None => p.started + spec.start_timeout,
     })
 }

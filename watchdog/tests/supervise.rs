@@ -322,6 +322,35 @@ fn hang_by_sigstop_is_detected_killed_and_restarted() {
 }
 
 #[test]
+fn a_heartbeat_that_announces_a_longer_period_moves_the_hang_deadline() {
+    // An idle module stretches its heartbeat and says so in each report; the supervisor then
+    // waits the announced period plus the configured slack (timeout - period), not the
+    // configured timeout alone.
+    let mut m = spec("idle", "/bin/sleep", &["1000"]);
+    let (period, timeout) = (Duration::from_millis(20), Duration::from_millis(200));
+    m.heartbeat = Some(HeartbeatSpec { period, timeout });
+    m.start_timeout = Duration::from_secs(5);
+    let mut h = Harness::new(Supervisor::new(vec![m], SupervisorOptions::default()).expect("new"));
+    h.sup.start_all();
+    h.wait("start", is_started("idle"));
+    let promised = Duration::from_millis(800);
+    h.sup
+        .heartbeat_promising("idle", Instant::now(), Some(promised))
+        .expect("heartbeat");
+    let hang = h.wait("hang", |e| matches!(e.kind, EventKind::HangDetected { .. }));
+    match hang.kind {
+        EventKind::HangDetected { silent_for, .. } => {
+            let deadline = timeout + promised - period;
+            assert!(silent_for >= deadline, "{silent_for:?} < {deadline:?}");
+        }
+        _ => unreachable!(),
+    }
+    h.wait("exit", is_exit("idle"));
+    h.shutdown();
+    h.assert_no_leftovers();
+}
+
+#[test]
 fn silent_start_is_a_hang_too() {
     let mut m = spec("mute", "/bin/sleep", &["1000"]);
     m.heartbeat = Some(HeartbeatSpec {

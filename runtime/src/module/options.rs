@@ -23,6 +23,12 @@ pub struct RunOptions {
     /// Report (heartbeat) period (`HNG_REPORT_PERIOD_MS` or `HNG_HEARTBEAT_PERIOD_MS`, default
     /// 100).
     pub report_period: Duration,
+    /// Longest report period of a module with nothing to do (`HNG_IDLE_REPORT_PERIOD_MS`,
+    /// default 1000; never shorter than `report_period`). A module whose loop woke only to
+    /// report doubles its period up to this, says so in each report (`period_ns`, which the
+    /// watchdog's hang deadline follows), and reports at once at the normal period when work
+    /// comes: the heartbeat of a module blocked in its wait costs about one wake-up a second.
+    pub idle_report_period: Duration,
     /// Clock (`HNG_CLOCK`: `wall` or `sim`).
     pub clock: ClockMode,
     /// Wait mode (`HNG_WAIT`: `blocking`, `blocking:<µs>` or `spin`).
@@ -41,6 +47,7 @@ impl RunOptions {
             checkpoint_dir: None,
             checkpoint_period: Duration::from_secs(1),
             report_period: Duration::from_millis(100),
+            idle_report_period: Duration::from_secs(1),
             clock: ClockMode::Wall,
             wait: WaitMode::default(),
             catch_signals: true,
@@ -70,6 +77,7 @@ impl RunOptions {
             Some(_) => ms("HNG_REPORT_PERIOD_MS", 100)?,
             None => ms("HNG_HEARTBEAT_PERIOD_MS", 100)?,
         };
+        o.idle_report_period = ms("HNG_IDLE_REPORT_PERIOD_MS", 1000)?;
         o.clock = match var("HNG_CLOCK").as_deref() {
             None | Some("wall") => ClockMode::Wall,
             Some("sim") => ClockMode::Sim,

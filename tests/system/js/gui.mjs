@@ -20,9 +20,12 @@ const timeout = Number(timeoutArg || 120000);
 const say = (o) => process.stdout.write(JSON.stringify(o) + "\n");
 fs.mkdirSync(dir, { recursive: true });
 
-const { browser, userDir } = await launchBrowser(dir);
-let code = 0;
+// Everything, the browser's start included, inside the try: a failure is one {"event":
+// "error"} line on stdout, never a silent exit (the test shows it with the exit status and
+// stderr).
+let code = 0, browser = null, userDir = null;
 try {
+  ({ browser, userDir } = await launchBrowser(dir, say));
   const page = browser.pages()[0] || (await browser.newPage());
   page.on("pageerror", (e) => say({ event: "page_error", error: String(e) }));
   await page.goto(url);
@@ -86,7 +89,7 @@ try {
   say({ event: "error", error: String(e && e.stack || e) });
   code = 1;
 } finally {
-  await browser.close();
-  fs.rmSync(userDir, { recursive: true, force: true });
+  if (browser) await browser.close().catch(() => {});
+  if (userDir) fs.rmSync(userDir, { recursive: true, force: true });
 }
 process.exit(code);

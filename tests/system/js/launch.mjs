@@ -7,8 +7,10 @@ import { chromium } from "playwright-core";
 import path from "node:path";
 import fs from "node:fs";
 
-// Returns { browser, userDir }: the caller removes userDir after closing the browser.
-export async function launchBrowser(dir) {
+// Returns { browser, userDir }: the caller removes userDir after closing the browser. `say`
+// (optional) also reports each failed start as a {"event": "launch_failed"} line. A start may
+// take 60 s (a loaded CI machine) before it counts as failed.
+export async function launchBrowser(dir, say) {
   fs.mkdirSync(dir, { recursive: true });
   for (let attempt = 1; ; attempt++) {
     const userDir = fs.mkdtempSync(path.join(dir, "profile-"));
@@ -16,6 +18,7 @@ export async function launchBrowser(dir) {
       const browser = await chromium.launchPersistentContext(userDir, {
         executablePath: process.env.CHROMIUM || "/usr/bin/chromium",
         headless: true,
+        timeout: 60000,
         viewport: { width: 1500, height: 950 },
         args: [
           "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
@@ -25,8 +28,10 @@ export async function launchBrowser(dir) {
       return { browser, userDir };
     } catch (e) {
       fs.rmSync(userDir, { recursive: true, force: true });
+      const first = String(e).split("\n")[0];
+      if (say) say({ event: "launch_failed", attempt, error: first });
       if (attempt >= 3) throw e;
-      process.stderr.write(`chromium failed to start (attempt ${attempt} of 3): ${String(e).split("\n")[0]}\n`);
+      process.stderr.write(`chromium failed to start (attempt ${attempt} of 3): ${first}\n`);
     }
   }
 }

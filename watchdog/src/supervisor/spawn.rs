@@ -79,6 +79,7 @@ impl<H: SupervisorHooks> Supervisor<H> {
                     pid,
                     started: now,
                     last_heartbeat: None,
+                    promised: None,
                     kill_cause: None,
                     sent_sigkill: false,
                     stop: None,
