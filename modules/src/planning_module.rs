@@ -54,8 +54,12 @@ pub struct PlanningParams {
     /// paths keep this far from walls where there is room.
     pub inflation_m: f64,
     /// Inflation cost at the lethal band: a step there costs `1 + cost_weight` times its
-    /// length (default 3; 0 plans the plain shortest path).
+    /// length (default 10; 0 plans the plain shortest path).
     pub cost_weight: f64,
+    /// Decay of the inflation cost with the distance beyond the lethal band, 1/m (default 8:
+    /// the cost halves every 9 cm, so paths round convex corners at about 0.5 m from them
+    /// rather than grazing the lethal band).
+    pub cost_decay: f64,
     /// Distance of the carrot ahead of the robot on the path, m (default 0.6).
     pub lookahead_m: f64,
     /// Replan when the robot is farther than this from the path, m (default 0.5).
@@ -78,7 +82,8 @@ impl Default for PlanningParams {
             robot_radius: crate::footprint::ROBOT_RADIUS_M,
             clearance: crate::footprint::FOOTPRINT_MARGIN_M,
             inflation_m: 1.0,
-            cost_weight: 3.0,
+            cost_weight: 10.0,
+            cost_decay: 8.0,
             lookahead_m: 0.6,
             deviation_m: 0.5,
             speed: 0.5,
@@ -116,6 +121,8 @@ pub struct PlanningCore {
     grid: Option<OccupancyGrid>,
     /// Its inflation cost per cell.
     costs: Vec<f32>,
+    /// Each cell's distance to the nearest obstacle, m.
+    clearances: Vec<f32>,
     /// The map it was built from (rebuilt by the "clear" recovery).
     raw: Option<OccupancyGrid>,
     /// Progress of the current goal (from its first update), its stalls and recoveries, and
@@ -147,6 +154,7 @@ impl PlanningCore {
             }),
             grid: None,
             costs: Vec::new(),
+            clearances: Vec::new(),
             raw: None,
             monitor: None,
             stalls: 0,
@@ -213,12 +221,14 @@ impl PlanningCore {
                 lethal_m: p.robot_radius + p.clearance,
                 inflation_m: p.inflation_m,
                 weight: p.cost_weight,
+                decay: p.cost_decay,
                 ..CostmapConfig::default()
             },
         );
         self.map_may_grow = grid.data().contains(&crate::planning::UNKNOWN);
         self.grid = Some(costmap.grid().clone());
         self.costs = costmap.costs().to_vec();
+        self.clearances = costmap.clearances().to_vec();
         self.raw = Some(grid.clone());
         self.rebase = true;
         self.replan = true;
@@ -338,7 +348,14 @@ impl PlanningCore {
                     format!("goal {} at ({gx:.2}, {gy:.2}) is unreachable: {e}", goal.id),
                 )
             })?;
-        let mut points = simplify_with_cost(grid, &cfg, &self.costs, &gp);
+        let mut points = simplify_with_cost(
+            grid,
+            &cfg,
+            &self.costs,
+            &self.clearances,
+            self.params.inflation_m,
+            &gp,
+        );
         if let Some(first) = points.first_mut() {
             *first = [pose.x, pose.y];
         }
@@ -644,6 +661,7 @@ impl Module for PlanningModule {
         for (field, v) in [
             ("params.inflation_m", p.inflation_m),
             ("params.cost_weight", p.cost_weight),
+            ("params.cost_decay", p.cost_decay),
         ] {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(crate::common::field_error(field, "must be >= 0").into());

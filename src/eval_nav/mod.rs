@@ -113,6 +113,15 @@ pub fn summary(results: &[ProblemResult]) -> serde_json::Value {
         .iter()
         .filter(|r| r.min_clearance_m.is_some_and(|c| c >= want))
         .count();
+    // The planner's share: the same for the path Planning plans on the true map.
+    let plan_kept = roomy
+        .iter()
+        .filter(|r| r.problem.plan_clearance_m.is_some_and(|c| c >= want))
+        .count();
+    let plan_worst = results
+        .iter()
+        .filter_map(|r| r.problem.plan_clearance_m)
+        .fold(f64::INFINITY, f64::min);
     let walls: Vec<f64> = results.iter().map(|r| r.wall_s).collect();
     let sim: f64 = results.iter().map(|r| r.time_s).sum();
     // Wall time per metre of the optimum (start-up and shut-down included), over the problems
@@ -152,6 +161,8 @@ pub fn summary(results: &[ProblemResult]) -> serde_json::Value {
         "mean_min_clearance_m": mean(&clear),
         "roomy_problems": roomy.len(),
         "roomy_problems_keeping_0_25_m": kept,
+        "roomy_problems_whose_plan_keeps_0_25_m": plan_kept,
+        "worst_plan_clearance_m": plan_worst.is_finite().then_some(plan_worst),
         "stuck_time_s": results.iter().map(|r| r.stuck_time_s).sum::<f64>(),
         "stalls": results.iter().map(|r| r.stalls).sum::<u64>(),
         "recoveries": results.iter().map(|r| r.recoveries).sum::<u64>(),
@@ -170,19 +181,20 @@ pub fn summary(results: &[ProblemResult]) -> serde_json::Value {
 
 fn print_table(results: &[ProblemResult], s: &serde_json::Value) {
     println!(
-        "{:>4} {:<24} {:>7} {:>7} {:>6} {:>7} {:>6} {:>6} {:>4}  result",
-        "#", "source", "opt m", "path m", "ratio", "clear m", "sim s", "wall s", "rec"
+        "{:>4} {:<24} {:>7} {:>7} {:>6} {:>7} {:>7} {:>6} {:>6} {:>4}  result",
+        "#", "source", "opt m", "path m", "ratio", "clear m", "plan m", "sim s", "wall s", "rec"
     );
     for r in results {
         let p = &r.problem;
         println!(
-            "{:>4} {:<24} {:>7.2} {:>7.2} {:>6} {:>7} {:>6.1} {:>6.1} {:>4}  {}",
+            "{:>4} {:<24} {:>7.2} {:>7.2} {:>6} {:>7} {:>7} {:>6.1} {:>6.1} {:>4}  {}",
             p.id,
             p.source.chars().take(24).collect::<String>(),
             p.optimum_m.unwrap_or(f64::NAN),
             r.path_length_m,
             r.path_ratio.map_or("-".into(), |x| format!("{x:.3}")),
             r.min_clearance_m.map_or("-".into(), |x| format!("{x:.3}")),
+            p.plan_clearance_m.map_or("-".into(), |x| format!("{x:.3}")),
             r.time_s,
             r.wall_s,
             r.recoveries,
@@ -196,7 +208,7 @@ fn print_table(results: &[ProblemResult], s: &serde_json::Value) {
     let f = |k: &str| s[k].as_f64().map_or("-".into(), |x| format!("{x:.3}"));
     println!(
         "success {}/{} ({}), collisions {}, mean path ratio {}, worst clearance {} m, \
-         roomy problems keeping 0.25 m: {}/{}, recoveries {}, wall time mean {} s ({} s per m, {} s per 30 m)",
+         roomy problems keeping 0.25 m: {}/{} (their plans: {}/{}), recoveries {}, wall time mean {} s ({} s per m, {} s per 30 m)",
         s["successes"],
         s["problems"],
         f("success_rate"),
@@ -204,6 +216,8 @@ fn print_table(results: &[ProblemResult], s: &serde_json::Value) {
         f("mean_path_ratio"),
         f("worst_clearance_m"),
         s["roomy_problems_keeping_0_25_m"],
+        s["roomy_problems"],
+        s["roomy_problems_whose_plan_keeps_0_25_m"],
         s["roomy_problems"],
         s["recoveries"],
         f("wall_s_mean"),

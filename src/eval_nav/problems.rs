@@ -7,7 +7,11 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context as _, Result, bail};
 use hng_modules::footprint::ROBOT_RADIUS_M;
 use hng_modules::planning::movingai::{read_map, read_scen};
-use hng_modules::planning::{Costmap, CostmapConfig, GridPlanner, OccupancyGrid, PlannerConfig};
+use hng_modules::planning::{
+    Costmap, CostmapConfig, GridPlanner, OccupancyGrid, PlannerConfig, path_clearance,
+};
+use hng_modules::planning_module::{PlanningCore, PlanningParams};
+use hng_runtime::msg::{Goal, Pose2D};
 use hng_simulator::generate::{GenConfig, generate, world_seed};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -33,7 +37,51 @@ pub struct Problem {
     /// The widest clearance the map leaves on any path from start to goal (the robot's gap to
     /// obstacles at the narrowest place of the roomiest path, start and goal included), m.
     pub clearance_available_m: Option<f64>,
+    /// The robot's gap to obstacles along the path Planning plans from start to goal on this
+    /// map (its default parameters; the true map), m: the planner's share of the clearance,
+    /// apart from how the Servo then drives it. `None` if it plans no path.
+    pub plan_clearance_m: Option<f64>,
 }
+
+/// Planning's own path on a map, judged for its clearance (see
+/// [`Problem::plan_clearance_m`]).
+struct PlanJudge {
+    core: PlanningCore,
+    grid: OccupancyGrid,
+    goals: u32,
+}
+
+impl PlanJudge {
+    fn new(grid: &OccupancyGrid) -> PlanJudge {
+        let mut core = PlanningCore::new(PlanningParams::default());
+        core.set_map(grid);
+        PlanJudge {
+            core,
+            grid: grid.clone(),
+            goals: 0,
+        }
+    }
+
+    /// The robot's gap along the path planned from `start` to `goal`, m.
+    fn gap(&mut self, start: [f64; 2], goal: [f64; 2], tolerance_m: f64) -> Option<f64> {
+        self.goals += 1;
+        self.core.set_goal(Goal {
+            id: self.goals,
+            pose: Pose2D::new(goal[0], goal[1], 0.0),
+            tolerance_m,
+            ..Goal::default()
+        });
+        self.core.update(&Pose2D::new(start[0], start[1], 0.0));
+        if !self.core.has_path() {
+            return None;
+        }
+        let d = path_clearance(&self.grid, self.core.path_points(), 50, 5.0);
+        Some(d.min(5.0) - ROBOT_RADIUS_M)
+    }
+}
+
+/// Goal tolerance of the plans judged for their clearance, m (`hng run`'s default goal).
+const PLAN_TOLERANCE_M: f64 = 0.3;
 
 /// The costmap used to judge problems (the planner's own, default footprint).
 fn costmap(grid: &OccupancyGrid) -> Costmap {
@@ -138,6 +186,7 @@ pub fn movingai(
         grid.cell_to_world(x, y)
     };
     let take = limit.unwrap_or(usize::MAX);
+    let mut judge_plan = PlanJudge::new(&grid);
     let mut out = Vec::new();
     for sp in scen_problems.iter().skip(offset).take(take) {
         let s = centre(sp.start);
@@ -152,6 +201,7 @@ pub fn movingai(
             goal: g,
             optimum_m: Some(sp.optimal_length * resolution),
             clearance_available_m: available_clearance(&c, cs, cg),
+            plan_clearance_m: judge_plan.gap(s, g, PLAN_TOLERANCE_M),
         });
     }
     Ok(out)
@@ -162,6 +212,7 @@ pub fn movingai(
 pub fn listed(world: &Path, list: &Path) -> Result<Vec<Problem>> {
     let grid = OccupancyGrid::load(world)?;
     let c = costmap(&grid);
+    let mut judge_plan = PlanJudge::new(&grid);
     let text =
         std::fs::read_to_string(list).with_context(|| format!("reading {}", list.display()))?;
     let mut out = Vec::new();
@@ -207,6 +258,7 @@ pub fn listed(world: &Path, list: &Path) -> Result<Vec<Problem>> {
             goal: [v[2], v[3]],
             optimum_m: opt,
             clearance_available_m: avail,
+            plan_clearance_m: judge_plan.gap([v[0], v[1]], [v[2], v[3]], PLAN_TOLERANCE_M),
         });
     }
     if out.is_empty() {
@@ -269,6 +321,7 @@ pub fn generated(
             goal: pe,
             optimum_m: Some(opt),
             clearance_available_m: available_clearance(&c, s, e),
+            plan_clearance_m: PlanJudge::new(&world.grid).gap(ps, pe, PLAN_TOLERANCE_M),
         });
     }
     Ok(out)

@@ -117,6 +117,11 @@ impl Costmap {
         &self.cost
     }
 
+    /// Distance of each cell's centre to the nearest obstacle, m (row-major, as the grid).
+    pub fn clearances(&self) -> &[f32] {
+        &self.clearance
+    }
+
     /// Distance from the centre of cell `(x, y)` to the nearest obstacle, m (0 in an
     /// obstacle, infinite with none in the map, `None` outside the map).
     pub fn clearance(&self, x: i64, y: i64) -> Option<f64> {
@@ -210,7 +215,14 @@ mod tests {
             .map(|&(x, y)| c.clearance(x.into(), y.into()).unwrap())
             .fold(0.0, f64::max);
         assert!(widest > 0.75, "moves away from the wall: {widest}");
-        let pts = simplify_with_cost(c.grid(), &PlannerConfig::default(), c.costs(), &costed);
+        let pts = simplify_with_cost(
+            c.grid(),
+            &PlannerConfig::default(),
+            c.costs(),
+            c.clearances(),
+            1.0,
+            &costed,
+        );
         assert!(pts.len() >= 3, "keeps its bend: {pts:?}");
         // All-zero costs: the plain optimum exactly.
         let zero = vec![0.0f32; c.costs().len()];

@@ -15,6 +15,7 @@
 //! grid path into waypoints for the controller.
 
 mod astar;
+mod clearance;
 pub mod config;
 pub mod costmap;
 mod inflate;
@@ -26,6 +27,7 @@ mod smooth;
 pub use astar::{
     GridPath, GridPlanner, Path, PlanError, PlannerConfig, SQRT_2, octile, path_length_cells,
 };
+pub use clearance::path_clearance;
 pub use costmap::{Costmap, CostmapConfig, inflation_cost, resample};
 pub use hng_runtime::map::{FREE, GridError, OCCUPIED, OccupancyGrid, UNKNOWN};
 pub use inflate::{InflationConfig, inflate, squared_distance_transform};

@@ -87,18 +87,29 @@ pub fn simplify(grid: &OccupancyGrid, cfg: &PlannerConfig, path: &GridPath) -> V
 }
 
 /// [`simplify`] on a costmap: a shortcut from one kept point to a later path cell is taken
-/// only if it costs no more than the stretch of path it replaces (a segment's cost: its
-/// length times one plus the mean inflation cost `cost` of the cells it crosses; the path's:
-/// each step's length times one plus its cell's cost, as the planner counts it). A shortcut
-/// along a wall is dearer than the planned path through the middle and is not taken, while
-/// any-angle shortcuts through open space are.
+/// only if
+/// - it costs no more than the stretch of path it replaces (a segment's cost: its length
+///   times one plus the mean inflation cost `cost` of the cells it crosses; the path's: each
+///   step's length times one plus its cell's cost, as the planner counts it), and
+/// - it comes no nearer an obstacle than that stretch's cells do, unless it stays `open_m`
+///   from every obstacle: the segment's clearance is bounded below by each crossed cell's
+///   `clearance` (m, its centre's distance to the nearest obstacle) less the segment's distance
+///   from that centre.
+///
+/// A shortcut along a wall is dearer than the planned path through the middle and is not
+/// taken; a chord across a bend round a convex corner, which would pass nearer the corner than
+/// the bend (a long chord's mean cost dilutes the corner's), is not taken either; any-angle
+/// shortcuts through open space are. Without a cost and a clearance per cell: [`simplify`].
 pub fn simplify_with_cost(
     grid: &OccupancyGrid,
     cfg: &PlannerConfig,
     cost: &[f32],
+    clearance: &[f32],
+    open_m: f64,
     path: &GridPath,
 ) -> Vec<[f64; 2]> {
-    if cost.len() != grid.data().len() {
+    let n = grid.data().len();
+    if cost.len() != n || clearance.len() != n {
         return simplify(grid, cfg, path);
     }
     let cells = &path.cells;
@@ -107,7 +118,9 @@ pub fn simplify_with_cost(
         return out;
     };
     let w = grid.width() as i64;
+    let res = grid.resolution();
     let cost_at = |x: i64, y: i64| f64::from(cost[(y * w + x) as usize].max(0.0));
+    let clear_at = |x: i64, y: i64| f64::from(clearance[(y * w + x) as usize]);
     let c = |p: (u32, u32)| (p.0 as i64, p.1 as i64);
     // prefix[i]: the path's cost from its start to cell i.
     let mut prefix = vec![0.0f64; cells.len()];
@@ -125,24 +138,37 @@ pub fn simplify_with_cost(
     while anchor + 1 < cells.len() {
         let a = c(cells[anchor]);
         let mut next = anchor + 1;
-        for j in anchor + 2..cells.len() {
+        // The nearest approach of the path's cells from the anchor to cell j.
+        let mut stretch_min = clear_at(a.0, a.1);
+        for j in anchor + 1..cells.len() {
             let b = c(cells[j]);
+            stretch_min = stretch_min.min(clear_at(b.0, b.1));
+            if j == anchor + 1 {
+                continue;
+            }
+            let (dx, dy) = ((b.0 - a.0) as f64, (b.1 - a.1) as f64);
+            let len = dx.hypot(dy);
             let sum = std::cell::Cell::new(0.0f64);
             let count = std::cell::Cell::new(0usize);
+            let nearest = std::cell::Cell::new(f64::INFINITY);
             let visible = line_of_sight_by(a, b, |x, y| {
                 let ok = grid.get(x, y).is_some_and(|v| cfg.passable(v));
                 if ok && (x, y) != a {
                     sum.set(sum.get() + cost_at(x, y));
                     count.set(count.get() + 1);
+                    // The cell centre's distance from the segment's line, m.
+                    let off = (dx * (y - a.1) as f64 - dy * (x - a.0) as f64).abs() / len * res;
+                    nearest.set(nearest.get().min(clear_at(x, y) - off));
                 }
                 ok
             });
             if !visible {
                 break;
             }
-            let len = ((b.0 - a.0) as f64).hypot((b.1 - a.1) as f64);
             let mean = sum.get() / count.get().max(1) as f64;
-            if len * (1.0 + mean) <= (prefix[j] - prefix[anchor]) * (1.0 + 1e-9) + 1e-9 {
+            let cheaper = len * (1.0 + mean) <= (prefix[j] - prefix[anchor]) * (1.0 + 1e-9) + 1e-9;
+            let no_nearer = nearest.get() >= stretch_min.min(open_m) - 1e-6;
+            if cheaper && no_nearer {
                 next = j;
             }
         }
