@@ -151,11 +151,31 @@ enum Command {
     BenchPeer(bench::ipc::PeerArgs),
 }
 
+/// Whether the command runs until it is stopped and reads SIGINT, SIGTERM and SIGHUP from a
+/// signalfd (a clean stop): those are blocked first thing in `main`, before any thread exists,
+/// so that no thread a library starts can die of them. The other commands keep the default
+/// actions (Ctrl-C ends them).
+fn reads_termination_signals(command: &Command) -> bool {
+    use topic::TopicCommand as T;
+    matches!(
+        command,
+        Command::Run(_)
+            | Command::Module { .. }
+            | Command::Record(_)
+            | Command::Replay(_)
+            | Command::Foxglove(_)
+            | Command::Gui(_)
+            | Command::Topic {
+                command: T::Echo { .. } | T::Hz { .. } | T::Pub { .. }
+            }
+    )
+}
+
 fn main() -> ExitCode {
     // Before any thread exists (docs/supervision.md): `hng run` reads SIGINT, SIGTERM and
     // SIGHUP from a signalfd, so they must be blocked in every thread it will start.
     let cli = Cli::parse();
-    if matches!(cli.command, Command::Run(_)) {
+    if reads_termination_signals(&cli.command) {
         run::block_termination_signals();
     }
     // A SIGSEGV or SIGBUS sent by `kill` ends the process at once (hng_runtime::fatal).

@@ -34,3 +34,13 @@ mod wake;
 pub use channel::{Node, NodeOptions, Publisher, SlicePublisher, SliceSubscriber, Subscriber};
 pub use error::Error;
 pub use module::{Context, Module, ModuleResult, RunOptions, TimerId, run_module, run_module_with};
+
+/// The README's module example, compiled as a doc test (`cargo test -p hng-runtime --doc`).
+#[cfg(doctest)]
+#[doc = include_str!("../../README.md")]
+pub struct ReadmeExamples;
+
+/// docs/writing-a-module.md's complete module, compiled as a doc test.
+#[cfg(doctest)]
+#[doc = include_str!("../../docs/writing-a-module.md")]
+pub struct WritingAModuleExamples;

@@ -41,11 +41,13 @@ mod due;
 mod logging;
 mod options;
 mod rounds;
+mod state;
 
 use checkpoints::{Checkpoints, save_checkpoint};
 pub use logging::init_tracing;
 pub use options::RunOptions;
 use rounds::Rounds;
+pub use state::{decode_state, encode_state};
 
 /// The well-known channel every module publishes its [`ModuleReport`] on.
 pub const REPORT_CHANNEL: &str = "hng/report";
@@ -90,7 +92,8 @@ pub trait Module: Sized {
         Ok(())
     }
 
-    /// The state to save, or `None` for a stateless module.
+    /// The state to save, or `None` for a stateless module: written, with [`Module::restore`],
+    /// by [`crate::checkpoint_field!`] or [`crate::checkpoint_with!`] from a serde value.
     fn checkpoint(&self) -> Option<Vec<u8>> {
         None
     }
@@ -454,6 +457,13 @@ impl Context {
         }
     }
 
+    /// A driver's client of `service` that its most important contract holder supervises
+    /// (after [`Context::command_verdict`]; see [`crate::contract::CommandArbiter::supervised`]).
+    pub fn supervised_client(&self, service: &str) -> Option<ModuleId> {
+        let now = self.now();
+        self.plane.as_ref()?.supervised_client(service, now)
+    }
+
     /// Control messages dropped so far by the transport (undecodable, spoofed).
     pub fn control_drops(&self) -> DropCounters {
         self.plane
@@ -509,7 +519,10 @@ pub fn run_module<M: Module>() -> ExitCode {
             return ExitCode::from(2);
         }
     };
-    match run_module_with::<M>(&opts) {
+    let result = run_module_with::<M>(&opts);
+    // Started without a supervisor, the module is the last of its prefix: its files go too.
+    crate::shm::remove_system_files_if_alone(&opts.prefix);
+    match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             tracing::error!(module = %opts.name, "{e}");

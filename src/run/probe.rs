@@ -64,13 +64,5 @@ impl Module for Probe {
         self.publish()
     }
 
-    fn checkpoint(&self) -> Option<Vec<u8>> {
-        Some(self.count.to_le_bytes().to_vec())
-    }
-
-    fn restore(&mut self, state: &[u8]) -> ModuleResult {
-        let bytes: [u8; 4] = state.try_into()?;
-        self.count = u32::from_le_bytes(bytes);
-        Ok(())
-    }
+    hng_runtime::checkpoint_field!(count);
 }

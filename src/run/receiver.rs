@@ -14,7 +14,6 @@ use hng_runtime::system::{SUPERVISOR_COMMAND, SupervisorCommand};
 use hng_runtime::wait::{WaitMode, Waiter, Wake};
 use hng_runtime::{Node, NodeOptions};
 use hng_watchdog::Waker;
-use nix::sys::signal::{SigSet, Signal};
 
 /// What the receiver thread hands to the main thread.
 pub(super) enum Inbox {
@@ -114,11 +113,7 @@ fn receive_loop(
 /// orderly stop, whichever thread the kernel would have picked (a signal delivered to a thread
 /// that did not block it would have killed the process by its default action).
 pub fn block_termination_signals() {
-    let mut mask = SigSet::empty();
-    mask.add(Signal::SIGINT);
-    mask.add(Signal::SIGTERM);
-    mask.add(Signal::SIGHUP);
-    if let Err(e) = mask.thread_block() {
-        eprintln!("hng: warning: cannot block termination signals: {e}");
+    if let Err(e) = hng_runtime::wait::block_termination_signals() {
+        eprintln!("hng: warning: {e}");
     }
 }

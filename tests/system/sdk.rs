@@ -2,6 +2,7 @@
 
 use std::time::Duration;
 
+use hng_runtime::checkpoint::CheckpointStore;
 use hng_runtime::msg::Goal;
 use hng_runtime::wait::{WaitMode, Waiter};
 use hng_runtime::{Node, NodeOptions};
@@ -66,6 +67,20 @@ fn sigterm_stops_cleanly_and_the_restarted_module_restores_its_checkpoint() {
     sys.spawn_testmod_with("counter", "counter", "period_ms = 5", &env);
     let first = next_count(&sub, &mut waiter);
     assert_eq!(first, last + 1, "restored count");
+    sys.stop_all();
+
+    // Checkpoints whose files are sound (checksums good) but whose payload is not the module's
+    // state: both refused as a whole, and the module starts clean, counting from 1 again.
+    while sub.receive().expect("drain").is_some() {}
+    let store = |name: &str| CheckpointStore::new(&dir, name).expect("checkpoint store");
+    store("counter").save(1, &[0xff; 9]).expect("write"); // a u32 that never ends
+    store("counter.prev").save(1, &[5, 0, 0]).expect("write"); // a u32 and 2 bytes more
+    sys.spawn_testmod_with("counter", "counter", "period_ms = 5", &env);
+    assert_eq!(
+        next_count(&sub, &mut waiter),
+        1,
+        "a clean start after two undecodable checkpoints"
+    );
     sys.stop_all();
     let _ = std::fs::remove_dir_all(&dir);
 }
