@@ -8,7 +8,7 @@ use anyhow::{Context as _, Result, bail};
 use hng_runtime::system::{CommandOp, SUPERVISOR_COMMAND, SupervisorCommand};
 use hng_watchdog::Signal;
 
-use super::status::{StatusDoc, status_reader};
+use hng_supervisor::status::{StatusDoc, status_reader};
 
 /// How long a tool waits for the supervisor's status (it is published at least twice a second).
 const ANSWER_TIMEOUT: Duration = Duration::from_secs(3);
@@ -89,7 +89,7 @@ pub fn ps(prefix: &str, json: bool) -> Result<()> {
             rss,
             m.caps
                 .as_ref()
-                .map_or_else(|| "-".to_owned(), super::status::CapsRow::short),
+                .map_or_else(|| "-".to_owned(), hng_supervisor::status::CapsRow::short),
             m.last_exit_text.as_deref().unwrap_or("-"),
         )?;
     }

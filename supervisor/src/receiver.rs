@@ -16,7 +16,7 @@ use hng_runtime::{Node, NodeOptions};
 use hng_watchdog::Waker;
 
 /// What the receiver thread hands to the main thread.
-pub(super) enum Inbox {
+pub(crate) enum Inbox {
     Report { report: ModuleReport, at: Instant },
     Command(SupervisorCommand),
     Signal(i32),
@@ -24,14 +24,14 @@ pub(super) enum Inbox {
 }
 
 /// The receiver thread: reports, commands and termination signals.
-pub(super) struct Receiver {
-    pub(super) rx: mpsc::Receiver<Inbox>,
-    pub(super) stop: Arc<AtomicBool>,
-    pub(super) thread: Option<std::thread::JoinHandle<()>>,
+pub(crate) struct Receiver {
+    pub(crate) rx: mpsc::Receiver<Inbox>,
+    pub(crate) stop: Arc<AtomicBool>,
+    pub(crate) thread: Option<std::thread::JoinHandle<()>>,
 }
 
 impl Receiver {
-    pub(super) fn start(prefix: &str, waker: Waker) -> Result<Receiver> {
+    pub(crate) fn start(prefix: &str, waker: Waker) -> Result<Receiver> {
         let (tx, rx) = mpsc::channel();
         let stop = Arc::new(AtomicBool::new(false));
         let (ready_tx, ready_rx) = mpsc::channel::<Result<(), String>>();

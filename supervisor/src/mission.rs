@@ -404,7 +404,7 @@ mod tests {
     fn a_map_server_world_needs_a_start_and_a_goal() {
         let yaml = concat!(
             env!("CARGO_MANIFEST_DIR"),
-            "/simulator/worlds/example_map.yaml"
+            "/../simulator/worlds/example_map.yaml"
         );
         let opts = MissionOptions {
             world: Some(yaml.into()),
