@@ -26,7 +26,7 @@ use std::rc::Rc;
 use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
-use anyhow::{Context as _, Result};
+use crate::error::{Context as _, Result};
 use hng_rm::cgroup::{CgroupRun, CgroupSupport, unique_run_id};
 use hng_runtime::msg::ModuleReport;
 use hng_runtime::system::{

@@ -15,7 +15,9 @@
 //!
 //! The `hng` binary parses arguments, calls this crate and prints what it returns.
 
+pub mod control;
 pub mod doc;
+pub mod error;
 mod hooks;
 pub mod host;
 pub mod lock;
@@ -26,5 +28,6 @@ mod nav_watch;
 mod receiver;
 pub mod status;
 
+pub use error::{HostError, Result};
 pub use host::{Companion, HostOptions, RunPaths, default_run_dir, supervise};
 pub use receiver::block_termination_signals;

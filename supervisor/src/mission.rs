@@ -9,7 +9,7 @@
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context as _, Result, bail};
+use crate::error::{Context as _, Result, bail};
 use hng_simulator::{Pose2D, World};
 
 /// Goals of the default mission in the default world (start 2, 2), all in the yard: east,

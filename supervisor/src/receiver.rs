@@ -7,7 +7,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
-use anyhow::{Context as _, Result};
+use crate::error::{Context as _, Result};
 use hng_runtime::module::REPORT_CHANNEL;
 use hng_runtime::msg::ModuleReport;
 use hng_runtime::system::{SUPERVISOR_COMMAND, SupervisorCommand};
@@ -53,8 +53,8 @@ impl Receiver {
                 stop,
                 thread: Some(thread),
             }),
-            Ok(Err(e)) => anyhow::bail!("receiver thread: {e}"),
-            Err(_) => anyhow::bail!("the receiver thread ended before it was ready"),
+            Ok(Err(e)) => crate::error::bail!("receiver thread: {e}"),
+            Err(_) => crate::error::bail!("the receiver thread ended before it was ready"),
         }
     }
 }
