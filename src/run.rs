@@ -6,8 +6,8 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Duration;
 
-use anyhow::Result;
 use clap::Args;
+use hng_supervisor::Result;
 use hng_supervisor::default_run_dir;
 use hng_supervisor::host::{Companion, HostOptions, RunPaths, StartCompanions};
 use hng_supervisor::lock::{self, SystemLock};
@@ -28,9 +28,9 @@ pub struct RunArgs {
     /// `checkpoint_dir`). Default: $XDG_RUNTIME_DIR/hng/PREFIX, else /tmp/hng-PREFIX.
     #[arg(long, env = "HNG_RUN_DIR")]
     pub run_dir: Option<PathBuf>,
-    /// Period of the status document (`hng ps`), ms; it is also sent on every change.
-    #[arg(long, default_value_t = 500)]
-    pub status_period_ms: u64,
+    /// Period of the status document (`hng ps`), s; it is also sent on every change.
+    #[arg(long, default_value_t = 0.5, value_parser = parse_period)]
+    pub status_period: f64,
     /// Check the launch file and print the plan as JSON, start nothing.
     #[arg(long)]
     pub check: bool,
@@ -113,7 +113,7 @@ command = ["hng", "module", "heartbeat-probe"]
 
 [module.config]
 output = "probe/count"
-period_ms = 100
+period_s = 0.1
 "#
 }
 
@@ -151,14 +151,14 @@ pub fn run(prefix: &str, args: &RunArgs) -> ExitCode {
     let lock = match lock::lock_prefix(prefix) {
         Ok(l) => l,
         Err(e) => {
-            eprintln!("hng: error: {e:#}");
+            eprintln!("hng: error: {:#}", anyhow::Error::from(e));
             return ExitCode::FAILURE;
         }
     };
     match supervise(prefix, args, plan, None, lock).0 {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("hng: error: {e:#}");
+            eprintln!("hng: error: {:#}", anyhow::Error::from(e));
             ExitCode::FAILURE
         }
     }
@@ -173,7 +173,7 @@ fn run_mission(prefix: &str, args: &RunArgs) -> ExitCode {
     let mission = match Mission::new(&args.mission_options(), &run_dir) {
         Ok(m) => m,
         Err(e) => {
-            eprintln!("hng: error: {e:#}");
+            eprintln!("hng: error: {:#}", anyhow::Error::from(e));
             return ExitCode::from(EXIT_BAD_LAUNCH_FILE);
         }
     };
@@ -210,12 +210,12 @@ fn run_mission(prefix: &str, args: &RunArgs) -> ExitCode {
     let lock = match lock::lock_prefix(prefix) {
         Ok(l) => l,
         Err(e) => {
-            eprintln!("hng: error: {e:#}");
+            eprintln!("hng: error: {:#}", anyhow::Error::from(e));
             return ExitCode::FAILURE;
         }
     };
     if let Err(e) = mission.prepare() {
-        eprintln!("hng: error: {e:#}");
+        eprintln!("hng: error: {:#}", anyhow::Error::from(e));
         lock.release();
         return ExitCode::FAILURE;
     }
@@ -239,7 +239,7 @@ fn run_mission(prefix: &str, args: &RunArgs) -> ExitCode {
     }) {
         Ok(m) => m,
         Err(e) => {
-            eprintln!("hng: error: {e:#}");
+            eprintln!("hng: error: {:#}", anyhow::Error::from(e));
             lock::remove_prefix_files_but_lock(prefix);
             lock.release();
             return ExitCode::FAILURE;
@@ -247,13 +247,13 @@ fn run_mission(prefix: &str, args: &RunArgs) -> ExitCode {
     };
     let (result, outcome) = supervise(prefix, args, plan, Some(monitor), lock);
     if let Err(e) = result {
-        eprintln!("hng: error: {e:#}");
+        eprintln!("hng: error: {:#}", anyhow::Error::from(e));
         return ExitCode::FAILURE;
     }
     let outcome = match outcome {
         Some(Ok(o)) => o,
         Some(Err(e)) => {
-            eprintln!("hng: error: mission monitor: {e:#}");
+            eprintln!("hng: error: mission monitor: {:#}", anyhow::Error::from(e));
             return ExitCode::FAILURE;
         }
         None => return ExitCode::FAILURE,
@@ -339,7 +339,7 @@ fn supervise(
             .run_dir
             .clone()
             .unwrap_or_else(|| default_run_dir(prefix)),
-        status_period: Duration::from_millis(args.status_period_ms),
+        status_period: Duration::from_secs_f64(args.status_period),
     };
     let companions: StartCompanions<'_> = Box::new(|plan: &mut LaunchPlan, paths: RunPaths<'_>| {
         let mut out: Vec<Box<dyn Companion>> = Vec::new();
@@ -353,7 +353,8 @@ fn supervise(
             plan,
             paths.log_dir,
             paths.checkpoint_dir,
-        )?;
+        )
+        .map_err(|e| hng_supervisor::HostError::msg(format!("{e:#}")))?;
         if recorder.is_some() {
             out.push(Box::new(RecorderCompanion(recorder)));
         }
@@ -384,5 +385,15 @@ struct RecorderCompanion(Option<hng_recorder::RecorderThread>);
 impl Companion for RecorderCompanion {
     fn finish(self: Box<Self>) {
         crate::recording::finish_for_run(self.0);
+    }
+}
+
+/// `--status-period`: seconds, finite, from 0.01 to one hour.
+fn parse_period(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if v.is_finite() && (0.01..=3600.0).contains(&v) => Ok(v),
+        _ => Err(format!(
+            "{s:?} is not a period in seconds from 0.01 to 3600"
+        )),
     }
 }
