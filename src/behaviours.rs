@@ -11,7 +11,7 @@ use hng_runtime::msg::{BEHAVIOURS_CHANNEL, Behaviours, OrderKind};
 use hng_runtime::wait::{WaitMode, Waiter};
 use hng_runtime::{Node, NodeOptions};
 
-use crate::doc::ensure_channel_exists;
+use hng_supervisor::doc::ensure_channel_exists;
 
 /// `hng behaviours` options.
 #[derive(Debug, Args)]

@@ -15,17 +15,18 @@
 //! drive = ["Robot control"]                             # driver services (commands arbitrated)
 //! commands = ["Robot control"]                          # needs we send Twist commands to
 //! announce = "probe/manager/active"                     # Twist on activation changes
-//! period_ms = 10                                        # data/command period while active
+//! period_s = 0.01                                       # data/command period while active
 //! ```
 //!
 //! Data of a provided service is an `Odometry` on the service's channel with
-//! `pose.x = true_quality`, published every `period_ms` while a client holds a contract for
+//! `pose.x = true_quality`, published every `period_s` while a client holds a contract for
 //! that service (and at once when one starts). A client follows its providers' channels with
 //! [`ProviderInput`] and, with `evaluate`, sends `E = pose.x` as its evaluation.
 
 use std::collections::BTreeMap;
 use std::time::Duration;
 
+use hng_modules::common::{ConfigError, seconds};
 use hng_runtime::channel::InputId;
 use hng_runtime::contract::{NeedSpec, ServiceOffer, Timing, Verdict};
 use hng_runtime::control::{ProviderInfo, ProviderInput};
@@ -33,42 +34,45 @@ use hng_runtime::msg::{Odometry, Pose2D, Twist};
 use hng_runtime::{Context, Module, ModuleResult, Publisher, Subscriber, TimerId};
 use serde::Deserialize;
 
-/// Protocol timing overrides, in milliseconds (0: the default).
+/// Protocol timing overrides, in seconds (0: the default).
 #[derive(Debug, Clone, Default, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct TimingConfig {
     /// Reply window.
-    pub reply_window_ms: u64,
+    pub reply_window_s: f64,
     /// Refresh period.
-    pub refresh_ms: u64,
+    pub refresh_s: f64,
     /// Peer timeout.
-    pub peer_timeout_ms: u64,
+    pub peer_timeout_s: f64,
     /// Retry period.
-    pub retry_ms: u64,
+    pub retry_s: f64,
     /// Probe period.
-    pub probe_ms: u64,
+    pub probe_s: f64,
 }
 
 impl TimingConfig {
-    fn timing(&self) -> Timing {
+    fn timing(&self) -> Result<Timing, ConfigError> {
         let mut t = Timing::default();
-        let ms = Duration::from_millis;
-        if self.reply_window_ms > 0 {
-            t.reply_window = ms(self.reply_window_ms);
-        }
-        if self.refresh_ms > 0 {
-            t.refresh_period = ms(self.refresh_ms);
-        }
-        if self.peer_timeout_ms > 0 {
-            t.peer_timeout = ms(self.peer_timeout_ms);
-        }
-        if self.retry_ms > 0 {
-            t.retry_period = ms(self.retry_ms);
-        }
-        if self.probe_ms > 0 {
-            t.probe_period = ms(self.probe_ms);
-        }
-        t
+        let set = |field: &str, v: f64, slot: &mut Duration| -> Result<(), ConfigError> {
+            if v != 0.0 {
+                *slot = seconds(field, v)?;
+            }
+            Ok(())
+        };
+        set(
+            "timing.reply_window_s",
+            self.reply_window_s,
+            &mut t.reply_window,
+        )?;
+        set("timing.refresh_s", self.refresh_s, &mut t.refresh_period)?;
+        set(
+            "timing.peer_timeout_s",
+            self.peer_timeout_s,
+            &mut t.peer_timeout,
+        )?;
+        set("timing.retry_s", self.retry_s, &mut t.retry_period)?;
+        set("timing.probe_s", self.probe_s, &mut t.probe_period)?;
+        Ok(t)
     }
 }
 
@@ -98,14 +102,14 @@ pub struct ProbeConfig {
     pub commands: Vec<String>,
     /// Channel on which activation changes are announced (`Twist.linear_x` = 1 or 0).
     pub announce: String,
-    /// Publication period, ms.
-    pub period_ms: u64,
+    /// Publication period, s.
+    pub period_s: f64,
     /// Protocol timing.
     pub timing: TimingConfig,
     /// Re-negotiation threshold.
     pub hysteresis: Option<f64>,
-    /// Feedback validity time tau, ms.
-    pub tau_ms: u64,
+    /// Feedback validity time tau, s (0: the default).
+    pub tau_s: f64,
 }
 
 impl Default for ProbeConfig {
@@ -122,10 +126,10 @@ impl Default for ProbeConfig {
             drive: Vec::new(),
             commands: Vec::new(),
             announce: String::new(),
-            period_ms: 20,
+            period_s: 0.02,
             timing: TimingConfig::default(),
             hysteresis: None,
-            tau_ms: 0,
+            tau_s: 0.0,
         }
     }
 }
@@ -227,17 +231,17 @@ impl Module for Probe {
                 sends_commands: cfg.commands.contains(s),
             });
         }
-        ctx.contract_timing(cfg.timing.timing());
+        ctx.contract_timing(cfg.timing.timing()?);
         if let Some(h) = cfg.hysteresis {
             ctx.contract_hysteresis(h);
         }
-        if cfg.tau_ms > 0 {
-            ctx.feedback_tau(Duration::from_millis(cfg.tau_ms));
+        if cfg.tau_s != 0.0 {
+            ctx.feedback_tau(seconds("tau_s", cfg.tau_s)?);
         }
         // Only a module with something to publish ticks: an empty configuration is the idle
         // module of `hng bench idle`.
         if outputs.iter().any(|o| o.data.is_some()) || needs.iter().any(|n| n.sends_commands) {
-            ctx.add_timer(Duration::from_millis(cfg.period_ms.max(1)));
+            ctx.add_timer(seconds("period_s", cfg.period_s)?);
         }
         ctx.set_quality(true, cfg.quality as f32);
         let q_input = if cfg.q_channel.is_empty() {

@@ -223,7 +223,7 @@ pub fn run(prefix: &str, args: &ContractsArgs) -> Result<()> {
     // Asked without creating any file of the prefix: a read-only command leaves nothing.
     let has_tables = crate::top::channel_exists(prefix, CONTRACTS)?;
     let has_system = has_tables
-        || crate::run::lock::running_supervisor(prefix).is_some()
+        || hng_supervisor::lock::running_supervisor(prefix).is_some()
         || crate::top::channel_exists(prefix, SUPERVISOR_STATUS)?;
     if !has_system {
         bail!(

@@ -117,7 +117,7 @@ pub fn run(prefix: &str, args: &GuiArgs) -> Result<()> {
         // (see `start_for_run`), and nothing else owns it.
         Some(fd) => unsafe { TcpListener::from_raw_fd(fd) },
         None => {
-            crate::run::status::ensure_system_exists(prefix)?;
+            hng_supervisor::status::ensure_system_exists(prefix)?;
             let addr = parse_addr(&args.addr)?;
             TcpListener::bind(addr)
                 .with_context(|| format!("operator page: cannot listen on {addr}"))?
@@ -163,7 +163,7 @@ pub fn run(prefix: &str, args: &GuiArgs) -> Result<()> {
         if end.is_some_and(|e| Instant::now() >= e) {
             break;
         }
-        if !child && crate::run::lock::running_supervisor(prefix).is_none() {
+        if !child && hng_supervisor::lock::running_supervisor(prefix).is_none() {
             outln!("operator page: the system under prefix {prefix:?} stopped")?;
             break;
         }

@@ -24,13 +24,15 @@ use hng::bench;
 mod behaviours;
 mod contracts;
 mod contracts_follow;
-mod doc;
+mod ctl;
 mod eval;
 mod eval_nav;
 mod gui;
+mod logs;
 mod mission;
 mod modules;
 mod order;
+mod probe;
 mod recording;
 mod run;
 mod sim;
@@ -38,6 +40,7 @@ mod teleop;
 mod top;
 mod topic;
 mod topic_pub;
+mod validate;
 
 /// hng: a runtime for robot control architectures (HNG: processes, zero-copy channels,
 /// contracts).
@@ -126,7 +129,7 @@ enum Command {
     Contracts(contracts::ContractsArgs),
     /// A module's log file from the last `hng run` on this prefix (`-f` follows); without a
     /// module, the list of log files.
-    Logs(run::logs::LogsArgs),
+    Logs(logs::LogsArgs),
     /// Print the iceoryx2 configuration (TOML) that reaches this prefix's channels, for
     /// iceoryx2's own tools: `hng iox2-config > config/iceoryx2.toml && iox2 service list`.
     #[command(name = "iox2-config")]
@@ -151,29 +154,49 @@ enum Command {
     BenchPeer(bench::ipc::PeerArgs),
 }
 
+/// Whether the command runs until it is stopped and reads SIGINT, SIGTERM and SIGHUP from a
+/// signalfd (a clean stop): those are blocked first thing in `main`, before any thread exists,
+/// so that no thread a library starts can die of them. The other commands keep the default
+/// actions (Ctrl-C ends them).
+fn reads_termination_signals(command: &Command) -> bool {
+    use topic::TopicCommand as T;
+    matches!(
+        command,
+        Command::Run(_)
+            | Command::Module { .. }
+            | Command::Record(_)
+            | Command::Replay(_)
+            | Command::Foxglove(_)
+            | Command::Gui(_)
+            | Command::Topic {
+                command: T::Echo { .. } | T::Hz { .. } | T::Pub { .. }
+            }
+    )
+}
+
 fn main() -> ExitCode {
     // Before any thread exists (docs/supervision.md): `hng run` reads SIGINT, SIGTERM and
     // SIGHUP from a signalfd, so they must be blocked in every thread it will start.
     let cli = Cli::parse();
-    if matches!(cli.command, Command::Run(_)) {
-        run::block_termination_signals();
+    if reads_termination_signals(&cli.command) {
+        hng_supervisor::block_termination_signals();
     }
     // A SIGSEGV or SIGBUS sent by `kill` ends the process at once (hng_runtime::fatal).
     if let Err(e) = hng_runtime::fatal::install() {
         eprintln!("hng: warning: fatal-signal handler not installed: {e}");
     }
     if !matches!(cli.command, Command::Run(_)) {
-        // `hng run` installs its own: quiet terminal, log files (run::logs).
+        // `hng run` installs its own: quiet terminal, log files (hng_supervisor::logs).
         hng_runtime::module::init_tracing();
     }
     let result = match cli.command {
         Command::Module { name } => return modules::run(&name),
         Command::Run(args) => return run::run(&cli.prefix, &args),
-        Command::Ps { json } => run::ctl::ps(&cli.prefix, json),
-        Command::Kill { module, signal } => run::ctl::kill(&cli.prefix, &module, &signal),
-        Command::Restart { module } => run::ctl::restart(&cli.prefix, &module),
-        Command::Start { module } => run::ctl::start(&cli.prefix, &module),
-        Command::Stop { module } => run::ctl::stop(&cli.prefix, module.as_deref()),
+        Command::Ps { json } => ctl::ps(&cli.prefix, json),
+        Command::Kill { module, signal } => ctl::kill(&cli.prefix, &module, &signal),
+        Command::Restart { module } => ctl::restart(&cli.prefix, &module),
+        Command::Start { module } => ctl::start(&cli.prefix, &module),
+        Command::Stop { module } => ctl::stop(&cli.prefix, module.as_deref()),
         Command::Topic { command } => topic::run(&cli.prefix, command),
         Command::Mission { command } => mission::run(&cli.prefix, command),
         Command::Order { command } => order::run(&cli.prefix, command),
@@ -181,7 +204,7 @@ fn main() -> ExitCode {
         Command::Behaviours(args) => behaviours::run(&cli.prefix, &args),
         Command::Top(args) => top::run(&cli.prefix, &args),
         Command::Contracts(args) => contracts::run(&cli.prefix, &args),
-        Command::Logs(args) => run::logs::show(&cli.prefix, &args),
+        Command::Logs(args) => logs::show(&cli.prefix, &args),
         Command::Bench { bench } => bench::run(bench),
         Command::Eval { command } => eval::run(command),
         Command::Sim { command } => sim::run(command),

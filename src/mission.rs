@@ -17,7 +17,7 @@ use hng_modules::manager::{
 use hng_modules::msgs::{MAX_MISSION_GOALS, Mission, MissionGoal, MissionOp};
 use serde::Deserialize;
 
-use crate::doc::{DocReader, ensure_channel_exists};
+use hng_supervisor::doc::{DocReader, ensure_channel_exists};
 
 /// How long a command waits for the Manager (it answers as soon as it has applied a change).
 const ANSWER_TIMEOUT: Duration = Duration::from_secs(3);

@@ -35,7 +35,7 @@ pub const BUILTIN: &[&str] = &[
 pub fn run(name: &str) -> ExitCode {
     #[allow(clippy::match_single_binding)]
     match name {
-        "heartbeat-probe" => hng_runtime::run_module::<crate::run::probe::Probe>(),
+        "heartbeat-probe" => hng_runtime::run_module::<crate::probe::Probe>(),
         "simulator" => hng_simulator::module::main(),
         // The RM measures wall-clock CPU: it never follows a simulation clock (which would
         // wake it for every clock sample).

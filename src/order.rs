@@ -19,7 +19,7 @@ use hng_runtime::msg::{
 use hng_runtime::wait::{WaitMode, Waiter};
 use hng_runtime::{Node, NodeOptions, Publisher, Subscriber};
 
-use crate::doc::ensure_channel_exists;
+use hng_supervisor::doc::ensure_channel_exists;
 
 /// How long a command waits for the Interface's answer.
 const ANSWER_TIMEOUT: Duration = Duration::from_secs(3);

@@ -154,9 +154,9 @@ pub fn record(prefix: &str, args: &RecordArgs) -> Result<()> {
     let run_dir = args
         .run_dir
         .clone()
-        .unwrap_or_else(|| crate::run::default_run_dir(prefix));
+        .unwrap_or_else(|| hng_supervisor::default_run_dir(prefix));
     if run_dir.is_dir() {
-        opts.internal.logs = Some(crate::run::logs::log_dir(&run_dir));
+        opts.internal.logs = Some(hng_supervisor::logs::log_dir(&run_dir));
         opts.internal.checkpoints = Some(run_dir.join("checkpoints"));
     }
     let mut run = BTreeMap::new();

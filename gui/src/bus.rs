@@ -424,7 +424,7 @@ fn poll_all(src: &mut Sources, st: &mut State) {
         if let Some(s) = slot.as_mut()
             && s.poll()
             && let Some((_, bytes)) = &s.latest
-            && let Ok(v) = serde_json::from_slice::<Value>(bytes)
+            && let Some(v) = status_value(topic, bytes)
         {
             if topic == 0 {
                 st.supervisor = Latest::Json(v);
@@ -512,6 +512,20 @@ fn priority_text(parts: &[u16]) -> String {
             .map(u16::to_string)
             .collect::<Vec<_>>()
             .join(".")
+    }
+}
+
+/// A status document as the page gets it: the supervisor's (`topic` 0) through its typed
+/// schema ([`hng_runtime::system::status::StatusDoc`]: a document of another shape is
+/// dropped), the resource manager's (1) as it is.
+fn status_value(topic: u8, bytes: &[u8]) -> Option<Value> {
+    if topic == 0 {
+        let doc: hng_runtime::system::status::StatusDoc = serde_json::from_slice(bytes)
+            .map_err(|e| tracing::debug!("a supervisor status that does not parse: {e}"))
+            .ok()?;
+        serde_json::to_value(doc).ok()
+    } else {
+        serde_json::from_slice(bytes).ok()
     }
 }
 

@@ -8,12 +8,12 @@ use std::sync::mpsc::{Receiver, RecvTimeoutError, Sender};
 use std::time::{Duration, Instant};
 
 use hng_runtime::msg::{DESIGNATION_CHANNEL, Designation, ORDER_CHANNEL, Order, OrderKind, Twist};
+use hng_runtime::system::status::StatusDoc;
 use hng_runtime::system::{
     CommandOp, JsonInfo, SUPERVISOR_COMMAND, SUPERVISOR_STATUS, SupervisorCommand,
 };
 use hng_runtime::wait::{WaitMode, Waiter};
 use hng_runtime::{Node, NodeOptions};
-use serde_json::Value;
 
 use crate::orders::ModuleOp;
 
@@ -103,11 +103,13 @@ pub fn control(
         max_spin: Duration::ZERO,
     })?;
     waiter.attach(&status)?;
-    let mut last: Option<Value> = None;
-    let mut read = |waiter: &mut Waiter, until: Instant, pred: &dyn Fn(&Value) -> bool| loop {
+    // The supervisor's status, typed (the schema `hng ps` and the resource manager read).
+    let mut last: Option<StatusDoc> = None;
+    let mut read = |waiter: &mut Waiter, until: Instant, pred: &dyn Fn(&StatusDoc) -> bool| loop {
         while let Ok(Some(s)) = status.receive() {
-            if let Ok(v) = serde_json::from_slice::<Value>(s.data()) {
-                last = Some(v);
+            match serde_json::from_slice::<StatusDoc>(s.data()) {
+                Ok(d) => last = Some(d),
+                Err(e) => tracing::debug!("a supervisor status that does not parse: {e}"),
             }
         }
         if let Some(v) = &last
@@ -134,15 +136,11 @@ pub fn control(
             let before = read(&mut waiter, deadline, &|_| true).ok_or_else(|| {
                 "no status from the supervisor (is the system running?)".to_owned()
             })?;
-            let names: Vec<&str> = before["modules"]
-                .as_array()
-                .map(|m| m.iter().filter_map(|r| r["name"].as_str()).collect())
-                .unwrap_or_default();
-            if !names.contains(&cmd.module.as_str()) {
+            if before.module(&cmd.module).is_none() {
                 return Err(format!(
                     "no module {:?}; the modules: {}",
                     cmd.module,
-                    names.join(", ")
+                    before.names()
                 ));
             }
             let op = match cmd.op {
@@ -153,16 +151,14 @@ pub fn control(
             };
             let mut c = SupervisorCommand::new(op, &cmd.module);
             c.signal = cmd.signal;
-            let seen = before["commands"].as_u64().unwrap_or(0);
+            let seen = before.commands;
             commands.update_connections();
             commands
                 .publish(c)
                 .map_err(|e| format!("sending the command: {e}"))?;
-            let doc = read(&mut waiter, deadline, &|v| {
-                v["commands"].as_u64().unwrap_or(0) > seen
-            })
-            .ok_or_else(|| "the supervisor did not acknowledge the command".to_owned())?;
-            match doc["last_command"]["error"].as_str() {
+            let doc = read(&mut waiter, deadline, &|d| d.commands > seen)
+                .ok_or_else(|| "the supervisor did not acknowledge the command".to_owned())?;
+            match doc.last_command.as_ref().and_then(|r| r.error.as_deref()) {
                 Some(e) => Err(format!("the supervisor refused: {e}")),
                 None => Ok(format!("{:?} {} done", cmd.op, cmd.module).to_lowercase()),
             }

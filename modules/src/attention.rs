@@ -12,6 +12,7 @@
 //! The same core answers the Interface's question "may this order be put in force now?", so an
 //! order for a behaviour not offered is refused with the reason.
 
+use smart_default::SmartDefault;
 use std::collections::BTreeMap;
 
 use hng_runtime::msg::{Behaviour, Behaviours, MAX_BEHAVIOURS, OrderKind, SIDE_LEFT, Walls};
@@ -28,21 +29,14 @@ pub struct Providers {
 }
 
 /// Attention's thresholds.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, SmartDefault)]
 pub struct AttentionConfig {
     /// A wall farther than this is not offered for following, m.
+    #[default(1.5)]
     pub wall_range_m: f64,
     /// Perception older than this is forgotten, s.
+    #[default(1.0)]
     pub fresh_s: f64,
-}
-
-impl Default for AttentionConfig {
-    fn default() -> Self {
-        AttentionConfig {
-            wall_range_m: 1.5,
-            fresh_s: 1.0,
-        }
-    }
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]

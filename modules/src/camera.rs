@@ -14,30 +14,24 @@ use hng_runtime::contract::ServiceOffer;
 use hng_runtime::msg::ImageInfo;
 use hng_runtime::{Context, Module, ModuleResult, SlicePublisher, SliceSubscriber};
 use serde::{Deserialize, Serialize};
+use smart_default::SmartDefault;
 
-use crate::common::{decode_state, encode_state, seconds};
+use crate::common::seconds;
 use crate::video::{VIDEO_TYPE, check_rgb8};
 
 /// Configuration of `hng module camera`.
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, SmartDefault)]
 #[serde(default, deny_unknown_fields)]
 pub struct CameraModuleConfig {
     /// The device's images (default `sim/camera/image`).
+    #[default("sim/camera/image".into())]
     pub image_in: String,
     /// Relayed images, the "Video" data channel (default `camera/image`).
+    #[default("camera/image".into())]
     pub image_out: String,
     /// No frame for this long means the camera is gone, s (default 1.0).
+    #[default(1.0)]
     pub frame_timeout_s: f64,
-}
-
-impl Default for CameraModuleConfig {
-    fn default() -> Self {
-        CameraModuleConfig {
-            image_in: "sim/camera/image".into(),
-            image_out: "camera/image".into(),
-            frame_timeout_s: 1.0,
-        }
-    }
 }
 
 #[derive(Debug, Clone, Copy, Default, Serialize, Deserialize, PartialEq)]
@@ -108,13 +102,7 @@ impl Module for CameraModule {
         Ok(())
     }
 
-    fn checkpoint(&self) -> Option<Vec<u8>> {
-        encode_state(&self.state)
-    }
-
-    fn restore(&mut self, state: &[u8]) -> ModuleResult {
-        // Format 1 had only the frame count: start the counters afresh then.
-        self.state = decode_state(state).unwrap_or_default();
-        Ok(())
-    }
+    // A checkpoint of format 1 (the frame count alone) does not decode: the runtime starts
+    // the counters afresh, with a warning.
+    hng_runtime::checkpoint_field!(state);
 }

@@ -1,6 +1,5 @@
 //! Helpers shared by the navigation modules: inputs that follow a contracted provider, command
-//! sources arbitrated by priority, the holders of a driver's contracts, poses, angles,
-//! checkpoint encoding.
+//! sources arbitrated by priority (a driver's static wiring), poses, angles.
 
 use std::time::Duration;
 
@@ -9,7 +8,6 @@ use hng_runtime::channel::{InputId, Sample};
 use hng_runtime::contract::{CommandArbiter, ModuleId, Priority, Verdict};
 use hng_runtime::control::ProviderInfo;
 use hng_runtime::msg::{Message, Pose2D, Twist};
-use hng_runtime::system::{ContractRole, ContractTable};
 use hng_runtime::{Error, Publisher, Subscriber};
 use serde::{Deserialize, Serialize};
 
@@ -76,10 +74,9 @@ pub fn seconds(field: &str, v: f64) -> Result<Duration, ConfigError> {
 
 /// Which of several command sources is obeyed: the live source with the most important
 /// priority; a source is live while its last command is younger than the freshness timeout
-/// (like ROS `twist_mux`). Built on the runtime's [`CommandArbiter`], keyed either by the
-/// source's index in a configured list ([`CommandMux::new`], static wiring) or by the client's
-/// module id (`Header::source` of its commands) with the holders of a contract tree
-/// ([`CommandMux::contracted`] and [`CommandMux::sync`], e.g. from [`ContractHolders`]).
+/// (like ROS `twist_mux`). Built on the runtime's [`CommandArbiter`], keyed by the source's
+/// index in a configured list: a driver's static wiring, for systems without contracts (with
+/// contracts the driver's own arbiter, `Context::command_verdict`, elects).
 #[derive(Debug, Clone)]
 pub struct CommandMux {
     arbiter: CommandArbiter,
@@ -113,19 +110,6 @@ impl CommandMux {
             arbiter,
             active: None,
         })
-    }
-
-    /// A mux with no holder yet (contract mode: [`CommandMux::sync`] sets them).
-    pub fn contracted(freshness: Duration) -> CommandMux {
-        CommandMux {
-            arbiter: CommandArbiter::new(freshness),
-            active: None,
-        }
-    }
-
-    /// Replaces the holders (contract mode).
-    pub fn sync<I: IntoIterator<Item = (ModuleId, Priority)>>(&mut self, holders: I) {
-        self.arbiter.sync(holders);
     }
 
     /// A command from source `source` arrived at `now`: `Send` it if the source has control.
@@ -275,57 +259,6 @@ impl<T: Message> ContractedInput<T> {
     }
 }
 
-/// The clients holding a contract for one service of one provider, with their priorities, as
-/// the provider's [`ContractTable`] (on `hng/contracts`) shows them: how a module that is not
-/// the driver (Security) learns the priorities the driver obeys.
-#[derive(Debug, Clone, Default)]
-pub struct ContractHolders {
-    holders: Vec<(ModuleId, Priority)>,
-}
-
-impl ContractHolders {
-    /// Reads `table` if it is `provider`'s: true when the holders of `service` changed.
-    /// `except` (the reader itself) is left out.
-    pub fn update(
-        &mut self,
-        table: &ContractTable,
-        provider: ModuleId,
-        service: &str,
-        except: ModuleId,
-    ) -> bool {
-        if table.module_id != provider.0 {
-            return false;
-        }
-        let mut next: Vec<(ModuleId, Priority)> = table
-            .entries()
-            .iter()
-            .filter(|e| e.role() == Some(ContractRole::Provider) && e.service() == service)
-            .filter(|e| e.peer != except.0)
-            .filter_map(|e| {
-                Priority::new(e.priority())
-                    .ok()
-                    .map(|p| (ModuleId(e.peer), p))
-            })
-            .collect();
-        next.sort_by_key(|(m, _)| *m);
-        if next == self.holders {
-            return false;
-        }
-        self.holders = next;
-        true
-    }
-
-    /// Forgets every holder (the provider changed or is gone).
-    pub fn clear(&mut self) {
-        self.holders.clear();
-    }
-
-    /// The holders and their priorities.
-    pub fn holders(&self) -> &[(ModuleId, Priority)] {
-        &self.holders
-    }
-}
-
 /// Wraps an angle to (-π, π].
 pub fn wrap_angle(a: f64) -> f64 {
     let mut a = a % std::f64::consts::TAU;
@@ -358,14 +291,72 @@ pub fn relative(a: &Pose2D, b: &Pose2D) -> Pose2D {
     }
 }
 
-/// Encodes a checkpoint.
-pub fn encode_state<T: Serialize>(state: &T) -> Option<Vec<u8>> {
-    postcard::to_allocvec(state).ok()
+/// Whatever follows the data channel of a need's provider: an input that reads it
+/// ([`ContractedInput`], [`hng_runtime::control::ProviderInput`], [`crate::video::VideoInput`])
+/// or a command output that writes to it (`Option<Publisher<T>>`, [`follow_output`]). With
+/// [`crate::follow_needs!`] a module names, per need, the field that follows it.
+pub trait FollowProvider {
+    /// Follows `provider` (or none), from `on_provider_changed`.
+    ///
+    /// # Errors
+    /// The provider's channel cannot be opened.
+    fn follow_provider(
+        &mut self,
+        ctx: &mut Context,
+        provider: Option<&ProviderInfo>,
+    ) -> Result<(), Error>;
 }
 
-/// Decodes a checkpoint.
-pub fn decode_state<'a, T: Deserialize<'a>>(bytes: &'a [u8]) -> Result<T, postcard::Error> {
-    postcard::from_bytes(bytes)
+impl<T: Message> FollowProvider for ContractedInput<T> {
+    fn follow_provider(
+        &mut self,
+        ctx: &mut Context,
+        p: Option<&ProviderInfo>,
+    ) -> Result<(), Error> {
+        self.follow(ctx, p)
+    }
+}
+
+impl<T: Message> FollowProvider for hng_runtime::control::ProviderInput<T> {
+    fn follow_provider(
+        &mut self,
+        ctx: &mut Context,
+        p: Option<&ProviderInfo>,
+    ) -> Result<(), Error> {
+        self.follow(ctx, p)
+    }
+}
+
+impl<T: Message> FollowProvider for Option<Publisher<T>> {
+    fn follow_provider(
+        &mut self,
+        ctx: &mut Context,
+        p: Option<&ProviderInfo>,
+    ) -> Result<(), Error> {
+        follow_output(ctx, self, p)
+    }
+}
+
+/// Writes `Module::on_provider_changed` for a module whose needs are each followed by one
+/// field ([`FollowProvider`]): `follow_needs!(ODOMETRY_NEED => odom, LIDAR_NEED => scan);`
+/// inside `impl Module for ...`.
+#[macro_export]
+macro_rules! follow_needs {
+    ($($need:path => $field:ident),+ $(,)?) => {
+        fn on_provider_changed(
+            &mut self,
+            ctx: &mut ::hng_runtime::Context,
+            need: u16,
+            provider: ::std::option::Option<&::hng_runtime::control::ProviderInfo>,
+        ) -> ::hng_runtime::ModuleResult {
+            $(
+                if need == $need {
+                    $crate::common::FollowProvider::follow_provider(&mut self.$field, ctx, provider)?;
+                }
+            )+
+            ::std::result::Result::Ok(())
+        }
+    };
 }
 
 /// Points `out` at the data channel of a need's new provider (a command publisher following

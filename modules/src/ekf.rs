@@ -18,43 +18,37 @@
 use hng_runtime::msg::Pose2D;
 use nalgebra::{Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
+use smart_default::SmartDefault;
 
 use crate::common::{compose, relative, wrap_angle};
 
 /// Noise and gate of the filter.
-#[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize, SmartDefault)]
 #[serde(default, deny_unknown_fields)]
 pub struct EkfParams {
     /// Standard deviation of the travelled distance per metre, along and across the
     /// heading (default 0.05: covers the simulator's 2 % random and 1 % scale errors).
+    #[default(0.05)]
     pub linear_per_m: f64,
     /// Standard deviation of the rotation per radian turned (default 0.05).
+    #[default(0.05)]
     pub angular_per_rad: f64,
     /// Standard deviation of the heading per metre driven, rad/m (default 0.01: drift).
+    #[default(0.01)]
     pub angular_per_m: f64,
     /// Position random walk, m/√s, applied with time even at rest (default 0.01).
+    #[default(0.01)]
     pub position_per_sqrt_s: f64,
     /// Heading random walk, rad/√s (default 0.002).
+    #[default(0.002)]
     pub heading_per_sqrt_s: f64,
     /// Mahalanobis gate: fixes with `yᵀ S⁻¹ y` above it are rejected (default 16.27, the
     /// 99.9 % quantile of χ² with 3 degrees of freedom).
+    #[default(16.27)]
     pub gate: f64,
     /// Fixes rejected in a row after which the filter re-initialises at the fix (default 10).
+    #[default(10)]
     pub max_rejections: u32,
-}
-
-impl Default for EkfParams {
-    fn default() -> Self {
-        EkfParams {
-            linear_per_m: 0.05,
-            angular_per_rad: 0.05,
-            angular_per_m: 0.01,
-            position_per_sqrt_s: 0.01,
-            heading_per_sqrt_s: 0.002,
-            gate: 16.27,
-            max_rejections: 10,
-        }
-    }
 }
 
 /// What a fix did to the filter.

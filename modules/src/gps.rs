@@ -12,35 +12,29 @@ use hng_runtime::contract::ServiceOffer;
 use hng_runtime::msg::PoseWithCovariance;
 use hng_runtime::{Context, Module, ModuleResult, Publisher, Subscriber};
 use serde::{Deserialize, Serialize};
+use smart_default::SmartDefault;
 
-use crate::common::{decode_state, encode_state, field_error, positive, seconds};
+use crate::common::{field_error, positive, seconds};
 
 /// Configuration of `hng module gps`.
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, SmartDefault)]
 #[serde(default, deny_unknown_fields)]
 pub struct GpsModuleConfig {
     /// Fixes from the device (default `sim/gps`).
+    #[default("sim/gps".into())]
     pub fix_in: String,
     /// Position published (default `gps/pose`).
+    #[default("gps/pose".into())]
     pub pose_out: String,
     /// No fix for this long: Q = -1, aptitude 0, s (default 1.0).
+    #[default(1.0)]
     pub fix_timeout_s: f64,
     /// σ at or below which Q is 1, m (default 0.1).
+    #[default(0.1)]
     pub sigma_good_m: f64,
     /// σ at or above which Q is -1, m (default 1.0).
+    #[default(1.0)]
     pub sigma_bad_m: f64,
-}
-
-impl Default for GpsModuleConfig {
-    fn default() -> Self {
-        GpsModuleConfig {
-            fix_in: "sim/gps".into(),
-            pose_out: "gps/pose".into(),
-            fix_timeout_s: 1.0,
-            sigma_good_m: 0.1,
-            sigma_bad_m: 1.0,
-        }
-    }
 }
 
 /// Position σ of a fix: the square root of the larger of its x and y variances (NaN if they
@@ -126,14 +120,7 @@ impl Module for GpsModule {
         Ok(())
     }
 
-    fn checkpoint(&self) -> Option<Vec<u8>> {
-        encode_state(&self.state)
-    }
-
-    fn restore(&mut self, state: &[u8]) -> ModuleResult {
-        self.state = decode_state(state)?;
-        Ok(())
-    }
+    hng_runtime::checkpoint_field!(state);
 }
 
 #[cfg(test)]

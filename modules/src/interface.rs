@@ -43,7 +43,6 @@ use std::time::Duration;
 
 use hng_runtime::channel::InputId;
 use hng_runtime::contract::{NeedSpec, ServiceOffer};
-use hng_runtime::control::ProviderInfo;
 use hng_runtime::msg::{
     BEHAVIOURS_CHANNEL, BeaconObservation, BeaconTrack, Behaviours, DESIGNATION_CHANNEL,
     Designation, FOLLOW_WALL_CHANNEL, FollowWallRequest, Goal, ORDER_CHANNEL, ORDER_STATUS_CHANNEL,
@@ -51,10 +50,11 @@ use hng_runtime::msg::{
 };
 use hng_runtime::{Context, Module, ModuleResult, Publisher, Subscriber, TimerId};
 use serde::{Deserialize, Serialize};
+use smart_default::SmartDefault;
 
 pub use self::orders::{Mode, OrderLimits, validate};
 use crate::attention::{Attention, AttentionConfig, Providers, same_offer};
-use crate::common::{decode_state, encode_state, field_error, follow_output, positive};
+use crate::common::{field_error, positive};
 use crate::msgs::{GoalState, GoalStatus};
 use crate::robot::ROBOT_CONTROL;
 
@@ -78,75 +78,64 @@ pub const REACH_BEACON: &str = "Reach beacon";
 pub const OPERATOR_GOAL_ID_BASE: u32 = 0x4000_0000;
 
 /// Configuration of `hng module interface`.
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, SmartDefault)]
 #[serde(default, deny_unknown_fields)]
 pub struct InterfaceConfig {
     /// The operator's teleoperation commands (default `hng/teleop`).
+    #[default("hng/teleop".into())]
     pub teleop_in: String,
     /// Ask for "Reach goal", so goals are pursued under Human control (default true).
+    #[default(true)]
     pub reach_goal: bool,
     /// Ask for "Video" (default true).
+    #[default(true)]
     pub video: bool,
     /// Offer and accept follow-wall orders (need "Follow wall"; default true).
+    #[default(true)]
     pub follow_wall: bool,
     /// Offer and accept reach-beacon orders (need "Reach beacon"; default true).
+    #[default(true)]
     pub reach_beacon: bool,
     /// The Manager's current goal (default `manager/goal`).
+    #[default("manager/goal".into())]
     pub goal_in: String,
     /// Where the goal to pursue goes, Planning's goal input (default `interface/goal`).
+    #[default("interface/goal".into())]
     pub goal_out: String,
     /// Goal statuses (default `servo/status`, `planning/status`).
+    #[default(vec!["servo/status".into(), "planning/status".into()])]
     pub status_in: Vec<String>,
     /// Detected walls for attention (default `walls/walls`).
+    #[default("walls/walls".into())]
     pub walls_in: String,
     /// Beacon observations for attention (`BeaconObservation`; default none: the camera
     /// gives images, and a beacon is offered once a tracker tracks it).
     pub beacons_in: String,
     /// Trackers' `BeaconTrack` channels for attention (default the two built-in trackers',
     /// `tracker_colour/track` and `tracker_histogram/track`).
+    #[default(vec![ "tracker_colour/track".into(), "tracker_histogram/track".into(), ])]
     pub tracks_in: Vec<String>,
     /// Deadman of the teleop order: no command for this long, s: zero (default 0.5).
+    #[default(0.5)]
     pub deadman_s: f64,
     /// Period of the hold commands (stop, deadman) and of attention, s (default 0.05).
+    #[default(0.05)]
     pub period_s: f64,
     /// An order whose behaviour has no provider this long ends, s (default 3).
+    #[default(3.0)]
     pub provider_timeout_s: f64,
     /// Largest |x|, |y| of an order's point, m (default 1000).
+    #[default(1000.0)]
     pub max_coordinate_m: f64,
     /// Tolerance of the operator's goals given without one, m (default 0.2).
+    #[default(0.2)]
     pub goal_tolerance_m: f64,
     /// Attention: walls farther than this are not offered, m (default 1.5).
+    #[default(1.5)]
     pub wall_range_m: f64,
     /// Attention: perception older than this is forgotten, s (default 1).
+    #[default(1.0)]
     pub fresh_s: f64,
-}
-
-impl Default for InterfaceConfig {
-    fn default() -> Self {
-        InterfaceConfig {
-            teleop_in: "hng/teleop".into(),
-            reach_goal: true,
-            video: true,
-            follow_wall: true,
-            reach_beacon: true,
-            goal_in: "manager/goal".into(),
-            goal_out: "interface/goal".into(),
-            status_in: vec!["servo/status".into(), "planning/status".into()],
-            walls_in: "walls/walls".into(),
-            beacons_in: String::new(),
-            tracks_in: vec![
-                "tracker_colour/track".into(),
-                "tracker_histogram/track".into(),
-            ],
-            deadman_s: 0.5,
-            period_s: 0.05,
-            provider_timeout_s: 3.0,
-            max_coordinate_m: 1000.0,
-            goal_tolerance_m: 0.2,
-            wall_range_m: 1.5,
-            fresh_s: 1.0,
-        }
-    }
 }
 
 #[derive(Debug, Clone, Default, Serialize, Deserialize, PartialEq)]
@@ -657,26 +646,7 @@ impl Module for InterfaceModule {
         self.publish_behaviours(ctx)
     }
 
-    fn on_provider_changed(
-        &mut self,
-        ctx: &mut Context,
-        need: u16,
-        provider: Option<&ProviderInfo>,
-    ) -> ModuleResult {
-        match need {
-            ROBOT_CONTROL_NEED => follow_output(ctx, &mut self.cmd_out, provider)?,
-            VIDEO_NEED => self.video.follow(ctx, provider)?,
-            _ => {}
-        }
-        Ok(())
-    }
+    crate::follow_needs!(ROBOT_CONTROL_NEED => cmd_out, VIDEO_NEED => video);
 
-    fn checkpoint(&self) -> Option<Vec<u8>> {
-        encode_state(&self.state)
-    }
-
-    fn restore(&mut self, state: &[u8]) -> ModuleResult {
-        self.state = decode_state(state)?;
-        Ok(())
-    }
+    hng_runtime::checkpoint_field!(state);
 }

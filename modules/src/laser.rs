@@ -9,49 +9,27 @@
 //! arriving (`scan_timeout_s`) or the last one was malformed.
 
 use hng_runtime::channel::InputId;
-use hng_runtime::msg::{LaserScan, MAX_BEAMS};
+use hng_runtime::msg::LaserScan;
 use hng_runtime::{Context, Module, ModuleResult, Publisher, Subscriber};
 use serde::{Deserialize, Serialize};
+use smart_default::SmartDefault;
 
-use crate::common::{decode_state, encode_state, seconds};
-use crate::security::ScanView;
+use crate::common::seconds;
+use crate::scan::{is_malformed, scan_quality};
 
 /// Configuration of `hng module laser`.
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, SmartDefault)]
 #[serde(default, deny_unknown_fields)]
 pub struct LaserModuleConfig {
     /// The device's scans (default `sim/scan`).
+    #[default("sim/scan".into())]
     pub scan_in: String,
     /// Relayed scans (default `laser/scan`).
+    #[default("laser/scan".into())]
     pub scan_out: String,
     /// No scan for this long means the device is gone, s (default 0.5).
+    #[default(0.5)]
     pub scan_timeout_s: f64,
-}
-
-impl Default for LaserModuleConfig {
-    fn default() -> Self {
-        LaserModuleConfig {
-            scan_in: "sim/scan".into(),
-            scan_out: "laser/scan".into(),
-            scan_timeout_s: 0.5,
-        }
-    }
-}
-
-/// True if a scan cannot be interpreted: no beams, more beams than the message holds, or a
-/// non-finite or non-positive angle step.
-pub fn is_malformed(scan: &LaserScan) -> bool {
-    let inc = scan.angle_increment;
-    scan.count == 0 || scan.count as usize > MAX_BEAMS || !inc.is_finite() || inc <= 0.0
-}
-
-/// Whether a scan is usable, and its quality Q in [-1, 1].
-pub fn scan_quality(scan: &LaserScan) -> (bool, f32) {
-    if is_malformed(scan) {
-        return (false, -1.0);
-    }
-    let bad = ScanView::of(scan).invalid_fraction();
-    (bad < 0.5, (1.0 - 2.0 * bad) as f32)
 }
 
 #[derive(Debug, Clone, Copy, Default, Serialize, Deserialize, PartialEq)]
@@ -108,35 +86,5 @@ impl Module for LaserModule {
         Ok(())
     }
 
-    fn checkpoint(&self) -> Option<Vec<u8>> {
-        encode_state(&self.state)
-    }
-
-    fn restore(&mut self, state: &[u8]) -> ModuleResult {
-        self.state = decode_state(state)?;
-        Ok(())
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn scan_quality_reflects_validity() {
-        let mut s = LaserScan {
-            count: 4,
-            angle_increment: 0.01,
-            ..Default::default()
-        };
-        s.ranges[..4].copy_from_slice(&[1.0, 2.0, f32::INFINITY, f32::NEG_INFINITY]);
-        assert_eq!(scan_quality(&s), (true, 1.0));
-        s.ranges[0] = f32::NAN;
-        assert_eq!(scan_quality(&s), (true, 0.5));
-        s.angle_increment = f32::NAN;
-        assert_eq!(scan_quality(&s), (false, -1.0));
-        s.angle_increment = 0.01;
-        s.count = 0;
-        assert!(!scan_quality(&s).0);
-    }
+    hng_runtime::checkpoint_field!(state);
 }

@@ -28,6 +28,7 @@ pub mod planning_module;
 pub mod reacher;
 pub mod reacher_module;
 pub mod robot;
+pub mod scan;
 pub mod security;
 pub mod servo;
 pub mod slam;

@@ -23,50 +23,43 @@ use std::time::Duration;
 
 use hng_runtime::channel::InputId;
 use hng_runtime::contract::{NeedSpec, ServiceOffer};
-use hng_runtime::control::ProviderInfo;
 use hng_runtime::msg::{FrameId, Header, Odometry, PoseWithCovariance};
 use hng_runtime::{Context, Module, ModuleResult, Publisher, Subscriber, TimerId};
 use serde::{Deserialize, Serialize};
+use smart_default::SmartDefault;
 
-use crate::common::{ContractedInput, decode_state, encode_state, field_error, positive, seconds};
+use crate::common::{ContractedInput, field_error, positive, seconds};
 use crate::ekf::{Ekf, EkfParams, EkfState, FixOutcome};
 use crate::gps::gps_quality;
 
 /// Configuration of `hng module localization`.
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, SmartDefault)]
 #[serde(default, deny_unknown_fields)]
 pub struct LocalizationConfig {
     /// Odometry while no provider is contracted (default `robot/odom`).
+    #[default("robot/odom".into())]
     pub odom: String,
     /// Pose fixes (default `gps/pose`).
+    #[default("gps/pose".into())]
     pub fix_in: String,
     /// Fused pose published (default `localization/pose`).
+    #[default("localization/pose".into())]
     pub pose_out: String,
     /// No odometry for this long: aptitude 0, s (default 0.5).
+    #[default(0.5)]
     pub odom_timeout_s: f64,
     /// No fused fix for this long: aptitude 0, s (default 20).
+    #[default(20.0)]
     pub fix_timeout_s: f64,
     /// σ at or below which Q is 1, m (default 0.1).
+    #[default(0.1)]
     pub sigma_good_m: f64,
     /// σ at or above which Q is -1, m (default 1.0).
+    #[default(1.0)]
     pub sigma_bad_m: f64,
     /// Noise and gate of the filter.
+    #[default(EkfParams::default())]
     pub filter: EkfParams,
-}
-
-impl Default for LocalizationConfig {
-    fn default() -> Self {
-        LocalizationConfig {
-            odom: "robot/odom".into(),
-            fix_in: "gps/pose".into(),
-            pose_out: "localization/pose".into(),
-            odom_timeout_s: 0.5,
-            fix_timeout_s: 20.0,
-            sigma_good_m: 0.1,
-            sigma_bad_m: 1.0,
-            filter: EkfParams::default(),
-        }
-    }
 }
 
 /// Rank of the "Odometry" need.
@@ -248,27 +241,20 @@ impl Module for LocalizationModule {
         Ok(())
     }
 
-    fn on_provider_changed(
-        &mut self,
-        ctx: &mut Context,
-        need: u16,
-        provider: Option<&ProviderInfo>,
-    ) -> ModuleResult {
-        if need == ODOMETRY_NEED {
-            self.odom.follow(ctx, provider)?;
-        }
-        Ok(())
-    }
+    crate::follow_needs!(ODOMETRY_NEED => odom);
 
-    fn checkpoint(&self) -> Option<Vec<u8>> {
-        encode_state(&LocState {
+    hng_runtime::checkpoint_with!(Self::save_state, Self::load_state);
+}
+
+impl LocalizationModule {
+    fn save_state(&self) -> LocState {
+        LocState {
             filter: self.ekf.state(),
             ..self.state
-        })
+        }
     }
 
-    fn restore(&mut self, state: &[u8]) -> ModuleResult {
-        let s: LocState = decode_state(state)?;
+    fn load_state(&mut self, s: LocState) -> ModuleResult {
         self.ekf = Ekf::resume(self.params, &s.filter);
         self.state = s;
         Ok(())

@@ -20,8 +20,9 @@ use hng_runtime::msg::{FrameId, Goal, Header};
 use hng_runtime::system::JsonInfo;
 use hng_runtime::{Context, Module, ModuleResult, Publisher, SlicePublisher, Subscriber};
 use serde::{Deserialize, Serialize};
+use smart_default::SmartDefault;
 
-use crate::common::{decode_state, encode_state, field_error};
+use crate::common::field_error;
 use crate::msgs::{GoalState, GoalStatus, Mission, MissionGoal, MissionOp, MissionStatus};
 
 /// The mission's standing objectives, most important first (their priorities are 1 and 2;
@@ -263,34 +264,26 @@ pub struct GoalConfig {
 }
 
 /// Configuration of `hng module manager`.
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, SmartDefault)]
 #[serde(default, deny_unknown_fields)]
 pub struct ManagerConfig {
     /// The goals, in order.
     pub goals: Vec<GoalConfig>,
     /// Current goal out (default `manager/goal`).
+    #[default("manager/goal".into())]
     pub goal_out: String,
     /// Goal statuses in (default `servo/status` and `planning/status`).
+    #[default(vec!["servo/status".into(), "planning/status".into()])]
     pub status_in: Vec<String>,
     /// Mission changes in (default `hng/mission`).
+    #[default("hng/mission".into())]
     pub mission_in: String,
     /// Progress out (default `manager/status`).
+    #[default("manager/status".into())]
     pub status_out: String,
     /// The whole mission as JSON out (default `manager/mission`).
+    #[default(MISSION_PLAN_CHANNEL.into())]
     pub plan_out: String,
-}
-
-impl Default for ManagerConfig {
-    fn default() -> Self {
-        ManagerConfig {
-            goals: Vec::new(),
-            goal_out: "manager/goal".into(),
-            status_in: vec!["servo/status".into(), "planning/status".into()],
-            mission_in: "hng/mission".into(),
-            status_out: "manager/status".into(),
-            plan_out: MISSION_PLAN_CHANNEL.into(),
-        }
-    }
 }
 
 /// Default channel of the [`MissionPlan`] document.
@@ -478,14 +471,7 @@ impl Module for ManagerModule {
         Ok(())
     }
 
-    fn checkpoint(&self) -> Option<Vec<u8>> {
-        encode_state(&self.core)
-    }
-
-    fn restore(&mut self, state: &[u8]) -> ModuleResult {
-        self.core = decode_state(state)?;
-        Ok(())
-    }
+    hng_runtime::checkpoint_field!(core);
 }
 
 #[cfg(test)]
@@ -559,8 +545,8 @@ mod tests {
         );
         assert_eq!(m.goal_msg().pose.x, 8.0);
         // Checkpoint round trip.
-        let bytes = encode_state(&m).unwrap();
-        let back: MissionCore = decode_state(&bytes).unwrap();
+        let bytes = hng_runtime::module::encode_state(&m).unwrap();
+        let back: MissionCore = hng_runtime::module::decode_state(&bytes).unwrap();
         assert_eq!(back, m);
     }
 

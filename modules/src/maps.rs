@@ -16,33 +16,25 @@ use std::time::Duration;
 use hng_runtime::msg::{FrameId, GridInfo, Header, Pose2D};
 use hng_runtime::{Context, Module, ModuleResult, SlicePublisher, TimerId};
 use serde::{Deserialize, Serialize};
+use smart_default::SmartDefault;
 
-use crate::common::{decode_state, encode_state, field_error, seconds};
+use crate::common::{field_error, seconds};
 use crate::planning::{GridError, OccupancyGrid};
 
 /// Configuration of `hng module maps`.
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, SmartDefault)]
 #[serde(default, deny_unknown_fields)]
 pub struct MapsModuleConfig {
     /// The map_server YAML file (required).
     pub map: Option<PathBuf>,
     /// Channel of the map (default `maps/map`).
+    #[default("maps/map".into())]
     pub map_out: String,
     /// Re-read the file this often, s (default: never).
     pub reload_s: Option<f64>,
     /// The self-evaluated quality Q of the map, in (0, 1] (default 1).
+    #[default(1.0)]
     pub quality: f64,
-}
-
-impl Default for MapsModuleConfig {
-    fn default() -> Self {
-        MapsModuleConfig {
-            map: None,
-            map_out: "maps/map".into(),
-            reload_s: None,
-            quality: 1.0,
-        }
-    }
 }
 
 /// A planning grid from a map message (the header's origin heading must be 0: rotated maps
@@ -171,14 +163,7 @@ impl Module for MapsModule {
         Ok(())
     }
 
-    fn checkpoint(&self) -> Option<Vec<u8>> {
-        encode_state(&self.state)
-    }
-
-    fn restore(&mut self, state: &[u8]) -> ModuleResult {
-        self.state = decode_state(state)?;
-        Ok(())
-    }
+    hng_runtime::checkpoint_field!(state);
 }
 
 #[cfg(test)]

@@ -26,8 +26,9 @@ use hng_runtime::control::{ProviderInfo, ProviderInput};
 use hng_runtime::msg::{FrameId, Goal, GridInfo, Header, Pose2D, PoseWithCovariance, Waypoint};
 use hng_runtime::{Context, Module, ModuleResult, Publisher, SliceSubscriber, Subscriber};
 use serde::{Deserialize, Serialize};
+use smart_default::SmartDefault;
 
-use crate::common::{decode_state, encode_state, positive};
+use crate::common::positive;
 use crate::heartbeat::BusyHeartbeat;
 use crate::maps::grid_from_msg;
 use crate::msgs::{GoalState, GoalStatus, RefusalReason};
@@ -41,56 +42,49 @@ use crate::planning::{
 };
 
 /// Parameters of the planner.
-#[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize, SmartDefault)]
 #[serde(default, deny_unknown_fields)]
 pub struct PlanningParams {
     /// Robot radius, m (default [`crate::footprint::ROBOT_RADIUS_M`], 0.2).
+    #[default(crate::footprint::ROBOT_RADIUS_M)]
     pub robot_radius: f64,
     /// Margin on top of the radius: cells closer than `robot_radius + clearance` to an
     /// obstacle are lethal, m (default [`crate::footprint::FOOTPRINT_MARGIN_M`], 0.05, the
     /// margin of Security's swept disc).
+    #[default(crate::footprint::FOOTPRINT_MARGIN_M)]
     pub clearance: f64,
     /// Distance from obstacles at which the inflation cost has fallen to 0, m (default 1.0):
     /// paths keep this far from walls where there is room.
+    #[default(1.0)]
     pub inflation_m: f64,
     /// Inflation cost at the lethal band: a step there costs `1 + cost_weight` times its
     /// length (default 10; 0 plans the plain shortest path).
+    #[default(10.0)]
     pub cost_weight: f64,
     /// Decay of the inflation cost with the distance beyond the lethal band, 1/m (default 8:
     /// the cost halves every 9 cm, so paths round convex corners at about 0.5 m from them
     /// rather than grazing the lethal band).
+    #[default(8.0)]
     pub cost_decay: f64,
     /// Distance of the carrot ahead of the robot on the path, m (default 0.6).
+    #[default(0.6)]
     pub lookahead_m: f64,
     /// Replan when the robot is farther than this from the path, m (default 0.5).
+    #[default(0.5)]
     pub deviation_m: f64,
     /// Speed suggested in waypoints, m/s (default 0.5).
+    #[default(0.5)]
     pub speed: f64,
     /// Plan through unknown cells (default true, as Nav2's `allow_unknown`): a SLAM map is
     /// mostly unknown at first, and a goal in its unexplored part is not a reason to refuse
     /// (the "Mapping" provider may also be SLAM only until Maps' better offer arrives); the
     /// robot explores, Security keeps it off what the lidar sees, and every new map replans.
     /// A surveyed map (Maps) has no unknown cells inside the area it covers.
+    #[default(true)]
     pub unknown_is_free: bool,
     /// Progress checker and recovery behaviours ([`crate::planning::progress`]).
+    #[default(ProgressParams::default())]
     pub progress: ProgressParams,
-}
-
-impl Default for PlanningParams {
-    fn default() -> Self {
-        PlanningParams {
-            robot_radius: crate::footprint::ROBOT_RADIUS_M,
-            clearance: crate::footprint::FOOTPRINT_MARGIN_M,
-            inflation_m: 1.0,
-            cost_weight: 10.0,
-            cost_decay: 8.0,
-            lookahead_m: 0.6,
-            deviation_m: 0.5,
-            speed: 0.5,
-            unknown_is_free: true,
-            progress: ProgressParams::default(),
-        }
-    }
 }
 
 /// What one update of the planner produced.
@@ -783,12 +777,15 @@ impl Module for PlanningModule {
         Ok(())
     }
 
-    fn checkpoint(&self) -> Option<Vec<u8>> {
-        encode_state(&self.state)
+    hng_runtime::checkpoint_with!(Self::save_state, Self::load_state);
+}
+
+impl PlanningModule {
+    fn save_state(&self) -> PlanningState {
+        self.state
     }
 
-    fn restore(&mut self, state: &[u8]) -> ModuleResult {
-        let s: PlanningState = decode_state(state)?;
+    fn load_state(&mut self, s: PlanningState) -> ModuleResult {
         if s.goal_id != 0 {
             self.core.set_goal(Goal {
                 id: s.goal_id,

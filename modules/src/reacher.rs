@@ -27,46 +27,40 @@
 //! contract when its own quality falls (attention must still move it in the dark).
 
 use hng_runtime::msg::Pose2D;
+use smart_default::SmartDefault;
 
 use crate::common::{relative, wrap_angle};
 
 /// Parameters of the reacher's command law.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, SmartDefault)]
 #[serde(default, deny_unknown_fields)]
 pub struct ReachParams {
     /// Stop this far from the beacon's axis (the tracker's range), m (default 0.45: 0.15 m
     /// between a 0.2 m robot and a 0.1 m marker, more than Security's 0.10 m).
+    #[default(0.45)]
     pub stop_distance_m: f64,
     /// Top forward speed, m/s (default 0.4).
+    #[default(0.4)]
     pub max_speed: f64,
     /// Least forward speed while short of the stop distance, m/s (default 0.05): the
     /// proportional law alone would approach the stop distance without ever reaching it.
+    #[default(0.05)]
     pub min_speed: f64,
     /// Top turn rate, rad/s (default 1.0).
+    #[default(1.0)]
     pub max_turn: f64,
     /// Speed per metre of range left, 1/s (default 0.6).
+    #[default(0.6)]
     pub k_speed: f64,
     /// Turn rate per radian of bearing, 1/s (default 1.5).
+    #[default(1.5)]
     pub k_turn: f64,
     /// Turn in place beyond this bearing, rad (default 0.4).
+    #[default(0.4)]
     pub turn_in_place_rad: f64,
     /// Not seen for this long: stop and report the beacon lost, s (default 1.5).
+    #[default(1.5)]
     pub lost_timeout_s: f64,
-}
-
-impl Default for ReachParams {
-    fn default() -> Self {
-        ReachParams {
-            stop_distance_m: 0.45,
-            max_speed: 0.4,
-            min_speed: 0.05,
-            max_turn: 1.0,
-            k_speed: 0.6,
-            k_turn: 1.5,
-            turn_in_place_rad: 0.4,
-            lost_timeout_s: 1.5,
-        }
-    }
 }
 
 /// What the reacher does with one track.
@@ -112,29 +106,22 @@ impl ReachLaw {
 }
 
 /// Parameters of the feedback.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, SmartDefault)]
 #[serde(default, deny_unknown_fields)]
 pub struct JudgeParams {
     /// Judge over at least this long, s (default 1.0).
+    #[default(1.0)]
     pub window_s: f64,
     /// Bearing tolerance, rad (default 0.15).
+    #[default(0.15)]
     pub bearing_tol_rad: f64,
     /// Range tolerance, fraction of the range (+ 0.1 m; default 0.15).
+    #[default(0.15)]
     pub range_tol_frac: f64,
     /// Also judge against the oldest judged report at most this old, s (default 3.0; at
     /// least `window_s`).
+    #[default(3.0)]
     pub horizon_s: f64,
-}
-
-impl Default for JudgeParams {
-    fn default() -> Self {
-        JudgeParams {
-            window_s: 1.0,
-            bearing_tol_rad: 0.15,
-            range_tol_frac: 0.15,
-            horizon_s: 3.0,
-        }
-    }
 }
 
 /// The feedback judge; see the module documentation.

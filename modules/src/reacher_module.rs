@@ -30,8 +30,9 @@ use hng_runtime::qos::ChannelKind;
 use hng_runtime::{Context, Module, ModuleResult, Publisher, Subscriber, TimerId};
 use iceoryx2::prelude::ZeroCopySend;
 use serde::{Deserialize, Serialize};
+use smart_default::SmartDefault;
 
-use crate::common::{decode_state, encode_state, follow_output, positive};
+use crate::common::{follow_output, positive};
 use crate::reacher::{JudgeParams, ProgressJudge, Reach, ReachLaw, ReachParams};
 use crate::robot::ROBOT_CONTROL;
 use crate::tracker_module::TRACK_BEACON;
@@ -71,34 +72,27 @@ pub struct ReachStatus {
 hng_runtime::impl_message!(ReachStatus, ChannelKind::State);
 
 /// Configuration of `hng module reacher`.
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, SmartDefault)]
 #[serde(default, deny_unknown_fields)]
 pub struct ReacherConfig {
     /// Status out, the offer's data channel (default `reacher/status`).
+    #[default("reacher/status".into())]
     pub status_out: String,
     /// Designations (default `operator/designation`).
+    #[default(DESIGNATION_CHANNEL.into())]
     pub designation: String,
     /// Odometry for the feedback (default `robot/odom`).
+    #[default("robot/odom".into())]
     pub odom: String,
     /// Rate the tracker (default true).
+    #[default(true)]
     pub evaluate: bool,
     /// The command law (`law = { stop_distance_m = 0.4, lost_timeout_s = 1.5, ... }`).
+    #[default(ReachParams::default())]
     pub law: ReachParams,
     /// The feedback.
+    #[default(JudgeParams::default())]
     pub feedback: JudgeParams,
-}
-
-impl Default for ReacherConfig {
-    fn default() -> Self {
-        ReacherConfig {
-            status_out: "reacher/status".into(),
-            designation: DESIGNATION_CHANNEL.into(),
-            odom: "robot/odom".into(),
-            evaluate: true,
-            law: ReachParams::default(),
-            feedback: JudgeParams::default(),
-        }
-    }
 }
 
 #[derive(Debug, Clone, Copy, Default, Serialize, Deserialize, PartialEq)]
@@ -255,14 +249,7 @@ impl Module for ReacherModule {
         Ok(())
     }
 
-    fn checkpoint(&self) -> Option<Vec<u8>> {
-        encode_state(&self.state)
-    }
-
-    fn restore(&mut self, state: &[u8]) -> ModuleResult {
-        self.state = decode_state(state)?;
-        Ok(())
-    }
+    hng_runtime::checkpoint_field!(state);
 }
 
 impl ReacherModule {

@@ -6,7 +6,11 @@
 //! obeys only the live contract holder with the most important priority
 //! (`ctx.drive` + `ctx.command_verdict`: Security 1.1 over the operator's Interface 2.1 over
 //! the Servo-controller 2.2.1.1); commands of the others are ignored and counted
-//! (`commands_preempted`, `commands_no_contract` in its contract table). The accepted ones are
+//! (`commands_preempted`, `commands_no_contract` in its contract table). The election is made
+//! here only: the commands of the client the most important holder supervises (the live one
+//! elected among the others, `ctx.supervised_client`) are also published on
+//! [`supervised_channel`]`(cmd_in)` (`robot/cmd_vel/supervised`), where Security reads the
+//! command it limits before sending its own at 1.1. The accepted ones are
 //! forwarded to the base (`cmd_out`, the simulator's `sim/cmd_vel` here, a hardware bridge on a
 //! real robot) after clamping to the base's limits. When the client in control goes silent
 //! and no other takes over, one stop is sent. Odometry from the base is provided as
@@ -22,55 +26,46 @@
 use std::time::Duration;
 
 use hng_runtime::channel::InputId;
-use hng_runtime::contract::{ServiceOffer, Verdict};
+use hng_runtime::contract::{ModuleId, ServiceOffer, Verdict};
 use hng_runtime::msg::{Odometry, Twist};
 use hng_runtime::{Context, Module, ModuleResult, Publisher, Subscriber, TimerId};
 use serde::{Deserialize, Serialize};
+use smart_default::SmartDefault;
 
-use crate::common::{
-    CommandMux, CommandSource, MuxAction, decode_state, encode_state, positive, seconds,
-};
+use crate::common::{CommandMux, CommandSource, MuxAction, positive, seconds};
 
 /// Configuration of `hng module robot`.
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, SmartDefault)]
 #[serde(default, deny_unknown_fields)]
 pub struct RobotConfig {
     /// The "Robot control" data channel: contracted clients send their commands here
     /// (default `robot/cmd_vel`).
+    #[default("robot/cmd_vel".into())]
     pub cmd_in: String,
     /// Static clients, each with a configured priority, for systems without contracts
     /// (default none: only contract holders command the base).
     pub sources: Vec<CommandSource>,
     /// A client loses control after this long without a command, s (default 0.5).
+    #[default(0.5)]
     pub freshness_s: f64,
     /// Where accepted commands go (default `sim/cmd_vel`).
+    #[default("sim/cmd_vel".into())]
     pub cmd_out: String,
     /// Odometry from the base (default `sim/odom`).
+    #[default("sim/odom".into())]
     pub odom_in: String,
     /// Odometry relayed to clients (default `robot/odom`).
+    #[default("robot/odom".into())]
     pub odom_out: String,
     /// Odometry silent this long means the base is gone, s (default 0.5).
+    #[default(0.5)]
     pub odom_timeout_s: f64,
     /// Forward/backward speed limit of the base, m/s (default 1.0).
+    #[default(1.0)]
     pub max_linear_speed: f64,
     /// Turn rate limit of the base, rad/s (default 2.0).
+    #[default(2.0)]
     pub max_angular_speed: f64,
-}
-
-impl Default for RobotConfig {
-    fn default() -> Self {
-        RobotConfig {
-            cmd_in: "robot/cmd_vel".into(),
-            sources: Vec::new(),
-            freshness_s: 0.5,
-            cmd_out: "sim/cmd_vel".into(),
-            odom_in: "sim/odom".into(),
-            odom_out: "robot/odom".into(),
-            odom_timeout_s: 0.5,
-            max_linear_speed: 1.0,
-            max_angular_speed: 2.0,
-        }
-    }
 }
 
 /// Clamps a command to the base's limits.
@@ -93,10 +88,18 @@ struct RobotState {
 /// The "Robot control" service.
 pub const ROBOT_CONTROL: &str = "Robot control";
 
+/// Where a driver whose commands come in on `control_channel` publishes the commands of the
+/// client its most important contract holder supervises (`robot/cmd_vel/supervised`).
+pub fn supervised_channel(control_channel: &str) -> String {
+    format!("{control_channel}/supervised")
+}
+
 /// The Robot driver module.
 #[derive(Debug)]
 pub struct RobotModule {
     cmd_in: Subscriber<Twist>,
+    /// The supervised client's commands, for the supervisor (Security).
+    supervised_out: Publisher<Twist>,
     /// When the last contracted command was obeyed (`None`: nobody in control).
     obeyed_at: Option<Duration>,
     freshness: Duration,
@@ -182,6 +185,7 @@ impl Module for RobotModule {
         ctx.add_timer((freshness / 4).max(Duration::from_millis(10)));
         Ok(RobotModule {
             cmd_in: ctx.subscribe(&cfg.cmd_in, None)?,
+            supervised_out: ctx.publisher(&supervised_channel(&cfg.cmd_in))?,
             obeyed_at: None,
             freshness,
             sources,
@@ -209,7 +213,15 @@ impl Module for RobotModule {
             // Contract holders: only the live one with the most important priority is obeyed.
             while let Some(cmd) = self.cmd_in.receive()? {
                 let cmd = *cmd;
-                if ctx.command_verdict(ROBOT_CONTROL, &cmd.header) == Verdict::Accept {
+                let verdict = ctx.command_verdict(ROBOT_CONTROL, &cmd.header);
+                if ctx.supervised_client(ROBOT_CONTROL) == Some(ModuleId(cmd.header.source)) {
+                    // Stamped afresh by the publisher (source: the Robot).
+                    self.supervised_out.publish(Twist {
+                        header: Default::default(),
+                        ..cmd
+                    })?;
+                }
+                if verdict == Verdict::Accept {
                     self.obeyed_at = Some(ctx.now());
                     self.obey(ctx, &cmd, "contract")?;
                 }
@@ -257,14 +269,7 @@ impl Module for RobotModule {
         Ok(())
     }
 
-    fn checkpoint(&self) -> Option<Vec<u8>> {
-        encode_state(&self.state)
-    }
-
-    fn restore(&mut self, state: &[u8]) -> ModuleResult {
-        self.state = decode_state(state)?;
-        Ok(())
-    }
+    hng_runtime::checkpoint_field!(state);
 
     fn stop(&mut self, _ctx: &mut Context) {
         // Leave the base stopped.

@@ -2,19 +2,22 @@
 //! "LIDAR data"; data in: lidar, data out: commands).
 //!
 //! Security answers the Manager's objective 1, so its "Robot control" contract with the Robot
-//! driver has priority 1.1, the most important of the Robot's clients (paper 5.8): while it
-//! commands, the Robot obeys only it. The other clients (the operator's Interface 2.1, the
-//! Servo-controller 2.2.1.1) send their commands to the Robot's channel as well; Security
-//! reads them there, takes the command of the most important live one (the priorities of the
-//! Robot's contracts, from the Robot's contract table on `hng/contracts`), limits its speed to
-//! what the lidar says is safe, and sends the result to the Robot at every scan and every
-//! desired command. When no client commands, it commands a stop: the robot holds still.
-//! Without a fresh scan it commands a stop too (it cannot vouch for anything it cannot see).
-//! The lidar comes from its "LIDAR data" provider (the configured `scan` channel until one is
-//! known).
+//! driver has priority 1.1, the most important of the Robot's clients (paper 5.8: it may
+//! invalidate the others' commands): while it commands, the Robot obeys only it. The other
+//! clients (the operator's Interface 2.1, the Servo-controller 2.2.1.1) send their commands to
+//! the Robot, which elects one of them by contract priority, the only election of a wheel
+//! command, and publishes that client's commands on `robot/cmd_vel/supervised`
+//! ([`crate::robot::supervised_channel`]). Security reads that one command, limits its speed
+//! to what the lidar says is safe, and sends its own command, the limited one, to the Robot at
+//! every scan and every desired command. It never reads nor rewrites the others' commands,
+//! and knows nothing of their priorities. When no client commands (no desired command for
+//! `freshness_s`), it commands a stop: the robot holds still. Without a fresh scan it commands
+//! a stop too (it cannot vouch for anything it cannot see). The lidar comes from its "LIDAR
+//! data" provider (the configured `scan` channel until one is known); the latest scan is kept
+//! as the loaned shared-memory sample, not copied.
 //!
-//! Without contracts (benches, systems without a Manager), `sources` wires the clients
-//! statically with configured priorities, and the result goes to `cmd_out`.
+//! Without contracts (benches, systems without a Manager), `cmd_in` names the channel of the
+//! desired commands and the result goes to `cmd_out`.
 //!
 //! The speed limit ([`speed_limit`]): the free distance `d` along the robot's path (the swept
 //! disc of radius `robot_radius + side_margin`, straight or along the arc of the commanded
@@ -24,24 +27,24 @@
 //! Below the safety distance `v_max` is 0. Turning in place is never limited (the robot is
 //! a disc), and moving away from an obstacle is not limited by it.
 //!
-//! Quality Q: `1 − 2·(fraction of invalid (NaN) beams)` while scans arrive; -1 (aptitude 0)
-//! when they stop.
+//! Quality Q: the scan's ([`crate::scan::scan_quality`], as the Laser rates it) while scans
+//! arrive; -1 (aptitude 0) when they stop.
 
 use std::f64::consts::PI;
+use std::time::Duration;
 
-use hng_runtime::channel::InputId;
+use hng_runtime::channel::{InputId, Sample};
 use hng_runtime::contract::{NeedSpec, ServiceOffer};
 use hng_runtime::control::ProviderInfo;
 use hng_runtime::msg::{LaserScan, Twist};
-use hng_runtime::system::{CONTRACTS, ContractTable};
 use hng_runtime::{Context, Module, ModuleResult, Publisher, Subscriber};
 use serde::{Deserialize, Serialize};
+use smart_default::SmartDefault;
 
-use crate::common::{
-    CommandMux, CommandSource, ContractHolders, ContractedInput, MuxAction, decode_state,
-    encode_state, positive, seconds,
-};
-use crate::robot::ROBOT_CONTROL;
+use crate::common::{ContractedInput, positive, seconds};
+use crate::robot::{ROBOT_CONTROL, supervised_channel};
+pub use crate::scan::ScanView;
+use crate::scan::scan_quality;
 
 /// Rank of Security's "Robot control" need (contract priority `P(security).1`: 1.1).
 pub const ROBOT_CONTROL_NEED: u16 = 1;
@@ -49,82 +52,27 @@ pub const ROBOT_CONTROL_NEED: u16 = 1;
 pub const LIDAR_NEED: u16 = 2;
 
 /// Parameters of the safety envelope.
-#[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize, SmartDefault)]
 #[serde(default, deny_unknown_fields)]
 pub struct SafetyConfig {
     /// Robot radius, m (default 0.2).
+    #[default(crate::footprint::ROBOT_RADIUS_M)]
     pub robot_radius: f64,
     /// Extra width on each side of the swept path, m (default 0.05).
+    #[default(crate::footprint::FOOTPRINT_MARGIN_M)]
     pub side_margin: f64,
     /// Distance kept to obstacles when stopped, m (default 0.10).
+    #[default(0.10)]
     pub safety_distance: f64,
     /// Braking deceleration assumed, m/s² (default 1.5, below the base's 2.0).
+    #[default(1.5)]
     pub max_decel: f64,
     /// Reaction time: scan period plus loop latency, s (default 0.15).
+    #[default(0.15)]
     pub reaction_time_s: f64,
     /// Lidar position in the robot frame (x forward), m (default 0).
+    #[default(0.0)]
     pub laser_x: f64,
-}
-
-impl Default for SafetyConfig {
-    fn default() -> Self {
-        SafetyConfig {
-            robot_radius: crate::footprint::ROBOT_RADIUS_M,
-            side_margin: crate::footprint::FOOTPRINT_MARGIN_M,
-            safety_distance: 0.10,
-            max_decel: 1.5,
-            reaction_time_s: 0.15,
-            laser_x: 0.0,
-        }
-    }
-}
-
-/// A scan as the geometry needs it.
-#[derive(Debug, Clone, Copy)]
-pub struct ScanView<'a> {
-    /// Angle of beam 0, rad.
-    pub angle_min: f64,
-    /// Angle between beams, rad.
-    pub angle_increment: f64,
-    /// Smallest valid range (`-inf` readings are placed there), m.
-    pub range_min: f64,
-    /// Ranges, m (`+inf`: nothing hit, `-inf`: too close, NaN: invalid).
-    pub ranges: &'a [f32],
-}
-
-impl<'a> ScanView<'a> {
-    /// A view of a scan message.
-    pub fn of(scan: &'a LaserScan) -> ScanView<'a> {
-        ScanView {
-            angle_min: f64::from(scan.angle_min),
-            angle_increment: f64::from(scan.angle_increment),
-            range_min: f64::from(scan.range_min),
-            ranges: scan.ranges(),
-        }
-    }
-
-    /// Obstacle points in the robot frame.
-    pub fn points(&self, laser_x: f64) -> impl Iterator<Item = (f64, f64)> + '_ {
-        self.ranges.iter().enumerate().filter_map(move |(i, &r)| {
-            let r = if r == f32::NEG_INFINITY {
-                self.range_min.max(0.0)
-            } else if r.is_finite() {
-                f64::from(r)
-            } else {
-                return None;
-            };
-            let a = self.angle_min + self.angle_increment * i as f64;
-            Some((laser_x + r * a.cos(), r * a.sin()))
-        })
-    }
-
-    /// Fraction of NaN beams (0 for an empty scan).
-    pub fn invalid_fraction(&self) -> f64 {
-        if self.ranges.is_empty() {
-            return 1.0;
-        }
-        self.ranges.iter().filter(|r| r.is_nan()).count() as f64 / self.ranges.len() as f64
-    }
 }
 
 /// Free distance, m, the robot can travel with velocity `v` (sign = direction) and turn rate
@@ -239,36 +187,29 @@ pub fn decide(desired: &Twist, scan: &ScanView<'_>, cfg: &SafetyConfig) -> Decis
 }
 
 /// Configuration of `hng module security`.
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, SmartDefault)]
 #[serde(default, deny_unknown_fields)]
 pub struct SecurityModuleConfig {
     /// Lidar input until a "LIDAR data" provider is known (default `laser/scan`).
+    #[default("laser/scan".into())]
     pub scan: String,
-    /// Static clients whose commands are made safe, with configured priorities, for systems
-    /// without contracts (default none: the clients are the Robot's contract holders).
-    pub sources: Vec<CommandSource>,
-    /// A client's command counts for this long, s (default 0.5).
+    /// Static wiring, for systems without contracts: the channel of the desired commands
+    /// (default empty: contract mode, where they come from the Robot, which publishes the
+    /// command of the client it elected on `robot/cmd_vel/supervised`).
+    pub cmd_in: String,
+    /// A desired command counts for this long, s (default 0.5).
+    #[default(0.5)]
     pub freshness_s: f64,
-    /// Output of the static mode (with `sources`; default `security/cmd_vel`). With contracts
-    /// the output is the Robot's "Robot control" channel.
+    /// Output of the static wiring (with `cmd_in`; default `security/cmd_vel`). With
+    /// contracts the output is the Robot's "Robot control" channel.
+    #[default("security/cmd_vel".into())]
     pub cmd_out: String,
     /// No scan for this long: stop and report inaptitude, s (default 0.5).
+    #[default(0.5)]
     pub scan_timeout_s: f64,
     /// The safety envelope.
+    #[default(SafetyConfig::default())]
     pub safety: SafetyConfig,
-}
-
-impl Default for SecurityModuleConfig {
-    fn default() -> Self {
-        SecurityModuleConfig {
-            scan: "laser/scan".into(),
-            sources: Vec::new(),
-            freshness_s: 0.5,
-            cmd_out: "security/cmd_vel".into(),
-            scan_timeout_s: 0.5,
-            safety: SafetyConfig::default(),
-        }
-    }
 }
 
 #[derive(Debug, Clone, Copy, Default, Serialize, Deserialize, PartialEq)]
@@ -279,57 +220,47 @@ struct SecurityState {
     min_free_m: f64,
 }
 
-/// Where Security's commands go and where the desired ones come from.
+/// Where the desired command comes from and where Security's own command goes.
 #[derive(Debug)]
-enum Wiring {
-    /// `sources` configured: a mux keyed by source index, output on `cmd_out`.
-    Static {
-        sources: Vec<Subscriber<Twist>>,
-        cmd_out: Publisher<Twist>,
-    },
-    /// The Robot's "Robot control" channel, once contracted: its other clients' commands in,
-    /// Security's out; the mux is keyed by module id with the priorities of the Robot's
-    /// contracts.
-    Contract {
-        robot: Option<(ProviderInfo, Subscriber<Twist>, Publisher<Twist>)>,
-        tables: Subscriber<ContractTable>,
-        holders: ContractHolders,
-    },
+struct Link {
+    /// The Robot serving the "Robot control" need (`None`: the static wiring).
+    robot: Option<ProviderInfo>,
+    /// The desired commands: the client the Robot elected (contracts), or `cmd_in`.
+    desired: Subscriber<Twist>,
+    /// Security's own, limited command.
+    out: Publisher<Twist>,
 }
 
 /// The Security module.
 #[derive(Debug)]
 pub struct SecurityModule {
     scan: ContractedInput<LaserScan>,
-    wiring: Wiring,
-    mux: CommandMux,
-    desired: Option<(u32, Twist)>,
-    last_scan: Option<LaserScan>,
+    /// `None` until the Robot is contracted (contract mode).
+    link: Option<Link>,
+    freshness: Duration,
+    /// The latest desired command and when it came.
+    desired: Option<(Duration, Twist)>,
+    /// The latest scan, still in shared memory (a loaned sample, not a copy).
+    last_scan: Option<Sample<LaserScan>>,
     cfg: SafetyConfig,
     state: SecurityState,
     was_limited: bool,
 }
 
 impl SecurityModule {
-    /// Sends a command to the Robot (nothing before a "Robot control" contract).
+    /// Sends Security's command to the Robot (nothing before a "Robot control" contract).
     fn send(&self, cmd: Twist) -> ModuleResult {
-        match &self.wiring {
-            Wiring::Static { cmd_out, .. } => cmd_out.publish(cmd)?,
-            Wiring::Contract {
-                robot: Some((_, _, out)),
-                ..
-            } => out.publish(cmd)?,
-            Wiring::Contract { robot: None, .. } => {}
+        if let Some(l) = &self.link {
+            l.out.publish(cmd)?;
         }
         Ok(())
     }
 
-    /// Decides and publishes the command for the current scan and desired command.
+    /// Decides and publishes Security's command for the current scan and desired command.
     fn act(&mut self, ctx: &mut Context) -> ModuleResult {
         let now = ctx.now();
-        let active = self.mux.active(now);
-        let desired = match (self.desired, active) {
-            (Some((src, cmd)), Some(a)) if src == a => cmd,
+        let desired = match self.desired {
+            Some((at, cmd)) if now.saturating_sub(at) < self.freshness => cmd,
             _ => Twist::default(), // nobody commands: hold still
         };
         let Some(scan) = &self.last_scan else {
@@ -357,68 +288,6 @@ impl SecurityModule {
         self.send(d.cmd)?;
         Ok(())
     }
-
-    /// Reads the desired commands of the clients on `input`; true if one was taken.
-    fn read_commands(&mut self, ctx: &mut Context, input: InputId) -> ModuleResult<bool> {
-        let now = ctx.now();
-        let own = ctx.module_id().0;
-        let mut got = false;
-        match &self.wiring {
-            Wiring::Static { sources, .. } => {
-                let Some(i) = sources.iter().position(|s| s.id() == input) else {
-                    return Ok(false);
-                };
-                while let Some(cmd) = sources[i].receive()? {
-                    if let MuxAction::Send(c) = self.mux.on_command(i as u32, &cmd, now) {
-                        self.desired = Some((i as u32, c));
-                        got = true;
-                    }
-                }
-            }
-            Wiring::Contract {
-                robot: Some((_, sub, _)),
-                ..
-            } if sub.id() == input => {
-                while let Some(cmd) = sub.receive()? {
-                    let from = cmd.header.source;
-                    if from == own {
-                        continue; // our own commands to the Robot
-                    }
-                    if let MuxAction::Send(c) = self.mux.on_command(from, &cmd, now) {
-                        self.desired = Some((from, c));
-                        got = true;
-                    }
-                }
-            }
-            Wiring::Contract { .. } => {}
-        }
-        Ok(got)
-    }
-
-    /// Reads the contract tables: the Robot's tells who may command and with what priority.
-    fn read_tables(&mut self, ctx: &mut Context) -> ModuleResult {
-        let own = ctx.module_id();
-        let Wiring::Contract {
-            robot,
-            tables,
-            holders,
-        } = &mut self.wiring
-        else {
-            return Ok(());
-        };
-        let provider = robot.as_ref().map(|(p, _, _)| p.module);
-        let mut changed = false;
-        while let Some(t) = tables.receive()? {
-            if let Some(p) = provider {
-                changed |= holders.update(&t, p, ROBOT_CONTROL, own);
-            }
-        }
-        if changed {
-            tracing::debug!(module = ctx.name(), holders = ?holders.holders(), "Robot control clients");
-            self.mux.sync(holders.holders().iter().copied());
-        }
-        Ok(())
-    }
 }
 
 impl Module for SecurityModule {
@@ -441,27 +310,20 @@ impl Module for SecurityModule {
         ctx.provide(ServiceOffer::new("Robot integrity", ""))
             .need(NeedSpec::required(ROBOT_CONTROL, ROBOT_CONTROL_NEED))
             .need(NeedSpec::required("LIDAR data", LIDAR_NEED));
-        let (wiring, mux) = if cfg.sources.is_empty() {
-            let wiring = Wiring::Contract {
-                robot: None,
-                tables: ctx.subscribe(CONTRACTS, None)?,
-                holders: ContractHolders::default(),
-            };
-            (wiring, CommandMux::contracted(freshness))
+        let link = if cfg.cmd_in.is_empty() {
+            None
         } else {
-            let mux = CommandMux::new(&cfg.sources, freshness)?;
-            let mut sources = Vec::new();
-            for src in &cfg.sources {
-                sources.push(ctx.subscribe::<Twist>(&src.channel, None)?);
-            }
-            let cmd_out = ctx.publisher(&cfg.cmd_out)?;
-            (Wiring::Static { sources, cmd_out }, mux)
+            Some(Link {
+                robot: None,
+                desired: ctx.subscribe(&cfg.cmd_in, None)?,
+                out: ctx.publisher(&cfg.cmd_out)?,
+            })
         };
         ctx.set_quality(false, -1.0);
         Ok(SecurityModule {
             scan: ContractedInput::new(ctx, &cfg.scan, Some(scan_timeout))?,
-            wiring,
-            mux,
+            link,
+            freshness,
             desired: None,
             last_scan: None,
             cfg: cfg.safety,
@@ -477,24 +339,28 @@ impl Module for SecurityModule {
         if self.scan.is(input) {
             let mut got = false;
             while let Some(s) = self.scan.receive()? {
-                self.last_scan = Some(*s);
+                // The previous sample goes back to its publisher: at most two are held.
+                self.last_scan = Some(s);
                 got = true;
             }
             if got {
                 if let Some(s) = &self.last_scan {
-                    let bad = ScanView::of(s).invalid_fraction();
-                    ctx.set_quality(bad < 0.5, (1.0 - 2.0 * bad) as f32);
+                    let (ok, q) = scan_quality(s);
+                    ctx.set_quality(ok, q);
                 }
                 self.act(ctx)?;
             }
             return Ok(());
         }
-        if let Wiring::Contract { tables, .. } = &self.wiring
-            && tables.id() == input
-        {
-            return self.read_tables(ctx);
+        let Some(l) = self.link.as_ref().filter(|l| l.desired.id() == input) else {
+            return Ok(());
+        };
+        let mut got = false;
+        while let Some(cmd) = l.desired.receive()? {
+            self.desired = Some((ctx.now(), *cmd));
+            got = true;
         }
-        if self.read_commands(ctx, input)? {
+        if got {
             self.act(ctx)?;
         }
         Ok(())
@@ -510,28 +376,26 @@ impl Module for SecurityModule {
             self.scan.follow(ctx, provider)?;
             return Ok(());
         }
-        if need != ROBOT_CONTROL_NEED {
+        // The static wiring keeps its channels.
+        if need != ROBOT_CONTROL_NEED || self.link.as_ref().is_some_and(|l| l.robot.is_none()) {
             return Ok(());
         }
-        let Wiring::Contract { robot, holders, .. } = &mut self.wiring else {
-            return Ok(());
-        };
-        let same = matches!((robot.as_ref(), provider), (Some((a, _, _)), Some(b)) if a == b);
+        let same = matches!((self.link.as_ref(), provider), (Some(l), Some(b)) if l.robot.as_ref() == Some(b));
         if same {
             return Ok(());
         }
-        if let Some((_, sub, out)) = robot.take() {
+        if let Some(old) = self.link.take() {
             // Leave the old Robot stopped.
-            let _ = out.publish(Twist::default());
-            ctx.unsubscribe(sub.id())?;
+            let _ = old.out.publish(Twist::default());
+            ctx.unsubscribe(old.desired.id())?;
         }
-        holders.clear();
-        self.mux.sync(std::iter::empty());
         self.desired = None;
         if let Some(p) = provider.filter(|p| !p.channel.is_empty()) {
-            let sub = ctx.subscribe::<Twist>(&p.channel, None)?;
-            let out = ctx.publisher::<Twist>(&p.channel)?;
-            *robot = Some((p.clone(), sub, out));
+            self.link = Some(Link {
+                robot: Some(p.clone()),
+                desired: ctx.subscribe(&supervised_channel(&p.channel), None)?,
+                out: ctx.publisher(&p.channel)?,
+            });
         }
         Ok(())
     }
@@ -545,14 +409,7 @@ impl Module for SecurityModule {
         Ok(())
     }
 
-    fn checkpoint(&self) -> Option<Vec<u8>> {
-        encode_state(&self.state)
-    }
-
-    fn restore(&mut self, state: &[u8]) -> ModuleResult {
-        self.state = decode_state(state)?;
-        Ok(())
-    }
+    hng_runtime::checkpoint_field!(state);
 
     fn stop(&mut self, _ctx: &mut Context) {
         let _ = self.send(Twist::default());

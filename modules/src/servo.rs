@@ -24,42 +24,36 @@ use hng_runtime::control::{ProviderInfo, ProviderInput};
 use hng_runtime::msg::{FrameId, Header, Pose2D, PoseWithCovariance, Twist, Waypoint};
 use hng_runtime::{Context, Module, ModuleResult, Publisher, Subscriber, TimerId};
 use serde::{Deserialize, Serialize};
+use smart_default::SmartDefault;
 
-use crate::common::{decode_state, encode_state, follow_output, positive, relative, seconds};
+use crate::common::{follow_output, positive, relative, seconds};
 use crate::msgs::{GoalState, GoalStatus};
 
 /// Parameters of the controller.
-#[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize, SmartDefault)]
 #[serde(default, deny_unknown_fields)]
 pub struct ServoParams {
     /// Cruise speed, m/s (default 0.6).
+    #[default(0.6)]
     pub max_speed: f64,
     /// Turn rate limit, rad/s (default 1.5).
+    #[default(1.5)]
     pub max_angular: f64,
     /// Distance to the final waypoint at which the goal counts as reached, m (default 0.15).
+    #[default(0.15)]
     pub goal_tolerance_m: f64,
     /// Distance to the final waypoint over which the robot slows down, m (default 0.8).
+    #[default(0.8)]
     pub slow_radius_m: f64,
     /// Slowest approach speed, m/s (default 0.08).
+    #[default(0.08)]
     pub min_speed: f64,
     /// Turn in place when the carrot is farther off the heading than this, rad (default 1.0).
+    #[default(1.0)]
     pub rotate_in_place_rad: f64,
     /// Turn rate per radian of heading error when turning in place, 1/s (default 2.0).
+    #[default(2.0)]
     pub heading_gain: f64,
-}
-
-impl Default for ServoParams {
-    fn default() -> Self {
-        ServoParams {
-            max_speed: 0.6,
-            max_angular: 1.5,
-            goal_tolerance_m: 0.15,
-            slow_radius_m: 0.8,
-            min_speed: 0.08,
-            rotate_in_place_rad: 1.0,
-            heading_gain: 2.0,
-        }
-    }
 }
 
 /// One control decision.
@@ -158,38 +152,31 @@ impl ServoCore {
 }
 
 /// Configuration of `hng module servo`.
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, SmartDefault)]
 #[serde(default, deny_unknown_fields)]
 pub struct ServoModuleConfig {
     /// Waypoint input (default `planning/waypoint`).
+    #[default("planning/waypoint".into())]
     pub waypoint: String,
     /// Position input until a "Localization" provider is known (default `slam/pose`).
+    #[default("slam/pose".into())]
     pub pose: String,
     /// Goal status out (default `servo/status`).
+    #[default("servo/status".into())]
     pub status_out: String,
     /// A waypoint older than this is not followed, s (default 1.0).
+    #[default(1.0)]
     pub waypoint_timeout_s: f64,
     /// A position older than this is not trusted, s (default 0.5).
+    #[default(0.5)]
     pub pose_timeout_s: f64,
     /// Controller parameters.
+    #[default(ServoParams::default())]
     pub params: ServoParams,
     /// Odometry, to rate the "Localization" provider (client feedback, `crate::feedback`;
     /// default `robot/odom`, empty: no rating).
+    #[default("robot/odom".into())]
     pub odom: String,
-}
-
-impl Default for ServoModuleConfig {
-    fn default() -> Self {
-        ServoModuleConfig {
-            waypoint: "planning/waypoint".into(),
-            pose: "slam/pose".into(),
-            status_out: "servo/status".into(),
-            waypoint_timeout_s: 1.0,
-            pose_timeout_s: 0.5,
-            params: ServoParams::default(),
-            odom: "robot/odom".into(),
-        }
-    }
 }
 
 #[derive(Debug, Clone, Copy, Default, Serialize, Deserialize, PartialEq)]
@@ -374,13 +361,17 @@ impl Module for ServoModule {
         Ok(())
     }
 
-    fn checkpoint(&self) -> Option<Vec<u8>> {
-        encode_state(&self.state)
+    hng_runtime::checkpoint_with!(Self::save_state, Self::load_state);
+}
+
+impl ServoModule {
+    fn save_state(&self) -> ServoState {
+        self.state
     }
 
-    fn restore(&mut self, state: &[u8]) -> ModuleResult {
-        self.state = decode_state(state)?;
-        self.core.reached = self.state.reached_goal;
+    fn load_state(&mut self, s: ServoState) -> ModuleResult {
+        self.state = s;
+        self.core.reached = s.reached_goal;
         Ok(())
     }
 }

@@ -32,15 +32,15 @@ use std::time::Duration;
 
 use hng_runtime::channel::InputId;
 use hng_runtime::contract::{NeedSpec, ServiceOffer};
-use hng_runtime::control::ProviderInfo;
 use hng_runtime::msg::{
     FrameId, GridInfo, Header, LaserScan, Odometry, Pose2D, PoseWithCovariance,
 };
 use hng_runtime::{Context, Module, ModuleResult, Publisher, SlicePublisher, TimerId};
 use nalgebra::{Isometry2, Vector2};
 use serde::{Deserialize, Serialize};
+use smart_default::SmartDefault;
 
-use crate::common::{ContractedInput, compose, decode_state, encode_state, relative, seconds};
+use crate::common::{ContractedInput, compose, relative, seconds};
 use crate::maps::msg_from_grid;
 use crate::slam::{BackendConfig, EstimateSource, LaserConfig, Slam, SlamConfig};
 
@@ -217,40 +217,33 @@ impl SlamTracker {
 }
 
 /// Configuration of `hng module slam`.
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, SmartDefault)]
 #[serde(default, deny_unknown_fields)]
 pub struct SlamModuleConfig {
     /// Lidar input until a "LIDAR data" provider is known (default `laser/scan`).
+    #[default("laser/scan".into())]
     pub scan: String,
     /// Odometry input until an "Odometry" provider is known (default `robot/odom`).
+    #[default("robot/odom".into())]
     pub odom: String,
     /// Position out (default `slam/pose`).
+    #[default("slam/pose".into())]
     pub pose_out: String,
     /// Map out (default `slam/map`; empty: not published).
+    #[default("slam/map".into())]
     pub map_out: String,
     /// Map publication period, s (default 2).
+    #[default(2.0)]
     pub map_period_s: f64,
     /// The robot's pose in the map frame at start (default the origin).
+    #[default(Pose2D::default())]
     pub initial_pose: Pose2D,
     /// Input silence that makes the module inapt, s (default 0.5).
+    #[default(0.5)]
     pub input_timeout_s: f64,
     /// Map cell size, m (default 0.05).
+    #[default(0.05)]
     pub resolution: f64,
-}
-
-impl Default for SlamModuleConfig {
-    fn default() -> Self {
-        SlamModuleConfig {
-            scan: "laser/scan".into(),
-            odom: "robot/odom".into(),
-            pose_out: "slam/pose".into(),
-            map_out: "slam/map".into(),
-            map_period_s: 2.0,
-            initial_pose: Pose2D::default(),
-            input_timeout_s: 0.5,
-            resolution: 0.05,
-        }
-    }
 }
 
 #[derive(Debug, Clone, Copy, Default, Serialize, Deserialize, PartialEq)]
@@ -381,31 +374,22 @@ impl Module for SlamModule {
         Ok(())
     }
 
-    fn on_provider_changed(
-        &mut self,
-        ctx: &mut Context,
-        need: u16,
-        provider: Option<&ProviderInfo>,
-    ) -> ModuleResult {
-        match need {
-            ODOMETRY_NEED => self.odom.follow(ctx, provider)?,
-            LIDAR_NEED => self.scan.follow(ctx, provider)?,
-            _ => {}
-        }
-        Ok(())
-    }
+    crate::follow_needs!(ODOMETRY_NEED => odom, LIDAR_NEED => scan);
 
-    fn checkpoint(&self) -> Option<Vec<u8>> {
+    hng_runtime::checkpoint_with!(Self::save_state, Self::load_state);
+}
+
+impl SlamModule {
+    fn save_state(&self) -> SlamState {
         let (pose, odom) = self.tracker.anchor();
-        encode_state(&SlamState {
+        SlamState {
             pose,
             odom,
             scans: self.restored_scans + self.tracker.scans(),
-        })
+        }
     }
 
-    fn restore(&mut self, state: &[u8]) -> ModuleResult {
-        let s: SlamState = decode_state(state)?;
+    fn load_state(&mut self, s: SlamState) -> ModuleResult {
         self.tracker = SlamTracker::resume(self.tracker.cfg, s.pose, s.odom);
         self.restored_scans = s.scans;
         Ok(())

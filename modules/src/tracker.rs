@@ -15,35 +15,29 @@
 //! the beacon is lost.
 
 use serde::{Deserialize, Serialize};
+use smart_default::SmartDefault;
 
 /// The camera as a tracker needs it: image size and horizontal field of view (a pinhole with
 /// the optical axis at the image centre), and the known height of the beacon markers.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, SmartDefault)]
 #[serde(deny_unknown_fields, default)]
 pub struct CameraModel {
     /// Image width, pixels.
+    #[default(320)]
     pub width: u32,
     /// Image height, pixels.
+    #[default(240)]
     pub height: u32,
     /// Horizontal field of view, rad.
+    #[default(1.2)]
     pub fov: f64,
     /// Height of a beacon marker, m.
+    #[default(0.6)]
     pub beacon_height: f64,
     /// Radius of a beacon marker, m (its width gives the range when the marker is taller than
     /// the image, close up).
+    #[default(0.1)]
     pub beacon_radius: f64,
-}
-
-impl Default for CameraModel {
-    fn default() -> Self {
-        CameraModel {
-            width: 320,
-            height: 240,
-            fov: 1.2,
-            beacon_height: 0.6,
-            beacon_radius: 0.1,
-        }
-    }
 }
 
 impl CameraModel {
@@ -70,29 +64,22 @@ pub struct Detection {
 }
 
 /// Parameters of the colour-segmentation tracker.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, SmartDefault)]
 #[serde(deny_unknown_fields, default)]
 pub struct ColourTrackerConfig {
     /// Largest chromaticity distance of a band pixel from its band colour (default 0.06).
+    #[default(0.06)]
     pub tolerance: f64,
     /// Pixels whose r + g + b is below this carry no usable colour (default 90).
+    #[default(90)]
     pub min_brightness: u32,
     /// Fewest band pixels of each band for a detection (default 6).
+    #[default(6)]
     pub min_pixels: u32,
     /// Mean r + g + b of the band pixels at which their colour is fully trusted; quality falls
     /// linearly from there to `min_brightness` (default 200).
+    #[default(200)]
     pub good_brightness: u32,
-}
-
-impl Default for ColourTrackerConfig {
-    fn default() -> Self {
-        ColourTrackerConfig {
-            tolerance: 0.06,
-            min_brightness: 90,
-            min_pixels: 6,
-            good_brightness: 200,
-        }
-    }
 }
 
 /// Colour-segmentation tracker: see the module documentation.

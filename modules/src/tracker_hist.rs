@@ -25,44 +25,38 @@
 //! so in good light it rates itself below the colour tracker, which then keeps the contract.
 
 use serde::{Deserialize, Serialize};
+use smart_default::SmartDefault;
 
 use crate::tracker::{CameraModel, Column, Detection, marker};
 
 /// Parameters of the histogram tracker.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, SmartDefault)]
 #[serde(deny_unknown_fields, default)]
 pub struct HistogramTrackerConfig {
     /// Histogram bins per chromaticity axis (default 48).
+    #[default(48)]
     pub bins: u32,
     /// Chromaticity tolerance of a band in good light (default 0.07).
+    #[default(0.07)]
     pub tolerance: f64,
     /// Pixels whose r + g + b is below this are noise (default 18).
+    #[default(18)]
     pub min_brightness: u32,
     /// Mean r + g + b of the band pixels at which the brightness term reaches 1 (default 70).
+    #[default(70)]
     pub good_brightness: u32,
     /// Expected pixel noise, 8-bit steps per channel (default 2).
+    #[default(2.0)]
     pub noise_sigma: f64,
     /// A bin holding more than this share of the valid pixels is background (default 0.25).
+    #[default(0.25)]
     pub max_bin_share: f64,
     /// Fewest band pixels of each band for a detection (default 6).
+    #[default(6)]
     pub min_pixels: u32,
     /// The best quality it claims (default 0.75).
+    #[default(0.75)]
     pub max_quality: f64,
-}
-
-impl Default for HistogramTrackerConfig {
-    fn default() -> Self {
-        HistogramTrackerConfig {
-            bins: 48,
-            tolerance: 0.07,
-            min_brightness: 18,
-            good_brightness: 70,
-            noise_sigma: 2.0,
-            max_bin_share: 0.25,
-            min_pixels: 6,
-            max_quality: 0.75,
-        }
-    }
 }
 
 const NONE: u8 = 0;

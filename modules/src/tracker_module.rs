@@ -50,7 +50,7 @@ use hng_runtime::msg::{
 use hng_runtime::{Context, Module, ModuleResult, Publisher, Subscriber, TimerId};
 use serde::{Deserialize, Serialize};
 
-use crate::common::{decode_state, encode_state, field_error, seconds};
+use crate::common::{field_error, seconds};
 use crate::tracker::{
     BeaconTrack as Track, CameraModel, ColourTracker, ColourTrackerConfig, Detection, TrackState,
 };
@@ -355,14 +355,7 @@ impl<D: Detector> Module for TrackerModule<D> {
         Ok(())
     }
 
-    fn checkpoint(&self) -> Option<Vec<u8>> {
-        encode_state(&self.state)
-    }
-
-    fn restore(&mut self, state: &[u8]) -> ModuleResult {
-        self.state = decode_state(state)?;
-        Ok(())
-    }
+    hng_runtime::checkpoint_field!(state);
 }
 
 /// The track of a beacon found while none is designated: seen, with the detection's bearing,

@@ -63,6 +63,16 @@ pub struct VideoInput {
     foreign: u64,
 }
 
+impl crate::common::FollowProvider for VideoInput {
+    fn follow_provider(
+        &mut self,
+        ctx: &mut Context,
+        p: Option<&ProviderInfo>,
+    ) -> Result<(), Error> {
+        self.follow(ctx, p)
+    }
+}
+
 impl VideoInput {
     /// An input following no provider yet.
     #[must_use]

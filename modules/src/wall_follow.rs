@@ -12,44 +12,38 @@
 //! dead end: it stops.
 
 use serde::{Deserialize, Serialize};
+use smart_default::SmartDefault;
 
 use crate::walls::{Side, Wall};
 
 /// Parameters of the follower. Metres, radians, seconds.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, SmartDefault)]
 #[serde(default, deny_unknown_fields)]
 pub struct WallFollowConfig {
     /// Distance to keep from the wall, m (default 0.6).
+    #[default(0.6)]
     pub distance: f64,
     /// Which wall to follow: `left` or `right`.
+    #[default(Side::Left)]
     pub side: Side,
     /// Cruise speed, m/s (default 0.4).
+    #[default(0.4)]
     pub speed: f64,
     /// Turn rate limit, rad/s (default 1.2).
+    #[default(1.2)]
     pub max_angular: f64,
     /// Turn rate per metre of distance error, rad/s/m (default 1.5).
+    #[default(1.5)]
     pub k_distance: f64,
     /// Turn rate per radian of wall angle, 1/s (default 1.8).
+    #[default(1.8)]
     pub k_angle: f64,
     /// An obstacle ahead closer than `distance + front_margin` is a corner, m (default 0.35).
+    #[default(0.35)]
     pub front_margin: f64,
     /// How far to turn round an outer corner looking for the wall again, rad (default 3π/2).
+    #[default(1.5 * std::f64::consts::PI)]
     pub max_turn_around: f64,
-}
-
-impl Default for WallFollowConfig {
-    fn default() -> Self {
-        WallFollowConfig {
-            distance: 0.6,
-            side: Side::Left,
-            speed: 0.4,
-            max_angular: 1.2,
-            k_distance: 1.5,
-            k_angle: 1.8,
-            front_margin: 0.35,
-            max_turn_around: 1.5 * std::f64::consts::PI,
-        }
-    }
 }
 
 impl WallFollowConfig {

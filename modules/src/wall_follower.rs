@@ -16,12 +16,11 @@
 
 use hng_runtime::channel::InputId;
 use hng_runtime::contract::{NeedSpec, ServiceOffer};
-use hng_runtime::control::{ProviderInfo, ProviderInput};
+use hng_runtime::control::ProviderInput;
 use hng_runtime::msg::{FOLLOW_WALL_CHANNEL, FollowWallRequest, SIDE_LEFT, Twist, Walls};
 use hng_runtime::{Context, Module, ModuleResult, Publisher, Subscriber};
 use serde::{Deserialize, Serialize};
 
-use crate::common::{decode_state, encode_state, follow_output};
 use crate::robot::ROBOT_CONTROL;
 use crate::wall_follow::{FollowState, WallFollowConfig, WallFollower};
 use crate::walls::Side;
@@ -171,26 +170,7 @@ impl Module for WallFollowerModule {
         Ok(())
     }
 
-    fn on_provider_changed(
-        &mut self,
-        ctx: &mut Context,
-        need: u16,
-        provider: Option<&ProviderInfo>,
-    ) -> ModuleResult {
-        match need {
-            ROBOT_CONTROL_NEED => follow_output(ctx, &mut self.cmd_out, provider)?,
-            DETECT_WALL_NEED => self.walls.follow(ctx, provider)?,
-            _ => {}
-        }
-        Ok(())
-    }
+    crate::follow_needs!(ROBOT_CONTROL_NEED => cmd_out, DETECT_WALL_NEED => walls);
 
-    fn checkpoint(&self) -> Option<Vec<u8>> {
-        encode_state(&self.state)
-    }
-
-    fn restore(&mut self, state: &[u8]) -> ModuleResult {
-        self.state = decode_state(state)?;
-        Ok(())
-    }
+    hng_runtime::checkpoint_field!(state);
 }

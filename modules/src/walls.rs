@@ -16,6 +16,7 @@
 
 use hng_runtime::msg::LaserScan;
 use serde::{Deserialize, Serialize};
+use smart_default::SmartDefault;
 
 /// Which side of the robot a wall is on, by the bearing of the wall's closest point.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -75,46 +76,39 @@ pub struct Wall {
 }
 
 /// Parameters of the extractor. Distances in metres.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, SmartDefault)]
 #[serde(default, deny_unknown_fields)]
 pub struct WallDetectorConfig {
     /// A point further than this from the chord splits a piece (plus `split_per_metre` times
     /// its range, for the noise that grows with range).
+    #[default(0.04)]
     pub split_tolerance: f64,
     /// Range-proportional part of the split tolerance, m per m of range.
+    #[default(0.01)]
     pub split_per_metre: f64,
     /// Breakpoints (Borges and Aldon 2004, adaptive breakpoint detector): two neighbouring
     /// points start a new run when they are further apart than a wall seen at this incidence
     /// angle (rad) would put them, `r sin(dθ) / sin(λ - dθ)`, plus three `range_sigma`. Walls
     /// seen more obliquely than this fall apart into their near part (which is the part a
     /// follower needs).
+    #[default(10f64.to_radians())]
     pub breakpoint_incidence: f64,
     /// Standard deviation of a range reading, m.
+    #[default(0.01)]
     pub range_sigma: f64,
     /// Fewest points a wall is made of.
+    #[default(6)]
     pub min_points: usize,
     /// Shortest wall reported, m.
+    #[default(0.4)]
     pub min_length: f64,
     /// Two neighbouring pieces merge when their directions differ by less than this (rad) and
     /// their lines are within `split_tolerance` of each other's ends.
+    #[default(0.08)]
     pub merge_angle: f64,
     /// Returns further than this are ignored, m (walls far away are not followed).
+    #[default(8.0)]
     pub max_range: f64,
-}
-
-impl Default for WallDetectorConfig {
-    fn default() -> Self {
-        WallDetectorConfig {
-            split_tolerance: 0.04,
-            split_per_metre: 0.01,
-            breakpoint_incidence: 10f64.to_radians(),
-            range_sigma: 0.01,
-            min_points: 6,
-            min_length: 0.4,
-            merge_angle: 0.08,
-            max_range: 8.0,
-        }
-    }
 }
 
 /// The wall extractor; keeps its buffers between scans so a scan allocates nothing once warm.

@@ -14,12 +14,12 @@
 
 use hng_runtime::channel::InputId;
 use hng_runtime::contract::{NeedSpec, ServiceOffer};
-use hng_runtime::control::ProviderInfo;
 use hng_runtime::msg::{LaserScan, MAX_WALLS, WallSegment, Walls};
 use hng_runtime::{Context, Module, ModuleResult, Publisher};
 use serde::{Deserialize, Serialize};
+use smart_default::SmartDefault;
 
-use crate::common::{ContractedInput, decode_state, encode_state, positive, seconds};
+use crate::common::{ContractedInput, positive, seconds};
 use crate::walls::{Side, Wall, WallDetector, WallDetectorConfig};
 
 /// The service this module provides.
@@ -30,34 +30,27 @@ pub const LIDAR_NEED: u16 = 1;
 pub const FRONT_HALF_ANGLE: f64 = 25.0 * std::f64::consts::PI / 180.0;
 
 /// Configuration of `hng module walls`.
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, SmartDefault)]
 #[serde(default, deny_unknown_fields)]
 pub struct WallsConfig {
     /// Scans read while no LIDAR provider is selected (default `laser/scan`).
+    #[default("laser/scan".into())]
     pub scan: String,
     /// Where the walls go (default `walls/walls`).
+    #[default("walls/walls".into())]
     pub walls_out: String,
     /// A wall counts for the aptitude only if at least this long, m (default 0.5).
+    #[default(0.5)]
     pub min_wall_length_m: f64,
     /// ... and at most this far, m (default 3).
+    #[default(3.0)]
     pub max_wall_distance_m: f64,
     /// No scan for this long: aptitude 0, Q −1, s (default 1).
+    #[default(1.0)]
     pub scan_timeout_s: f64,
     /// The extractor's parameters.
+    #[default(WallDetectorConfig::default())]
     pub detector: WallDetectorConfig,
-}
-
-impl Default for WallsConfig {
-    fn default() -> Self {
-        WallsConfig {
-            scan: "laser/scan".into(),
-            walls_out: "walls/walls".into(),
-            min_wall_length_m: 0.5,
-            max_wall_distance_m: 3.0,
-            scan_timeout_s: 1.0,
-            detector: WallDetectorConfig::default(),
-        }
-    }
 }
 
 /// The side as a number on the wire: 1 left, -1 right, 2 front, -2 back.
@@ -231,26 +224,9 @@ impl Module for WallsModule {
         Ok(())
     }
 
-    fn on_provider_changed(
-        &mut self,
-        ctx: &mut Context,
-        need: u16,
-        provider: Option<&ProviderInfo>,
-    ) -> ModuleResult {
-        if need == LIDAR_NEED {
-            self.scan.follow(ctx, provider)?;
-        }
-        Ok(())
-    }
+    crate::follow_needs!(LIDAR_NEED => scan);
 
-    fn checkpoint(&self) -> Option<Vec<u8>> {
-        encode_state(&self.state)
-    }
-
-    fn restore(&mut self, state: &[u8]) -> ModuleResult {
-        self.state = decode_state(state)?;
-        Ok(())
-    }
+    hng_runtime::checkpoint_field!(state);
 }
 
 #[cfg(test)]

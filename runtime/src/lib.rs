@@ -37,3 +37,13 @@ pub use module::{
     Context, Module, ModuleResult, RunOptions, TimerId, run_module, run_module_on_wall_clock,
     run_module_with,
 };
+
+/// The README's module example, compiled as a doc test (`cargo test -p hng-runtime --doc`).
+#[cfg(doctest)]
+#[doc = include_str!("../../README.md")]
+pub struct ReadmeExamples;
+
+/// docs/writing-a-module.md's complete module, compiled as a doc test.
+#[cfg(doctest)]
+#[doc = include_str!("../../docs/writing-a-module.md")]
+pub struct WritingAModuleExamples;

@@ -42,12 +42,14 @@ mod due;
 mod logging;
 mod options;
 mod rounds;
+mod state;
 
 use beat::Beat;
 use checkpoints::{Checkpoints, save_checkpoint};
 pub use logging::init_tracing;
-pub use options::RunOptions;
+pub use options::{RunError, RunOptions};
 use rounds::Rounds;
+pub use state::{decode_state, encode_state};
 
 /// The well-known channel every module publishes its [`ModuleReport`] on.
 pub const REPORT_CHANNEL: &str = "hng/report";
@@ -92,7 +94,8 @@ pub trait Module: Sized {
         Ok(())
     }
 
-    /// The state to save, or `None` for a stateless module.
+    /// The state to save, or `None` for a stateless module: written, with [`Module::restore`],
+    /// by [`crate::checkpoint_field!`] or [`crate::checkpoint_with!`] from a serde value.
     fn checkpoint(&self) -> Option<Vec<u8>> {
         None
     }
@@ -456,6 +459,13 @@ impl Context {
         }
     }
 
+    /// A driver's client of `service` that its most important contract holder supervises
+    /// (after [`Context::command_verdict`]; see [`crate::contract::CommandArbiter::supervised`]).
+    pub fn supervised_client(&self, service: &str) -> Option<ModuleId> {
+        let now = self.now();
+        self.plane.as_ref()?.supervised_client(service, now)
+    }
+
     /// Control messages dropped so far by the transport (undecodable, spoofed).
     pub fn control_drops(&self) -> DropCounters {
         self.plane
@@ -526,39 +536,16 @@ fn run_module_env<M: Module>(wall_clock: bool) -> ExitCode {
     if wall_clock {
         opts.clock = ClockMode::Wall;
     }
-    match run_module_with::<M>(&opts) {
+    let result = run_module_with::<M>(&opts);
+    // Started without a supervisor, the module is the last of its prefix: its files go too.
+    crate::shm::remove_system_files_if_alone(&opts.prefix);
+    match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             tracing::error!(module = %opts.name, "{e}");
             ExitCode::from(1)
         }
     }
-}
-
-/// Why a module run ended with an error.
-#[derive(Debug, thiserror::Error)]
-pub enum RunError {
-    /// The runtime failed.
-    #[error(transparent)]
-    Runtime(#[from] Error),
-    /// The module's configuration did not parse.
-    #[error("module {module:?}: invalid configuration: {detail}")]
-    Config {
-        /// The module.
-        module: String,
-        /// The parser's message (names the field and line).
-        detail: String,
-    },
-    /// A module callback failed in a way the module cannot run on.
-    #[error("module {module:?}: {stage} failed: {source}")]
-    Module {
-        /// The module.
-        module: String,
-        /// Which callback.
-        stage: &'static str,
-        /// Its error.
-        source: ModuleError,
-    },
 }
 
 /// Runs module `M` with explicit options (tests, embedding); returns on a clean stop.

@@ -178,6 +178,22 @@ pub fn remove_prefix_files(prefix: &str) -> usize {
     n
 }
 
+/// Removes the prefix's system files ([`is_system_file`]: iceoryx2's management file, hng's
+/// wake segments and CPU register) when nothing else of the prefix is left, that is, when no
+/// other node lives on it (a living node keeps its files, a dead one's stay until cleaned):
+/// what a standalone module, started without a supervisor, does at exit. Returns how many
+/// files were removed (0 while anything else of the prefix remains).
+pub fn remove_system_files_if_alone(prefix: &str) -> usize {
+    let files = prefix_files(prefix);
+    if files.iter().any(|p| !is_system_file(p)) {
+        return 0;
+    }
+    files
+        .iter()
+        .filter(|p| std::fs::remove_file(p).is_ok())
+        .count()
+}
+
 /// A prefix unique to this process and call, for tests and tools that must not collide:
 /// `hng<tag>_<pid>_<n>_`.
 pub fn unique_prefix(tag: &str) -> String {
@@ -218,5 +234,27 @@ mod tests {
         assert!(shared.exists() && !shared.join(format!("{prefix}c.details")).exists());
         assert!(shared.join(format!("{other}d.details")).exists());
         let _ = std::fs::remove_dir_all(&shared);
+    }
+
+    #[test]
+    fn system_files_go_only_when_nothing_else_of_the_prefix_is_left() {
+        let prefix = unique_prefix("shmsys");
+        let shm = Path::new(SHM_DIR);
+        let system = [
+            shm.join(format!("{prefix}{}", crate::cpus::CPUS_TAG)),
+            shm.join(format!("{prefix}{}0123", crate::wake::WAKE_TAG)),
+            shm.join(format!("{prefix}x.global_mgmt")),
+        ];
+        for f in &system {
+            std::fs::write(f, b"").expect("system file");
+        }
+        // Another node's data segment: it stays, and so do the system files.
+        let data = shm.join(format!("{prefix}svc.data"));
+        std::fs::write(&data, b"").expect("data file");
+        assert_eq!(remove_system_files_if_alone(&prefix), 0);
+        assert!(system.iter().all(|f| f.exists()));
+        std::fs::remove_file(&data).expect("remove data file");
+        assert_eq!(remove_system_files_if_alone(&prefix), 3);
+        assert!(prefix_files(&prefix).is_empty());
     }
 }

@@ -127,6 +127,24 @@ struct Shared {
     wakeups_seen: u64,
 }
 
+/// Blocks SIGINT, SIGTERM and SIGHUP in the calling thread, and so in every thread it starts
+/// from then on; returns the mask. A binary that reads them from a signalfd
+/// ([`Waiter::catch_termination_signals`]) calls this first thing in `main`, while it is the
+/// only thread: a library that starts a thread before the signalfd exists (a writer, a
+/// worker) would otherwise leave a thread where the signal's default action kills the process.
+///
+/// # Errors
+/// The mask could not be changed.
+pub fn block_termination_signals() -> Result<SigSet, Error> {
+    let mut mask = SigSet::empty();
+    mask.add(Signal::SIGINT);
+    mask.add(Signal::SIGTERM);
+    mask.add(Signal::SIGHUP);
+    mask.thread_block()
+        .map_err(|e| Error::io("blocking termination signals", e))?;
+    Ok(mask)
+}
+
 impl std::fmt::Debug for Waiter {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("Waiter")
@@ -220,14 +238,10 @@ impl Waiter {
     }
 
     /// Blocks SIGINT, SIGTERM and SIGHUP for this thread and reports them from
-    /// [`Waiter::wait`] as [`Wake::Signal`] instead. Call before starting other threads.
+    /// [`Waiter::wait`] as [`Wake::Signal`] instead. Call before starting other threads (or
+    /// block them with [`block_termination_signals`] at the top of `main`).
     pub fn catch_termination_signals(&mut self) -> Result<(), Error> {
-        let mut mask = SigSet::empty();
-        mask.add(Signal::SIGINT);
-        mask.add(Signal::SIGTERM);
-        mask.add(Signal::SIGHUP);
-        mask.thread_block()
-            .map_err(|e| Error::io("blocking termination signals", e))?;
+        let mask = block_termination_signals()?;
         let sfd = SignalFd::with_flags(&mask, SfdFlags::SFD_NONBLOCK | SfdFlags::SFD_CLOEXEC)
             .map_err(|e| Error::io("creating a signalfd", e))?;
         self.epoll

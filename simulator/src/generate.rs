@@ -13,43 +13,37 @@
 
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use smart_default::SmartDefault;
 
 use hng_runtime::map::{FREE, OCCUPIED, OccupancyGrid};
 
 /// What the generated worlds look like.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, SmartDefault)]
 pub struct GenConfig {
     /// Cell size of the grid, m.
+    #[default(0.1)]
     pub resolution: f64,
     /// Range of the world's width, m.
+    #[default((12.0, 20.0))]
     pub width_m: (f64, f64),
     /// Range of the world's height, m.
+    #[default((10.0, 15.0))]
     pub height_m: (f64, f64),
     /// Range of the corridor's width, m.
+    #[default((1.2, 2.2))]
     pub corridor_m: (f64, f64),
     /// Range of the doors' width, m.
+    #[default((0.9, 1.4))]
     pub door_m: (f64, f64),
     /// Wall thickness, m.
+    #[default(0.2)]
     pub wall_m: f64,
     /// Fraction of the rooms' floor covered by clutter boxes (0..0.3).
+    #[default(0.04)]
     pub clutter: f64,
     /// Probability of a door between two neighbouring rooms.
+    #[default(0.4)]
     pub extra_door_p: f64,
-}
-
-impl Default for GenConfig {
-    fn default() -> Self {
-        GenConfig {
-            resolution: 0.1,
-            width_m: (12.0, 20.0),
-            height_m: (10.0, 15.0),
-            corridor_m: (1.2, 2.2),
-            door_m: (0.9, 1.4),
-            wall_m: 0.2,
-            clutter: 0.04,
-            extra_door_p: 0.4,
-        }
-    }
 }
 
 /// A generated world: its grid and what was drawn.

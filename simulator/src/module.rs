@@ -140,6 +140,9 @@ impl Module for SimulatorModule {
     /// clock back to 0: with neither checkpoint usable the simulator refuses to start.
     const CLEAN_START_AFTER_BAD_CHECKPOINT: bool = false;
 
+    /// 2: the snapshot is a serde value (1 was a hand-written byte layout).
+    const STATE_VERSION: u32 = 2;
+
     fn configure(ctx: &mut Context, cfg: SimModuleConfig) -> ModuleResult<Self> {
         if ctx.clock().is_sim() {
             return Err(
@@ -394,25 +397,7 @@ impl Module for SimulatorModule {
         Ok(())
     }
 
-    fn checkpoint(&self) -> Option<Vec<u8>> {
-        Some(self.sim.snapshot().to_bytes())
-    }
-
-    fn restore(&mut self, state: &[u8]) -> ModuleResult {
-        let snap = SimSnapshot::from_bytes(state)?;
-        self.sim.restore(&snap)?;
-        if let Some(cam) = &mut self.outputs.image {
-            cam.resume_at(snap.now_ns);
-        }
-        self.restored = true;
-        tracing::info!(
-            sim_time_s = snap.now_ns as f64 * 1e-9,
-            x = snap.pose.x,
-            y = snap.pose.y,
-            "resuming from checkpoint"
-        );
-        Ok(())
-    }
+    hng_runtime::checkpoint_with!(Self::save_state, Self::load_state);
 
     fn stop(&mut self, ctx: &mut Context) {
         if let Err(e) = self.publish_status(ctx) {
@@ -464,6 +449,26 @@ fn diag(a: f64, b: f64, c: f64) -> [f64; 9] {
 }
 
 impl SimulatorModule {
+    fn save_state(&self) -> SimSnapshot {
+        self.sim.snapshot()
+    }
+
+    fn load_state(&mut self, snap: SimSnapshot) -> ModuleResult {
+        snap.validate()?;
+        self.sim.restore(&snap)?;
+        if let Some(cam) = &mut self.outputs.image {
+            cam.resume_at(snap.now_ns);
+        }
+        self.restored = true;
+        tracing::info!(
+            sim_time_s = snap.now_ns as f64 * 1e-9,
+            x = snap.pose.x,
+            y = snap.pose.y,
+            "resuming from checkpoint"
+        );
+        Ok(())
+    }
+
     /// Ends the paused start: simulated time runs from now on. A restored simulator first
     /// moves its clock up to the latest time a module following it reported, so that time
     /// never goes back for anyone.

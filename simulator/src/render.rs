@@ -19,6 +19,7 @@
 use rand::Rng;
 use rand_distr::{Distribution, Normal};
 use serde::{Deserialize, Serialize};
+use smart_default::SmartDefault;
 
 pub use hng_runtime::msg::beacon_colors;
 
@@ -26,37 +27,30 @@ use crate::error::{Result, SimError};
 use crate::world::{BoxObstacle, Pose2D, World};
 
 /// Parameters of a rendered camera. Metres, radians.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, SmartDefault)]
 #[serde(deny_unknown_fields, default)]
 pub struct ImageParams {
     /// Image width in pixels (default 320).
+    #[default(320)]
     pub width: u32,
     /// Image height in pixels (default 240).
+    #[default(240)]
     pub height: u32,
     /// Horizontal field of view, rad (default 1.2, about 69 degrees).
+    #[default(1.2)]
     pub fov: f64,
     /// Height of the optical centre above the floor, m (default 0.3).
+    #[default(0.3)]
     pub camera_height: f64,
     /// Height of walls and boxes, m (default 1.0).
+    #[default(1.0)]
     pub wall_height: f64,
     /// Height of the beacon markers, m (default 0.6).
+    #[default(0.6)]
     pub beacon_height: f64,
     /// Standard deviation of the pixel noise, in 8-bit intensity steps (default 0: none).
+    #[default(0.0)]
     pub noise_sigma: f64,
-}
-
-impl Default for ImageParams {
-    fn default() -> Self {
-        ImageParams {
-            width: 320,
-            height: 240,
-            fov: 1.2,
-            camera_height: 0.3,
-            wall_height: 1.0,
-            beacon_height: 0.6,
-            noise_sigma: 0.0,
-        }
-    }
 }
 
 impl ImageParams {

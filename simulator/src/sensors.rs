@@ -4,6 +4,7 @@
 //! drifts, `base_link` is the robot (x forward, y left). Units: metres, radians, seconds.
 
 use serde::{Deserialize, Serialize};
+use smart_default::SmartDefault;
 
 /// Which sensor; used to switch simulated sensors on and off at run time.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -169,7 +170,7 @@ impl SensorOutput {
 }
 
 /// Counters kept by the simulator.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, SmartDefault)]
 pub struct SimStats {
     /// Physics steps taken.
     pub steps: u64,
@@ -180,17 +181,6 @@ pub struct SimStats {
     /// Times the robot was stopped because commands stopped arriving.
     pub command_timeouts: u64,
     /// Smallest gap seen between the robot disc and an obstacle, metres (+inf if none in range).
+    #[default(f64::INFINITY)]
     pub min_clearance: f64,
-}
-
-impl Default for SimStats {
-    fn default() -> Self {
-        Self {
-            steps: 0,
-            collisions: 0,
-            rejected_commands: 0,
-            command_timeouts: 0,
-            min_clearance: f64::INFINITY,
-        }
-    }
 }

@@ -1,4 +1,6 @@
-//! What a checkpoint keeps of a running simulation, and its byte encoding.
+//! What a checkpoint keeps of a running simulation. It is a serde value: the SDK encodes and
+//! decodes it (`hng_runtime::checkpoint_with!` in the simulator module), and a decoded one
+//! is checked ([`SimSnapshot::validate`]) before it is applied.
 //!
 //! Restored: simulated time, the robot's true pose, the odometry pose, the counters, the next
 //! due time of every sensor and the position of every noise stream, so a resumed simulation
@@ -7,17 +9,14 @@
 //! state (rebuilt from the world), so a resumed run is close to, not bit-identical with, an
 //! uninterrupted one.
 
+use serde::{Deserialize, Serialize};
+
 use crate::error::{Result, SimError};
 use crate::sensors::SimStats;
 use crate::world::Pose2D;
 
-/// Format version written first in [`SimSnapshot::to_bytes`].
-const VERSION: u32 = 1;
-/// Encoded size in bytes.
-const LEN: usize = 4 + 8 + 3 * 8 + 4 * 4 + 3 * 8 + 4 * 8 + 8 + 5 * 8 + 5 * 16;
-
 /// The restorable state of a [`crate::Simulator`].
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SimSnapshot {
     /// Simulated time, ns.
     pub now_ns: u64,
@@ -37,117 +36,29 @@ pub struct SimSnapshot {
 }
 
 impl SimSnapshot {
-    /// Encodes the snapshot (little-endian, versioned, fixed size).
-    #[must_use]
-    pub fn to_bytes(&self) -> Vec<u8> {
-        let mut b = Vec::with_capacity(LEN);
-        b.extend(VERSION.to_le_bytes());
-        b.extend(self.now_ns.to_le_bytes());
-        for p in [self.pose, self.odom] {
-            for v in [p.x, p.y, p.theta] {
-                b.extend(v.to_le_bytes());
-            }
-        }
-        for v in self.body {
-            b.extend(v.to_le_bytes());
-        }
-        let s = &self.stats;
-        for v in [
-            s.steps,
-            s.collisions,
-            s.rejected_commands,
-            s.command_timeouts,
-        ] {
-            b.extend(v.to_le_bytes());
-        }
-        b.extend(s.min_clearance.to_le_bytes());
-        for v in self.next_due_ns {
-            b.extend(v.to_le_bytes());
-        }
-        for v in self.rng_word_pos {
-            b.extend(v.to_le_bytes());
-        }
-        b
-    }
-
-    /// Decodes bytes written by [`SimSnapshot::to_bytes`].
-    pub fn from_bytes(bytes: &[u8]) -> Result<Self> {
-        let bad = |m: String| SimError::invalid("checkpoint", m);
-        if bytes.len() != LEN {
-            return Err(bad(format!("{} bytes, expected {LEN}", bytes.len())));
-        }
-        let mut r = Reader { bytes, pos: 0 };
-        let version = u32::from_le_bytes(r.take()?);
-        if version != VERSION {
-            return Err(bad(format!("version {version}, expected {VERSION}")));
-        }
-        let now_ns = r.u64()?;
-        let mut pose = || -> Result<Pose2D> { Ok(Pose2D::new(r.f64()?, r.f64()?, r.f64()?)) };
-        let (pose, odom) = (pose()?, pose()?);
-        let mut body = [0.0f32; 4];
-        for v in &mut body {
-            *v = f32::from_le_bytes(r.take()?);
-        }
-        let stats = SimStats {
-            steps: r.u64()?,
-            collisions: r.u64()?,
-            rejected_commands: r.u64()?,
-            command_timeouts: r.u64()?,
-            min_clearance: r.f64()?,
-        };
-        let mut next_due_ns = [0; 5];
-        for v in &mut next_due_ns {
-            *v = r.u64()?;
-        }
-        let mut rng_word_pos = [0; 5];
-        for v in &mut rng_word_pos {
-            *v = u128::from_le_bytes(r.take()?);
-        }
-        let snap = Self {
-            now_ns,
-            pose,
-            body,
-            odom,
-            stats,
-            next_due_ns,
-            rng_word_pos,
-        };
-        let finite = [pose.x, pose.y, pose.theta, odom.x, odom.y, odom.theta]
+    /// Checks a decoded snapshot before it is applied: every pose finite.
+    ///
+    /// # Errors
+    /// A pose or the body's pose is not finite.
+    pub fn validate(&self) -> Result<()> {
+        let (p, o) = (self.pose, self.odom);
+        let finite = [p.x, p.y, p.theta, o.x, o.y, o.theta]
             .iter()
             .all(|v| v.is_finite())
-            && body.iter().all(|v| v.is_finite());
-        if !finite {
-            return Err(bad("pose is not finite".to_owned()));
+            && self.body.iter().all(|v| v.is_finite());
+        if finite {
+            Ok(())
+        } else {
+            Err(SimError::invalid("checkpoint", "pose is not finite"))
         }
-        Ok(snap)
-    }
-}
-
-struct Reader<'a> {
-    bytes: &'a [u8],
-    pos: usize,
-}
-
-impl Reader<'_> {
-    fn take<const N: usize>(&mut self) -> Result<[u8; N]> {
-        let chunk = self
-            .bytes
-            .get(self.pos..self.pos + N)
-            .and_then(|s| <[u8; N]>::try_from(s).ok())
-            .ok_or_else(|| SimError::invalid("checkpoint", "truncated"))?;
-        self.pos += N;
-        Ok(chunk)
-    }
-    fn u64(&mut self) -> Result<u64> {
-        Ok(u64::from_le_bytes(self.take()?))
-    }
-    fn f64(&mut self) -> Result<f64> {
-        Ok(f64::from_le_bytes(self.take()?))
     }
 }
 
 #[cfg(test)]
+#[allow(clippy::unwrap_used)]
 mod tests {
+    use hng_runtime::module::{decode_state, encode_state};
+
     use super::*;
 
     #[test]
@@ -167,13 +78,18 @@ mod tests {
             next_due_ns: [1, 2, 3, 4, 5],
             rng_word_pos: [u128::MAX, 0, 7, 8, 9],
         };
-        let bytes = s.to_bytes();
-        assert_eq!(bytes.len(), LEN);
-        assert_eq!(SimSnapshot::from_bytes(&bytes)?, s);
-        assert!(SimSnapshot::from_bytes(&bytes[1..]).is_err());
-        let mut other = bytes.clone();
-        other[0] = 9;
-        assert!(SimSnapshot::from_bytes(&other).is_err());
+        let bytes = encode_state(&s).unwrap();
+        assert_eq!(decode_state::<SimSnapshot>(&bytes).unwrap(), s);
+        // Damage inside the file is the checksum's to catch (hng_runtime::checkpoint); a cut
+        // or overlong state is refused here.
+        assert!(decode_state::<SimSnapshot>(&bytes[..bytes.len() - 1]).is_err());
+        let mut longer = bytes.clone();
+        longer.push(0);
+        assert!(decode_state::<SimSnapshot>(&longer).is_err());
+        let mut nan = s.clone();
+        nan.pose.x = f64::NAN;
+        assert!(nan.validate().is_err());
+        assert!(s.validate().is_ok());
         Ok(())
     }
 
@@ -184,9 +100,9 @@ mod tests {
         a.run_until(1_500_000_000);
         // Let the robot come to rest (command timeout), as a restored one starts at rest.
         a.run_until(3_000_000_000);
-        let bytes = a.snapshot().to_bytes();
+        let bytes = encode_state(&a.snapshot()).unwrap();
         let mut b = crate::Simulator::new(crate::World::default_world())?;
-        b.restore(&SimSnapshot::from_bytes(&bytes)?)?;
+        b.restore(&decode_state::<SimSnapshot>(&bytes).unwrap())?;
         assert_eq!(b.now_ns(), a.now_ns());
         assert_eq!(b.stats(), a.stats());
         let (ga, gb) = (a.ground_truth(), b.ground_truth());

@@ -10,6 +10,7 @@ use std::f64::consts::{PI, TAU};
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
+use smart_default::SmartDefault;
 
 use crate::error::{Result, SimError, line_col};
 use crate::map::{OccupancyGrid, grid_boxes, grid_from_world};
@@ -262,37 +263,30 @@ pub struct SensorsConfig {
 
 /// 2D lidar at the robot centre. Beams are spread evenly over `fov`, centred on the heading; a
 /// full circle (`fov` = 2π) has no duplicate beam.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, SmartDefault)]
 #[serde(deny_unknown_fields, default)]
 pub struct LidarConfig {
     /// Simulate this sensor (default true).
+    #[default(true)]
     pub enabled: bool,
     /// Number of beams (default 360).
+    #[default(360)]
     pub beams: u32,
     /// Field of view, radians (default 2π).
+    #[default(TAU)]
     pub fov: f64,
     /// Scans per second (default 10).
+    #[default(10.0)]
     pub rate: f64,
     /// Maximum range, metres (default 10). No return gives +inf.
+    #[default(10.0)]
     pub max_range: f64,
     /// Minimum range, metres (default 0.05). Closer returns give -inf (REP-117).
+    #[default(0.05)]
     pub min_range: f64,
     /// Standard deviation of the Gaussian range noise, metres (default 0.01).
+    #[default(0.01)]
     pub range_sigma: f64,
-}
-
-impl Default for LidarConfig {
-    fn default() -> Self {
-        Self {
-            enabled: true,
-            beams: 360,
-            fov: TAU,
-            rate: 10.0,
-            max_range: 10.0,
-            min_range: 0.05,
-            range_sigma: 0.01,
-        }
-    }
 }
 
 /// Wheel odometry: the true motion of each physics step, in the robot frame, is distorted and
@@ -301,40 +295,33 @@ impl Default for LidarConfig {
 /// Per physics step with true travel `d` (metres) and rotation `dθ` (radians):
 /// `d' = d (1 + linear_scale_error) + N(0, (linear_noise·|d|)²)` and
 /// `dθ' = dθ (1 + angular_scale_error) + heading_drift·d + N(0, (angular_noise·|dθ| + angular_noise_per_metre·|d|)²)`.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, SmartDefault)]
 #[serde(deny_unknown_fields, default)]
 pub struct OdometryConfig {
     /// Simulate this sensor (default true).
+    #[default(true)]
     pub enabled: bool,
     /// Messages per second (default 50).
+    #[default(50.0)]
     pub rate: f64,
     /// Systematic distance scale error, fraction (default 0.01).
+    #[default(0.01)]
     pub linear_scale_error: f64,
     /// Systematic rotation scale error, fraction (default 0.02).
+    #[default(0.02)]
     pub angular_scale_error: f64,
     /// Systematic heading drift per metre driven, rad/m (default 0.005; unequal wheels).
+    #[default(0.005)]
     pub heading_drift: f64,
     /// Random distance error, fraction of the distance (default 0.02).
+    #[default(0.02)]
     pub linear_noise: f64,
     /// Random rotation error, fraction of the rotation (default 0.02).
+    #[default(0.02)]
     pub angular_noise: f64,
     /// Random rotation error per metre driven, rad/m (default 0.002).
+    #[default(0.002)]
     pub angular_noise_per_metre: f64,
-}
-
-impl Default for OdometryConfig {
-    fn default() -> Self {
-        Self {
-            enabled: true,
-            rate: 50.0,
-            linear_scale_error: 0.01,
-            angular_scale_error: 0.02,
-            heading_drift: 0.005,
-            linear_noise: 0.02,
-            angular_noise: 0.02,
-            angular_noise_per_metre: 0.002,
-        }
-    }
 }
 
 impl OdometryConfig {
@@ -355,31 +342,23 @@ impl OdometryConfig {
 
 /// GPS/IMU-like absolute pose in the map frame with Gaussian noise, and zones where the fix is
 /// degraded (noise multiplied) or lost.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, SmartDefault)]
 #[serde(deny_unknown_fields, default)]
 pub struct GpsConfig {
     /// Simulate this sensor (default true).
+    #[default(true)]
     pub enabled: bool,
     /// Fixes per second (default 5).
+    #[default(5.0)]
     pub rate: f64,
     /// Standard deviation of x and y, metres (default 0.3).
+    #[default(0.3)]
     pub position_sigma: f64,
     /// Standard deviation of the heading, radians (default 0.03).
+    #[default(0.03)]
     pub yaw_sigma: f64,
     /// Outage and degraded zones; where zones overlap an outage wins, else the largest multiplier.
     pub zones: Vec<GpsZone>,
-}
-
-impl Default for GpsConfig {
-    fn default() -> Self {
-        Self {
-            enabled: true,
-            rate: 5.0,
-            position_sigma: 0.3,
-            yaw_sigma: 0.03,
-            zones: Vec::new(),
-        }
-    }
 }
 
 /// What a GPS zone does.
@@ -452,72 +431,58 @@ impl GpsZone {
 
 /// Camera that reports beacons (id, bearing, distance) inside its field of view and range and
 /// not occluded by walls. Mounted at the robot centre, looking forward.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, SmartDefault)]
 #[serde(deny_unknown_fields, default)]
 pub struct CameraConfig {
     /// Simulate this sensor (default true).
+    #[default(true)]
     pub enabled: bool,
     /// Frames per second (default 5).
+    #[default(5.0)]
     pub rate: f64,
     /// Horizontal field of view, radians (default 1.2, about 69°).
+    #[default(1.2)]
     pub fov: f64,
     /// Maximum detection distance, metres (default 8).
+    #[default(8.0)]
     pub max_range: f64,
     /// Standard deviation of the bearing, radians (default 0.01).
+    #[default(0.01)]
     pub bearing_sigma: f64,
     /// Standard deviation of the distance, metres (default 0.05).
+    #[default(0.05)]
     pub range_sigma: f64,
     /// Render RGB8 images (`sim/camera/image`, `ImageInfo` + bytes) with the same `fov`
     /// (default true); the beacon list above stays as ground truth.
+    #[default(true)]
     pub image: bool,
     /// Images per second (default 15).
+    #[default(15.0)]
     pub image_rate: f64,
     /// Image width, pixels (default 320).
+    #[default(320)]
     pub width: u32,
     /// Image height, pixels (default 240).
+    #[default(240)]
     pub height: u32,
     /// Standard deviation of the pixel noise, 8-bit steps (default 2).
+    #[default(2.0)]
     pub noise_sigma: f64,
     /// Lighting factor of the images at the start (1 normal, lower is darker; default 1).
+    #[default(1.0)]
     pub lighting: f64,
 }
 
-impl Default for CameraConfig {
-    fn default() -> Self {
-        Self {
-            enabled: true,
-            rate: 5.0,
-            fov: 1.2,
-            max_range: 8.0,
-            bearing_sigma: 0.01,
-            range_sigma: 0.05,
-            image: true,
-            image_rate: 15.0,
-            width: 320,
-            height: 240,
-            noise_sigma: 2.0,
-            lighting: 1.0,
-        }
-    }
-}
-
 /// Ground-truth pose for evaluation (never feed it to the robot's modules).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, SmartDefault)]
 #[serde(deny_unknown_fields, default)]
 pub struct GroundTruthConfig {
     /// Publish ground truth (default true).
+    #[default(true)]
     pub enabled: bool,
     /// Messages per second (default 100).
+    #[default(100.0)]
     pub rate: f64,
-}
-
-impl Default for GroundTruthConfig {
-    fn default() -> Self {
-        Self {
-            enabled: true,
-            rate: 100.0,
-        }
-    }
 }
 
 impl World {

@@ -187,8 +187,7 @@ fn lidar_to_command_watched(a: &LoopArgs, browsers: usize) -> Result<Vec<BenchRo
         "security",
         &format!(
             "scan = \"{SCAN}\"\ncmd_out = \"{SECURITY}\"\nfreshness_s = {forever}\n\
-             scan_timeout_s = {forever}\n\
-             sources = [{{ channel = \"{TELEOP}\", priority = \"2.1\" }}]\n"
+             scan_timeout_s = {forever}\ncmd_in = \"{TELEOP}\"\n"
         ),
         &a.wait,
     )?;

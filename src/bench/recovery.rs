@@ -79,7 +79,7 @@ give_up_failures = 1000000
 heartbeat_period = "{heartbeat_ms}ms"
 checkpoint_period = "10ms"
 stop_timeout = "2s"
-config = {{ output = "bench/probe", period_ms = 10 }}
+config = {{ output = "bench/probe", period_s = 0.01 }}
 "#
             ),
         )

@@ -234,7 +234,7 @@ fn print_table(results: &[ProblemResult], s: &serde_json::Value) {
 
 /// `hng eval nav`.
 pub fn run(a: &EvalNavArgs) -> Result<()> {
-    crate::run::mission::parse_speed(&a.speed).map_err(anyhow::Error::msg)?;
+    hng_supervisor::mission::parse_speed(&a.speed).map_err(anyhow::Error::msg)?;
     if !(a.tolerance.is_finite() && a.tolerance > 0.0) {
         bail!(
             "--tolerance must be a positive distance, got {}",

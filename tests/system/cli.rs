@@ -46,7 +46,7 @@ fn with_closed_pipe(
 #[test]
 fn a_closed_pipe_ends_topic_list_and_echo_quietly() {
     let mut sys = TestSystem::new("clipipe");
-    sys.spawn_testmod("counter", "counter", "period_ms = 5");
+    sys.spawn_testmod("counter", "counter", "period_s = 0.005");
     // The counter's channel exists once it runs.
     let deadline = std::time::Instant::now() + Duration::from_secs(30);
     loop {

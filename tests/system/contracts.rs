@@ -17,7 +17,7 @@ use hng_runtime::{Node, NodeOptions, Subscriber};
 use crate::common::TestSystem;
 
 /// Fast protocol timing for the tests (refresh 50 ms, peer timeout 400 ms).
-const TIMING: &str = "timing = { reply_window_ms = 20, refresh_ms = 50, peer_timeout_ms = 400 }";
+const TIMING: &str = "timing = { reply_window_s = 0.02, refresh_s = 0.05, peer_timeout_s = 0.4 }";
 
 /// The latest contract table of every module, kept up to date from `hng/contracts`.
 struct Tables {
@@ -279,7 +279,7 @@ true_quality = 1.0"#,
         r#"provides = ["Navigate"]
 needs = ["Localization"]
 evaluate = true
-period_ms = 10"#,
+period_s = 0.01"#,
     );
     tables.wait("providers up", Duration::from_secs(10), |t| t.len() >= 3);
     probe(&mut sys, "manager", r#"manager = ["Navigate"]"#);
@@ -360,7 +360,7 @@ fn contracts_sigkill_without_supervisor_falls_back_by_timeout() {
     let mut sys = TestSystem::new("ct_kill_timeout");
     let (_node, mut tables, p1, _) = localization_system(
         &mut sys,
-        "timing = { reply_window_ms = 20, refresh_ms = 50, peer_timeout_ms = 400 }",
+        "timing = { reply_window_s = 0.02, refresh_s = 0.05, peer_timeout_s = 0.4 }",
     );
     kill(p1);
     let took = tables.wait("p2 takes over", Duration::from_secs(5), |t| {
@@ -379,7 +379,7 @@ fn contracts_sigkill_with_died_event_switches_at_once() {
     let mut sys = TestSystem::new("ct_kill_event");
     let (node, mut tables, p1, p2) = localization_system(
         &mut sys,
-        "timing = { reply_window_ms = 20, refresh_ms = 50, peer_timeout_ms = 5000 }",
+        "timing = { reply_window_s = 0.02, refresh_s = 0.05, peer_timeout_s = 5.0 }",
     );
     let events = node
         .publisher::<ModuleEvent>(SUPERVISOR_EVENTS)
@@ -507,7 +507,7 @@ drive = ["Robot control"]"#,
         r#"provides = ["Robot integrity"]
 needs = ["Robot control"]
 commands = ["Robot control"]
-period_ms = 10"#,
+period_s = 0.01"#,
     );
     tables.wait("up", Duration::from_secs(10), |t| t.len() >= 2);
     probe(&mut sys, "manager", r#"manager = ["Robot integrity"]"#);

@@ -166,8 +166,8 @@ fn fault_matrix_every_signal_to_every_kind_of_module() {
         &prefix,
         &[
             "--no-rm",
-            "--status-period-ms",
-            "100",
+            "--status-period",
+            "0.1",
             file.to_str().expect("path"),
         ],
     );

@@ -89,8 +89,8 @@ impl RunningSystem {
                 "run",
                 "--no-rm",
                 "--no-gui",
-                "--status-period-ms",
-                "100",
+                "--status-period",
+                "0.1",
                 "--run-dir",
             ])
             .arg(&dir)
@@ -358,7 +358,7 @@ fn is_alive(pid: u32) -> bool {
 
 fn module(state_ms: u32, extra: &str, config: &str) -> String {
     format!(
-        "[[module]]\nname = \"counter\"\ncommand = [\"TESTMOD\", \"faulty\"]\ncheckpoint_period = \"{state_ms}ms\"\n{extra}\n[module.config]\nperiod_ms = 5\n{config}\n"
+        "[[module]]\nname = \"counter\"\ncommand = [\"TESTMOD\", \"faulty\"]\ncheckpoint_period = \"{state_ms}ms\"\n{extra}\n[module.config]\nperiod_s = 0.005\n{config}\n"
     )
 }
 

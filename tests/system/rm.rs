@@ -210,7 +210,7 @@ fn memory_hog_over_its_limit_is_sent_over_limit() {
     let _heavy = crate::common::heavy();
     let mut sys = TestSystem::new("rmhog");
     let mut obs = Observer::new(&sys.prefix);
-    sys.spawn_testmod("hog", "hog", "step_mb = 8\nperiod_ms = 50\nmax_mb = 160");
+    sys.spawn_testmod("hog", "hog", "step_mb = 8\nperiod_s = 0.05\nmax_mb = 160");
     sys.spawn_testmod("counter", "calm", "");
     let _rm = RmProcess::start(
         &sys.prefix,
@@ -369,7 +369,7 @@ command = ["{TESTMOD}", "hog"]
 
 [module.config]
 step_mb = 8
-period_ms = 50
+period_s = 0.05
 max_mb = 160
 
 [[module]]
@@ -395,7 +395,7 @@ fraction = 0.6
     waiter.attach(&sup).expect("attach");
     let log = std::fs::File::create(dir.join("run.log")).expect("log file");
     let child = Command::new(HNG)
-        .args(["run", "--no-gui", "--status-period-ms", "100", "--run-dir"])
+        .args(["run", "--no-gui", "--status-period", "0.1", "--run-dir"])
         .arg(&dir)
         .arg(&file)
         .env("HNG_PREFIX", &prefix)

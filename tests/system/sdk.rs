@@ -2,6 +2,7 @@
 
 use std::time::Duration;
 
+use hng_runtime::checkpoint::CheckpointStore;
 use hng_runtime::msg::Goal;
 use hng_runtime::wait::{WaitMode, Waiter};
 use hng_runtime::{Node, NodeOptions};
@@ -12,7 +13,7 @@ use crate::common::{TestSystem, wait_for_report};
 fn a_missed_receive_deadline_is_reported_by_the_module() {
     let mut sys = TestSystem::new("dl");
     let node = Node::new(NodeOptions::new("observer").prefix(&sys.prefix)).expect("node");
-    sys.spawn_testmod("watcher", "watcher", "deadline_ms = 30");
+    sys.spawn_testmod("watcher", "watcher", "deadline_s = 0.03");
     let r = wait_for_report(&node, "watcher", Duration::from_secs(10), |r| {
         r.deadline_misses > 0
     });
@@ -47,7 +48,7 @@ fn sigterm_stops_cleanly_and_the_restarted_module_restores_its_checkpoint() {
     let mut waiter = Waiter::new(WaitMode::default()).expect("waiter");
     waiter.attach(&sub).expect("attach");
 
-    sys.spawn_testmod_with("counter", "counter", "period_ms = 5", &env);
+    sys.spawn_testmod_with("counter", "counter", "period_s = 0.005", &env);
     let mut last = 0;
     while last < 20 {
         last = next_count(&sub, &mut waiter);
@@ -63,9 +64,23 @@ fn sigterm_stops_cleanly_and_the_restarted_module_restores_its_checkpoint() {
     }
 
     // The final checkpoint was written on stop: the new process counts on from there.
-    sys.spawn_testmod_with("counter", "counter", "period_ms = 5", &env);
+    sys.spawn_testmod_with("counter", "counter", "period_s = 0.005", &env);
     let first = next_count(&sub, &mut waiter);
     assert_eq!(first, last + 1, "restored count");
+    sys.stop_all();
+
+    // Checkpoints whose files are sound (checksums good) but whose payload is not the module's
+    // state: both refused as a whole, and the module starts clean, counting from 1 again.
+    while sub.receive().expect("drain").is_some() {}
+    let store = |name: &str| CheckpointStore::new(&dir, name).expect("checkpoint store");
+    store("counter").save(1, &[0xff; 9]).expect("write"); // a u32 that never ends
+    store("counter.prev").save(1, &[5, 0, 0]).expect("write"); // a u32 and 2 bytes more
+    sys.spawn_testmod_with("counter", "counter", "period_s = 0.005", &env);
+    assert_eq!(
+        next_count(&sub, &mut waiter),
+        1,
+        "a clean start after two undecodable checkpoints"
+    );
     sys.stop_all();
     let _ = std::fs::remove_dir_all(&dir);
 }

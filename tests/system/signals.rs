@@ -515,7 +515,7 @@ fn a_sigkilled_supervisor_leaves_no_module_and_the_next_start_cleans_up() {
     let file = launch_file(
         &dir.join("launch"),
         "system = \"orphans\"\n\n[[module]]\nname = \"sleeper\"\ncommand = [\"/bin/sleep\", \"1000\"]\n\n\
-         [[module]]\nname = \"counter\"\ncommand = [\"TESTMOD\", \"faulty\"]\n[module.config]\nperiod_ms = 20\n",
+         [[module]]\nname = \"counter\"\ncommand = [\"TESTMOD\", \"faulty\"]\n[module.config]\nperiod_s = 0.02\n",
     );
     let path = file.to_str().expect("path").to_owned();
     let mut events = Events::new(&prefix);
@@ -676,7 +676,7 @@ fn a_sent_sigsegv_kills_a_module_on_the_first_delivery() {
         &dir.join("launch"),
         "system = \"segv\"\n[defaults]\nheartbeat_period = \"100ms\"\nheartbeat_timeout = \"30s\"\n\n\
          [[module]]\nname = \"probe\"\ncommand = [\"hng\", \"module\", \"heartbeat-probe\"]\n\n\
-         [[module]]\nname = \"counter\"\ncommand = [\"TESTMOD\", \"faulty\"]\n[module.config]\nperiod_ms = 20\n",
+         [[module]]\nname = \"counter\"\ncommand = [\"TESTMOD\", \"faulty\"]\n[module.config]\nperiod_s = 0.02\n",
     );
     let mut events = Events::new(&prefix);
     let mut run = Run::start_on(&prefix, &["--no-rm", file.to_str().expect("path")]);

@@ -394,7 +394,7 @@ fn a_module_on_the_sim_clock_ticks_in_simulated_time() {
     s.sys.spawn_testmod_with(
         "counter",
         "counter",
-        "period_ms = 100",
+        "period_s = 0.1",
         &[("HNG_CLOCK", "sim")],
     );
     let first = counts.next(deadline(), "the first counter tick");

@@ -24,7 +24,7 @@ fn running_counter(sys: &mut TestSystem) {
     let sub = node.subscriber::<Goal>("test/count").expect("subscriber");
     let mut waiter = Waiter::new(WaitMode::default()).expect("waiter");
     waiter.attach(&sub).expect("attach");
-    sys.spawn_testmod("counter", "counter", "period_ms = 10");
+    sys.spawn_testmod("counter", "counter", "period_s = 0.01");
     while sub.receive().expect("receive").is_none() {
         waiter.wait(Some(Duration::from_secs(10))).expect("wait");
         assert!(waiter.any_ready(), "the counter never published");

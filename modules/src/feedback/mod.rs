@@ -19,35 +19,26 @@ mod scan_map;
 pub use scan_map::{MapFeedbackParams, MapRating, ScanMapAgreement};
 
 use hng_runtime::msg::Pose2D;
+use smart_default::SmartDefault;
 
 use crate::common::{relative, wrap_angle};
 
 /// Consistency of a pose source with odometry.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, SmartDefault)]
 pub struct OdometryConsistency {
     /// Length of one comparison, s.
+    #[default(1.0)]
     pub window_s: f64,
     /// Odometry allowance per metre moved.
+    #[default(0.1)]
     pub odom_rel: f64,
     /// Smallest allowance, m.
+    #[default(0.05)]
     pub floor_m: f64,
     base: Option<(Pose2D, Pose2D, f64)>,
     odom: Option<Pose2D>,
     /// The last evaluation and the error behind it, m.
     pub last: Option<(f64, f64)>,
-}
-
-impl Default for OdometryConsistency {
-    fn default() -> Self {
-        OdometryConsistency {
-            window_s: 1.0,
-            odom_rel: 0.1,
-            floor_m: 0.05,
-            base: None,
-            odom: None,
-            last: None,
-        }
-    }
 }
 
 impl OdometryConsistency {

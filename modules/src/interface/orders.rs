@@ -6,32 +6,26 @@
 
 use hng_runtime::msg::{MAX_ORDER_POINTS, Order, OrderKind, SIDE_LEFT, SIDE_RIGHT};
 use serde::{Deserialize, Serialize};
+use smart_default::SmartDefault;
 
 /// Bounds of the orders' fields.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, SmartDefault)]
 pub struct OrderLimits {
     /// Largest |x| or |y| of a target point, m (map frame).
+    #[default(1000.0)]
     pub max_coordinate_m: f64,
     /// Tolerance of a goal or waypoint given as 0, m.
+    #[default(0.2)]
     pub default_tolerance_m: f64,
     /// Largest tolerance accepted, m.
+    #[default(5.0)]
     pub max_tolerance_m: f64,
     /// Wall distance bounds, m (0 means the follower's default).
+    #[default((0.2, 3.0))]
     pub wall_distance_m: (f64, f64),
     /// Largest stop distance from a beacon, m.
+    #[default(5.0)]
     pub max_beacon_distance_m: f64,
-}
-
-impl Default for OrderLimits {
-    fn default() -> Self {
-        OrderLimits {
-            max_coordinate_m: 1000.0,
-            default_tolerance_m: 0.2,
-            max_tolerance_m: 5.0,
-            wall_distance_m: (0.2, 3.0),
-            max_beacon_distance_m: 5.0,
-        }
-    }
 }
 
 /// What the Interface has in force.

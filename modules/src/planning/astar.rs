@@ -1,5 +1,6 @@
 //! 8-connected A* on an [`OccupancyGrid`] with reusable, generation-stamped buffers.
 
+use smart_default::SmartDefault;
 use std::cmp::Ordering;
 use std::collections::BinaryHeap;
 
@@ -9,21 +10,13 @@ use hng_runtime::map::{OccupancyGrid, UNKNOWN};
 pub const SQRT_2: f64 = std::f64::consts::SQRT_2;
 
 /// Which cells the planner may enter.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, SmartDefault)]
 pub struct PlannerConfig {
     /// Cells with a value `>=` this are blocked. Default 50.
+    #[default(50)]
     pub occupied_threshold: i8,
     /// Whether unknown cells (`-1`) may be entered. Default false.
     pub unknown_is_free: bool,
-}
-
-impl Default for PlannerConfig {
-    fn default() -> Self {
-        Self {
-            occupied_threshold: 50,
-            unknown_is_free: false,
-        }
-    }
 }
 
 impl PlannerConfig {

@@ -11,38 +11,32 @@
 //! half a cell).
 
 use hng_runtime::map::{FREE, OCCUPIED, OccupancyGrid, UNKNOWN};
+use smart_default::SmartDefault;
 
 use super::inflate::squared_distance_transform;
 
 /// How the costmap is built.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, SmartDefault)]
 pub struct CostmapConfig {
     /// Cells whose centre is closer than this to an obstacle are lethal (the footprint radius
     /// plus its margin), m.
+    #[default(crate::footprint::footprint_radius())]
     pub lethal_m: f64,
     /// Distance at which the inflation cost has fallen to 0, m.
+    #[default(1.0)]
     pub inflation_m: f64,
     /// Cost just outside the lethal band: a move there costs `1 + weight` times its length.
+    #[default(3.0)]
     pub weight: f64,
     /// Decay rate of the cost with distance, 1/m (`exp(-decay·(d − lethal))`).
+    #[default(3.0)]
     pub decay: f64,
     /// Grids with coarser cells are resampled to cells no larger than this, m.
+    #[default(0.1)]
     pub max_cell_m: f64,
     /// Cells with a value `>=` this are obstacles.
+    #[default(50)]
     pub occupied_threshold: i8,
-}
-
-impl Default for CostmapConfig {
-    fn default() -> Self {
-        CostmapConfig {
-            lethal_m: crate::footprint::footprint_radius(),
-            inflation_m: 1.0,
-            weight: 3.0,
-            decay: 3.0,
-            max_cell_m: 0.1,
-            occupied_threshold: 50,
-        }
-    }
 }
 
 /// The costmap: `grid` has every lethal cell [`OCCUPIED`] (so the planner's plain

@@ -1,27 +1,20 @@
 //! Obstacle inflation by a robot radius with an exact Euclidean distance transform.
 
 use hng_runtime::map::{OCCUPIED, OccupancyGrid, UNKNOWN};
+use smart_default::SmartDefault;
 
 /// Which cells count as obstacles when inflating.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, SmartDefault)]
 pub struct InflationConfig {
     /// Robot radius in metres; cells whose centre is within this distance of an
     /// obstacle cell centre become [`OCCUPIED`]. Default 0.3 m.
+    #[default(0.3)]
     pub radius_m: f64,
     /// Cells with a value `>=` this are obstacles. Default 50.
+    #[default(50)]
     pub occupied_threshold: i8,
     /// Whether unknown cells (`-1`) are inflated like obstacles. Default false.
     pub inflate_unknown: bool,
-}
-
-impl Default for InflationConfig {
-    fn default() -> Self {
-        Self {
-            radius_m: 0.3,
-            occupied_threshold: 50,
-            inflate_unknown: false,
-        }
-    }
 }
 
 /// Squared Euclidean distance (in cells²) from every cell centre to the nearest

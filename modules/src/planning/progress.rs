@@ -16,6 +16,7 @@ use hng_runtime::msg::Header;
 use hng_runtime::qos::ChannelKind;
 use iceoryx2::prelude::ZeroCopySend;
 use serde::{Deserialize, Serialize};
+use smart_default::SmartDefault;
 
 /// Channel of [`NavProgress`] (Planning publishes it on every event).
 pub const PROGRESS_CHANNEL: &str = "planning/progress";
@@ -80,39 +81,32 @@ impl NavProgress {
 }
 
 /// Parameters of the progress checker and the recoveries.
-#[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize, SmartDefault)]
 #[serde(default, deny_unknown_fields)]
 pub struct ProgressParams {
     /// No progress for this long is a stall, s (simulated; default 10; 0 disables the
     /// checker).
+    #[default(10.0)]
     pub stall_s: f64,
     /// Progress: the distance left shrinks by this much, m (default 0.5).
+    #[default(0.5)]
     pub progress_m: f64,
     /// Time constant of the low-pass filter on the distance left, s (default 2): a noisy
     /// position (GPS, σ 0.3 m) must not look like progress.
+    #[default(2.0)]
     pub filter_s: f64,
     /// Time given to each behaviour's effect before the next one, s (default 6).
+    #[default(6.0)]
     pub recovery_wait_s: f64,
     /// Distance to back up, m (default 0.3).
+    #[default(0.3)]
     pub backup_m: f64,
     /// Backing-up speed, m/s (default 0.15).
+    #[default(0.15)]
     pub backup_speed: f64,
     /// Longest time a motion behaviour (rotate, back up) may take, s (default 8).
+    #[default(8.0)]
     pub behaviour_timeout_s: f64,
-}
-
-impl Default for ProgressParams {
-    fn default() -> Self {
-        ProgressParams {
-            stall_s: 10.0,
-            progress_m: 0.5,
-            filter_s: 2.0,
-            recovery_wait_s: 6.0,
-            backup_m: 0.3,
-            backup_speed: 0.15,
-            behaviour_timeout_s: 8.0,
-        }
-    }
 }
 
 /// A recovery behaviour.

@@ -32,6 +32,7 @@
 //!   of the last optimised node. Inline (evaluation), it runs at once, so
 //!   results are reproducible.
 
+use smart_default::SmartDefault;
 use std::sync::Arc;
 use std::sync::mpsc::{Receiver, Sender, TryRecvError, channel};
 use std::thread::JoinHandle;
@@ -45,63 +46,55 @@ use super::matcher::scan_normals;
 use super::posegraph::{Edge, optimise};
 
 /// Back-end parameters.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, SmartDefault)]
 pub struct BackendConfig {
     /// Loop closure on (false: the front end alone, the graph is not built).
+    #[default(true)]
     pub loop_closure: bool,
     /// Optimise on a worker thread (the module) rather than inline (evaluation).
     pub background: bool,
     /// A scan becomes a node after this much translation (m). Default 0.1.
+    #[default(0.1)]
     pub node_min_translation: f64,
     /// ... or this much rotation (rad). Default 5°.
+    #[default(5f64.to_radians())]
     pub node_min_rotation: f64,
     /// Floor of the sequential edges' standard deviations (m, rad). Default 2 cm, 0.5°.
+    #[default((0.02, 0.5f64.to_radians()))]
     pub sequential_sigma: (f64, f64),
     /// Nodes per submap. Default 10.
+    #[default(10)]
     pub submap_scans: usize,
     /// Try a loop closure every this many nodes. Default 3.
+    #[default(3)]
     pub loop_every: usize,
     /// A candidate submap's last node is at least this many nodes old. Default 40.
+    #[default(40)]
     pub loop_min_separation: usize,
     /// Candidate submaps' centres lie within this distance (m). Default 5.
+    #[default(5.0)]
     pub loop_search_radius: f64,
     /// Candidates tried per attempt, nearest first. Default 2.
+    #[default(2)]
     pub loop_candidates: usize,
     /// Half-width of the loop-closure translational search (m). Default 1.5.
+    #[default(1.5)]
     pub loop_linear_window: f64,
     /// Half-width of the loop-closure rotational search (rad). Default 20°.
+    #[default(20f64.to_radians())]
     pub loop_angular_window: f64,
     /// Minimum fine match score to accept a closure. Default 0.6.
+    #[default(0.6)]
     pub loop_min_score: f64,
     /// Standard deviations of a closure edge (m, rad). Default 5 cm, 1°.
+    #[default((0.05, 1f64.to_radians()))]
     pub loop_sigma: (f64, f64),
     /// Huber threshold of closure edges (Mahalanobis). Default 3.
+    #[default(3.0)]
     pub loop_huber: f64,
     /// Gauss-Newton iterations per optimisation. Default 10.
+    #[default(10)]
     pub iterations: usize,
-}
-
-impl Default for BackendConfig {
-    fn default() -> Self {
-        Self {
-            loop_closure: true,
-            background: false,
-            node_min_translation: 0.1,
-            node_min_rotation: 5f64.to_radians(),
-            sequential_sigma: (0.02, 0.5f64.to_radians()),
-            submap_scans: 10,
-            loop_every: 3,
-            loop_min_separation: 40,
-            loop_search_radius: 5.0,
-            loop_candidates: 2,
-            loop_linear_window: 1.5,
-            loop_angular_window: 20f64.to_radians(),
-            loop_min_score: 0.6,
-            loop_sigma: (0.05, 1f64.to_radians()),
-            loop_huber: 3.0,
-            iterations: 10,
-        }
-    }
 }
 
 /// A node's scan: its valid end points (sensor frame), for the map. The

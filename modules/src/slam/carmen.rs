@@ -31,6 +31,7 @@
 //! point) and counted in [`CarmenLog::invalid_ranges`]: lasers report such
 //! values, and one bad beam is no reason to drop a scan.
 
+use smart_default::SmartDefault;
 use std::collections::BTreeMap;
 use std::f64::consts::PI;
 use std::path::{Path, PathBuf};
@@ -65,27 +66,20 @@ pub enum CarmenError {
 }
 
 /// Beam geometry of a laser scan.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, SmartDefault)]
 pub struct LaserConfig {
     /// Angle of beam 0 in the sensor frame (rad). Default −π/2.
+    #[default(-std::f64::consts::FRAC_PI_2)]
     pub angle_min: f64,
     /// Angle between beams (rad). Default 1°.
+    #[default(1f64.to_radians())]
     pub angle_increment: f64,
     /// Readings below this are invalid (m). Default 0.05.
+    #[default(0.05)]
     pub range_min: f64,
     /// Readings at or above this are "no return" (m). Default 50.
+    #[default(50.0)]
     pub range_max: f64,
-}
-
-impl Default for LaserConfig {
-    fn default() -> Self {
-        Self {
-            angle_min: -std::f64::consts::FRAC_PI_2,
-            angle_increment: 1f64.to_radians(),
-            range_min: 0.05,
-            range_max: 50.0,
-        }
-    }
 }
 
 impl LaserConfig {
@@ -120,21 +114,13 @@ impl LaserConfig {
 }
 
 /// How to read a log.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, SmartDefault)]
 pub struct LogOptions {
     /// Field of view of `FLASER` scans (rad); `None`: 180° (see the module docs).
     pub fov: Option<f64>,
     /// `FLASER` readings at or above this are "no return" (m). Default 50.
+    #[default(50.0)]
     pub range_max: f64,
-}
-
-impl Default for LogOptions {
-    fn default() -> Self {
-        Self {
-            fov: None,
-            range_max: 50.0,
-        }
-    }
 }
 
 /// An `ODOM x y theta tv rv accel timestamp hostname logger_timestamp` line.

@@ -2,6 +2,7 @@
 //! (per-scan) error, absolute trajectory error after alignment, each beside
 //! the same figure for odometry alone, and speed.
 
+use smart_default::SmartDefault;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -46,30 +47,22 @@ pub enum SlamEvalError {
 }
 
 /// How to evaluate.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, SmartDefault)]
 pub struct EvalOptions {
     /// Reading the log (field of view of `FLASER` scans).
+    #[default(LogOptions::default())]
     pub log: LogOptions,
     /// Front end.
+    #[default(SlamConfig::default())]
     pub slam: SlamConfig,
     /// Back end (loop closure on by default, optimised inline).
+    #[default(BackendConfig::default())]
     pub backend: BackendConfig,
     /// Also run the front end alone, for its absolute trajectory error. Default true.
+    #[default(true)]
     pub compare_front_end: bool,
     /// Write the map as `<base>.pgm` + `<base>.yaml`.
     pub map_out: Option<PathBuf>,
-}
-
-impl Default for EvalOptions {
-    fn default() -> Self {
-        Self {
-            log: LogOptions::default(),
-            slam: SlamConfig::default(),
-            backend: BackendConfig::default(),
-            compare_front_end: true,
-            map_out: None,
-        }
-    }
 }
 
 /// The figures of one log.

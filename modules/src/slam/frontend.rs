@@ -1,6 +1,7 @@
 //! The SLAM front end: odometry prior + scan-to-local-map matching, with a
 //! global log-odds map on the side.
 
+use smart_default::SmartDefault;
 use std::collections::VecDeque;
 
 use nalgebra::{Isometry2, Matrix3, Point2, Vector2};
@@ -16,30 +17,41 @@ use super::matcher::{
 type MapPoint = (Vector2<f64>, Option<Vector2<f64>>);
 
 /// Front-end parameters.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, SmartDefault)]
 pub struct SlamConfig {
     /// Beam geometry.
+    #[default(LaserConfig::default())]
     pub laser: LaserConfig,
     /// Scan matcher.
+    #[default(MatcherConfig::default())]
     pub matcher: MatcherConfig,
     /// Global log-odds map.
+    #[default(MapperConfig::default())]
     pub mapper: MapperConfig,
     /// Scans kept in the local map matched against. Default 15.
+    #[default(15)]
     pub local_map_scans: usize,
     /// Local-map points farther than this from the prior are not used (m). Default 20.
+    #[default(20.0)]
     pub local_map_radius: f64,
     /// Beams longer than this are not matched (m). Default 25.
+    #[default(25.0)]
     pub match_max_range: f64,
     /// Below this match score the odometry prior is kept instead. Default 0.15.
+    #[default(0.15)]
     pub min_score: f64,
     /// Odometry noise: translational std per metre travelled. Default 0.1.
+    #[default(0.1)]
     pub odom_trans_noise: f64,
     /// Odometry noise: rotational std per radian turned. Default 0.1.
+    #[default(0.1)]
     pub odom_rot_noise: f64,
     /// Below this match score the wide search ([`SlamConfig::wide`]) is run
     /// as well and the better of the two matches kept. Default 0.5.
+    #[default(0.5)]
     pub wide_below_score: f64,
     /// The wide search for large steps or a useless odometry prior.
+    #[default(WideSearch::default())]
     pub wide: WideSearch,
     /// Fuse the match with the odometry prior by their information, so that
     /// directions the scan does not constrain (a corridor's axis) follow the
@@ -50,10 +62,12 @@ pub struct SlamConfig {
     /// The scan's information is multiplied by this before fusing: the ICP
     /// Hessian counts every point as independent, which neighbouring beams on
     /// one wall are not. Default 0.01.
+    #[default(0.01)]
     pub match_information_scale: f64,
     /// When the odometry reports no motion, also match from the last step
     /// repeated (a constant-velocity hypothesis) and keep the better score.
     /// Default true.
+    #[default(true)]
     pub constant_velocity_hypothesis: bool,
     /// Matches are ranked by score minus this times the fraction of the
     /// scan's points that land in space the map has seen free (log-odds at
@@ -61,6 +75,7 @@ pub struct SlamConfig {
     /// end points where earlier beams passed is contradicted by the data.
     /// Ranks the prior's match, the wide search's candidates and the
     /// constant-velocity match; 0 disables. Default 0.
+    #[default(0.0)]
     pub free_space_penalty: f64,
     /// When set, matches are ranked by a score in which a scan point landing
     /// where the map has never observed anything counts this value instead of
@@ -73,6 +88,7 @@ pub struct SlamConfig {
     /// 0.4: 10.63, 0.7: 10.87 cm on Örebro); with
     /// [`WideSearch::unknown_floor`] as well, Örebro 7.22 cm (0.3: 10.81,
     /// 0.6: 8.82, 0.7: 9.48 cm).
+    #[default(Some(0.5))]
     pub unknown_score: Option<f64>,
 }
 
@@ -113,25 +129,33 @@ pub fn fuse(
 /// A wide correlative search for steps the odometry does not explain: a
 /// branch-and-bound search on a coarse likelihood field over a large window
 /// around the prior, then the normal (fine) matcher from its optimum.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, SmartDefault)]
 pub struct WideSearch {
     /// Half-width of the translational window (m). Default 3.5.
+    #[default(3.5)]
     pub linear_window: f64,
     /// Half-width of the rotational window (rad). Default 90°.
+    #[default(90f64.to_radians())]
     pub angular_window: f64,
     /// Coarse field cell size and Gaussian width (m). Default 0.1.
+    #[default(0.1)]
     pub resolution: f64,
     /// Branch-and-bound levels on the coarse field. Default 5.
+    #[default(5)]
     pub depth: usize,
     /// Penalty weights on the distance from the prior (1/m², 1/rad²). Default 0.02.
+    #[default(0.02)]
     pub weight: f64,
     /// Distinct coarse optima refined by the fine matcher; the best fine
     /// score wins. Default 1.
+    #[default(1)]
     pub candidates: usize,
     /// Coarse optima closer than this (m) and [`WideSearch::candidate_angle`]
     /// count as one. Default 0.5.
+    #[default(0.5)]
     pub candidate_separation: f64,
     /// See [`WideSearch::candidate_separation`] (rad). Default 10°.
+    #[default(10f64.to_radians())]
     pub candidate_angle: f64,
     /// Give never-observed cells of the coarse field the value
     /// [`SlamConfig::unknown_score`], so the coarse search does not prefer
@@ -141,22 +165,6 @@ pub struct WideSearch {
     /// trajectory then lets loop closure accept 4 closures there that make the
     /// final result worse (9.38 cm, 1.09°, ATE 11.0 m; release build).
     pub unknown_floor: bool,
-}
-
-impl Default for WideSearch {
-    fn default() -> Self {
-        Self {
-            linear_window: 3.5,
-            angular_window: 90f64.to_radians(),
-            resolution: 0.1,
-            depth: 5,
-            weight: 0.02,
-            candidates: 1,
-            candidate_separation: 0.5,
-            candidate_angle: 10f64.to_radians(),
-            unknown_floor: false,
-        }
-    }
 }
 
 impl WideSearch {
@@ -257,29 +265,6 @@ pub fn match_robust_ranked(
     match second {
         Some((r, s)) if r > first_rank => Some((s, r)),
         _ => Some((first, first_rank)),
-    }
-}
-
-impl Default for SlamConfig {
-    fn default() -> Self {
-        Self {
-            laser: LaserConfig::default(),
-            matcher: MatcherConfig::default(),
-            mapper: MapperConfig::default(),
-            local_map_scans: 15,
-            local_map_radius: 20.0,
-            match_max_range: 25.0,
-            min_score: 0.15,
-            odom_trans_noise: 0.1,
-            odom_rot_noise: 0.1,
-            wide_below_score: 0.5,
-            wide: WideSearch::default(),
-            fuse_odometry: false,
-            match_information_scale: 0.01,
-            constant_velocity_hypothesis: true,
-            free_space_penalty: 0.0,
-            unknown_score: Some(0.5),
-        }
     }
 }
 

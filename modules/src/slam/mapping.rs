@@ -1,6 +1,7 @@
 //! Occupancy-grid mapping with log-odds and ray traversal, and export in the
 //! ROS `map_server` format (PGM + YAML).
 
+use smart_default::SmartDefault;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
@@ -9,30 +10,23 @@ use nalgebra::{Isometry2, Point2, Vector2};
 use crate::planning::{OccupancyGrid, UNKNOWN};
 
 /// Log-odds update parameters.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, SmartDefault)]
 pub struct MapperConfig {
     /// Cell size (m). Default 0.05.
+    #[default(0.05)]
     pub resolution: f64,
     /// Log-odds added to a cell containing a beam end point. Default 0.85 (p ≈ 0.7).
+    #[default(0.85)]
     pub hit: f32,
     /// Log-odds added to a cell a beam passes through. Default −0.4 (p ≈ 0.4).
+    #[default(-0.4)]
     pub miss: f32,
     /// Log-odds are clamped to `[−clamp, clamp]`. Default 3.5.
+    #[default(3.5)]
     pub clamp: f32,
     /// Beams longer than this are ignored (m). Default 30.
+    #[default(30.0)]
     pub max_range: f64,
-}
-
-impl Default for MapperConfig {
-    fn default() -> Self {
-        Self {
-            resolution: 0.05,
-            hit: 0.85,
-            miss: -0.4,
-            clamp: 3.5,
-            max_range: 30.0,
-        }
-    }
 }
 
 /// A growable log-odds occupancy map. Cells never observed stay exactly 0

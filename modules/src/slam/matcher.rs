@@ -3,6 +3,7 @@
 //! Cartographer's real-time CSM), followed by point-to-line ICP refinement.
 
 use nalgebra::{Isometry2, Matrix3, Vector2, Vector3};
+use smart_default::SmartDefault;
 
 /// A lower bound on a likelihood field's value at a map-frame point (see
 /// [`LikelihoodField::build_with_floor`]).
@@ -195,42 +196,35 @@ impl LikelihoodField {
 }
 
 /// Scan matcher parameters. Defaults suit a 2D lidar indoors with wheel odometry.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, SmartDefault)]
 pub struct MatcherConfig {
     /// Likelihood field cell size (m). Default 0.05.
+    #[default(0.05)]
     pub resolution: f64,
     /// Gaussian width of the likelihood field (m). Default 0.05.
+    #[default(0.05)]
     pub sigma: f64,
     /// Half-width of the translational search window around the prior (m). Default 0.35.
+    #[default(0.35)]
     pub linear_window: f64,
     /// Half-width of the rotational search window (rad). Default 15°.
+    #[default(15f64.to_radians())]
     pub angular_window: f64,
     /// Coarse levels of branch-and-bound (coarsest step `2^depth` cells). Default 3.
+    #[default(3)]
     pub depth: usize,
     /// Penalty weight on the squared distance from the prior (1/m²). Default 2.
+    #[default(2.0)]
     pub translation_weight: f64,
     /// Penalty weight on the squared rotation from the prior (1/rad²). Default 2.
+    #[default(2.0)]
     pub rotation_weight: f64,
     /// Point-to-line ICP iterations. Default 15; 0 disables refinement.
+    #[default(15)]
     pub refine_iterations: usize,
     /// Ranges beyond this are ignored when choosing the angular step (m). Default 15.
+    #[default(15.0)]
     pub max_range_for_step: f64,
-}
-
-impl Default for MatcherConfig {
-    fn default() -> Self {
-        Self {
-            resolution: 0.05,
-            sigma: 0.05,
-            linear_window: 0.35,
-            angular_window: 15f64.to_radians(),
-            depth: 3,
-            translation_weight: 2.0,
-            rotation_weight: 2.0,
-            refine_iterations: 15,
-            max_range_for_step: 15.0,
-        }
-    }
 }
 
 /// Result of [`match_scan`].

@@ -1,4 +1,5 @@
-//! How a module process runs: [`RunOptions`], read from the environment the supervisor sets.
+//! How a module process runs: [`RunOptions`], read from the environment the supervisor sets,
+//! and [`RunError`], why a run ended with an error.
 
 use std::path::PathBuf;
 use std::time::Duration;
@@ -92,4 +93,30 @@ impl RunOptions {
         }
         Ok(o)
     }
+}
+
+/// Why a module run ended with an error.
+#[derive(Debug, thiserror::Error)]
+pub enum RunError {
+    /// The runtime failed.
+    #[error(transparent)]
+    Runtime(#[from] Error),
+    /// The module's configuration did not parse.
+    #[error("module {module:?}: invalid configuration: {detail}")]
+    Config {
+        /// The module.
+        module: String,
+        /// The parser's message (names the field and line).
+        detail: String,
+    },
+    /// A module callback failed in a way the module cannot run on.
+    #[error("module {module:?}: {stage} failed: {source}")]
+    Module {
+        /// The module.
+        module: String,
+        /// Which callback.
+        stage: &'static str,
+        /// Its error.
+        source: super::ModuleError,
+    },
 }

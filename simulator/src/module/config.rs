@@ -5,6 +5,7 @@ use std::path::PathBuf;
 use hng_runtime::ModuleResult;
 use hng_runtime::msg::MAX_BEAMS;
 use serde::{Deserialize, Deserializer};
+use smart_default::SmartDefault;
 
 use crate::pacing::Speed;
 use crate::world::{Pose2D, World};
@@ -30,54 +31,47 @@ pub struct SensorSwitches {
 }
 
 /// Channel names.
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, SmartDefault)]
 #[serde(default, deny_unknown_fields)]
 pub struct Channels {
     /// Lidar, `LaserScan` in `laser` (default `sim/scan`).
+    #[default("sim/scan".into())]
     pub scan: String,
     /// Odometry, `Odometry` odom → base_link (default `sim/odom`).
+    #[default("sim/odom".into())]
     pub odom: String,
     /// GPS/IMU pose, `PoseWithCovariance` in `map` (default `sim/gps`).
+    #[default("sim/gps".into())]
     pub gps: String,
     /// Beacon camera, `BeaconObservation` in `camera` (default `sim/camera`).
+    #[default("sim/camera".into())]
     pub camera: String,
     /// Rendered camera images, `ImageInfo` + RGB8 bytes (default `sim/camera/image`).
+    #[default("sim/camera/image".into())]
     pub camera_image: String,
     /// Lighting factor of the images in, `SimLighting` (default `sim/lighting`).
+    #[default("sim/lighting".into())]
     pub lighting: String,
     /// True pose, `PoseWithCovariance` in `map`, evaluation only (default `sim/ground_truth`).
+    #[default("sim/ground_truth".into())]
     pub ground_truth: String,
     /// Collision events, [`SimCollision`] (default `sim/collisions`).
+    #[default("sim/collisions".into())]
     pub collisions: String,
     /// Counters, [`SimStatus`] (default `sim/status`).
+    #[default("sim/status".into())]
     pub status: String,
     /// Velocity commands in, `Twist` (default `sim/cmd_vel`).
+    #[default("sim/cmd_vel".into())]
     pub cmd_vel: String,
     /// Ground-truth occupancy grid, `GridInfo` + `[i8]`, published once (default `sim/map`;
     /// empty: not published).
+    #[default("sim/map".into())]
     pub map: String,
 }
 
-impl Default for Channels {
-    fn default() -> Self {
-        Self {
-            scan: "sim/scan".into(),
-            odom: "sim/odom".into(),
-            gps: "sim/gps".into(),
-            camera: "sim/camera".into(),
-            camera_image: "sim/camera/image".into(),
-            lighting: "sim/lighting".into(),
-            ground_truth: "sim/ground_truth".into(),
-            collisions: "sim/collisions".into(),
-            status: "sim/status".into(),
-            cmd_vel: "sim/cmd_vel".into(),
-            map: "sim/map".into(),
-        }
-    }
-}
-
 /// Configuration of `hng module simulator` (the `config` table of its launch-file entry).
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, SmartDefault)]
 #[serde(default, deny_unknown_fields)]
 pub struct SimModuleConfig {
     /// World file: a TOML world, or a map_server YAML (`.yaml`/`.yml`, then `start` is needed).
@@ -87,24 +81,31 @@ pub struct SimModuleConfig {
     pub start: Option<Pose2D>,
     /// `"realtime"` (default), a factor such as `10`, or `"max"`.
     #[serde(deserialize_with = "de_speed")]
+    #[default(Speed::RealTime)]
     pub speed: Speed,
     /// Noise seed, overriding the world's.
     pub seed: Option<u64>,
     /// Stop cleanly after this many simulated seconds.
     pub duration: Option<f64>,
     /// Sensor switches (hybrid simulation).
+    #[default(SensorSwitches::default())]
     pub sensors: SensorSwitches,
     /// Channel names.
+    #[default(Channels::default())]
     pub channels: Channels,
     /// Cell size of the published ground-truth map, m (default 0.05).
+    #[default(0.05)]
     pub map_resolution: f64,
     /// Most physics steps per tick before commands and signals are looked at (default 10).
+    #[default(10)]
     pub max_steps_per_tick: u32,
     /// Publish the clock every this many steps (default 1), and always with sensor data.
+    #[default(1)]
     pub clock_every_steps: u32,
     /// Modules whose first report simulated time waits for (default none: it starts at once).
     pub wait_for: Vec<String>,
     /// Longest wait for them, s of wall time (default 10).
+    #[default(10.0)]
     pub wait_timeout_s: f64,
     /// Lockstep: modules whose acknowledgement of each step simulated time waits for
     /// (default none: the simulator only keeps its pace); see
@@ -112,34 +113,14 @@ pub struct SimModuleConfig {
     pub lockstep: Vec<String>,
     /// A lockstep participant silent this long (s of wall time) is not waited for until it
     /// answers again (default 10).
+    #[default(10.0)]
     pub lockstep_timeout_s: f64,
     /// A lockstep participant is called to a round at least every this many seconds of
     /// simulated time, even with nothing written to it and no deadline (so it reads what
     /// processes outside the barrier sent it: the supervisor, the RM, an operator); default
     /// 0.1.
+    #[default(0.1)]
     pub lockstep_idle_s: f64,
-}
-
-impl Default for SimModuleConfig {
-    fn default() -> Self {
-        Self {
-            world: None,
-            start: None,
-            speed: Speed::RealTime,
-            seed: None,
-            duration: None,
-            sensors: SensorSwitches::default(),
-            channels: Channels::default(),
-            map_resolution: 0.05,
-            max_steps_per_tick: 10,
-            clock_every_steps: 1,
-            wait_for: Vec::new(),
-            wait_timeout_s: 10.0,
-            lockstep: Vec::new(),
-            lockstep_timeout_s: 10.0,
-            lockstep_idle_s: 0.1,
-        }
-    }
 }
 
 fn de_speed<'de, D: Deserializer<'de>>(d: D) -> Result<Speed, D::Error> {

@@ -391,7 +391,7 @@ name = "a"
 command = ["sleep", "1"]
 
 [module.config]
-period_ms = 5
+period_s = 0.005
 output = "test/count"
 nested = { x = 1.5 }
 
@@ -403,7 +403,7 @@ command = ["sleep", "1"]
     assert!(p.sim_clock);
     assert_eq!(p.checkpoint_dir, Some(PathBuf::from("/etc/hng/state")));
     let cfg: toml::Table = toml::from_str(&p.modules[0].config).expect("config is TOML");
-    assert_eq!(cfg.get("period_ms").and_then(|v| v.as_integer()), Some(5));
+    assert_eq!(cfg.get("period_s").and_then(|v| v.as_float()), Some(0.005));
     assert_eq!(
         cfg.get("nested")
             .and_then(|v| v.get("x"))

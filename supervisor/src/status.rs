@@ -1,7 +1,7 @@
 //! The supervisor's status document on [`SUPERVISOR_STATUS`]: what `hng run` publishes and
 //! `hng ps` (and the tests) read.
 
-use anyhow::Result;
+use crate::error::{Result, bail};
 use hng_runtime::system::SUPERVISOR_STATUS;
 use hng_watchdog::{ModuleState, ModuleStatus};
 
@@ -109,7 +109,7 @@ pub fn ensure_system_exists(prefix: &str) -> Result<()> {
     // A supervisor holds the prefix's lock while it runs: without it, no node is created
     // (a tool racing with the end of a system would otherwise leave files behind).
     if super::lock::running_supervisor(prefix).is_none() {
-        anyhow::bail!(
+        bail!(
             "no hng system runs under prefix {prefix:?} (no supervisor holds {}); start one with `hng run` or pass --prefix",
             super::lock::lock_path(prefix).display()
         );

@@ -5,7 +5,7 @@
 use std::marker::PhantomData;
 use std::time::{Duration, Instant};
 
-use anyhow::{Context as _, Result, bail};
+use crate::error::{Context as _, Result, bail};
 use hng_runtime::channel::{Service, iceoryx_config};
 use hng_runtime::system::JsonInfo;
 use hng_runtime::wait::{WaitMode, Waiter};
@@ -17,13 +17,15 @@ use serde::de::DeserializeOwned;
 pub fn ensure_channel_exists(prefix: &str, channel: &str, what: &str, hint: &str) -> Result<()> {
     let config = iceoryx_config(prefix)?;
     let name = iceoryx2::prelude::ServiceName::new(channel)
-        .map_err(|e| anyhow::anyhow!("service name {channel:?}: {e:?}"))?;
+        .map_err(|e| crate::error::HostError::msg(format!("service name {channel:?}: {e:?}")))?;
     let details = <Service as iceoryx2::service::Service>::details(
         &name,
         &config,
         iceoryx2::service::messaging_pattern::MessagingPattern::PublishSubscribe,
     )
-    .map_err(|e| anyhow::anyhow!("looking up {what} of prefix {prefix:?}: {e:?}"))?;
+    .map_err(|e| {
+        crate::error::HostError::msg(format!("looking up {what} of prefix {prefix:?}: {e:?}"))
+    })?;
     if details.is_none() {
         bail!("no {what} runs under prefix {prefix:?} (no channel {channel}); {hint}");
     }

@@ -1,17 +1,15 @@
-//! `hng ps`, `hng kill`, `hng restart`, `hng start`, `hng stop`: talk to the supervisor of a
-//! running system through its status document and command channel.
+//! `hng ps`, `hng kill`, `hng restart`, `hng start`, `hng stop`: what they print; the requests
+//! themselves are the supervisor host's ([`hng_supervisor::control`]).
 
 use std::str::FromStr;
 use std::time::Duration;
 
-use anyhow::{Context as _, Result, bail};
-use hng_runtime::system::{CommandOp, SUPERVISOR_COMMAND, SupervisorCommand};
+use anyhow::Result;
+use hng_runtime::system::{CommandOp, SupervisorCommand};
+use hng_supervisor::control::{ANSWER_TIMEOUT, command};
 use hng_watchdog::Signal;
 
-use super::status::{StatusDoc, status_reader};
-
-/// How long a tool waits for the supervisor's status (it is published at least twice a second).
-const ANSWER_TIMEOUT: Duration = Duration::from_secs(3);
+use hng_supervisor::status::status_reader;
 
 /// How long `hng ps` waits for the resource manager's figures (it publishes at 10 Hz).
 const RM_TIMEOUT: Duration = Duration::from_millis(500);
@@ -89,7 +87,7 @@ pub fn ps(prefix: &str, json: bool) -> Result<()> {
             rss,
             m.caps
                 .as_ref()
-                .map_or_else(|| "-".to_owned(), super::status::CapsRow::short),
+                .map_or_else(|| "-".to_owned(), hng_supervisor::status::CapsRow::short),
             m.last_exit_text.as_deref().unwrap_or("-"),
         )?;
     }
@@ -125,39 +123,6 @@ pub fn parse_signal(s: &str) -> Result<Signal> {
             "{s:?} is not a signal: give a name such as KILL, TERM, SEGV, STOP or a number"
         )
     })
-}
-
-/// Sends one command and waits for the supervisor's acknowledgement; returns the document
-/// that acknowledges it.
-fn command(prefix: &str, cmd: SupervisorCommand, tool: &str) -> Result<StatusDoc> {
-    let mut reader = status_reader(prefix, tool)?;
-    let before = reader.current(ANSWER_TIMEOUT)?;
-    let module = cmd.module();
-    if cmd.op() != Some(CommandOp::Shutdown) && before.module(module).is_none() {
-        bail!(
-            "no module {module:?} in system {:?} (prefix {prefix:?}); its modules: {}",
-            before.system,
-            before.names()
-        );
-    }
-    let publisher = reader
-        .node()
-        .publisher::<SupervisorCommand>(SUPERVISOR_COMMAND)
-        .context("opening the supervisor's command channel")?;
-    publisher.update_connections();
-    publisher
-        .publish(cmd)
-        .context("sending the command to the supervisor")?;
-    let seen = before.commands;
-    let doc = reader
-        .next_where(ANSWER_TIMEOUT, |d| d.commands > seen)
-        .context("the supervisor did not acknowledge the command")?;
-    if let Some(r) = &doc.last_command
-        && let Some(e) = &r.error
-    {
-        bail!("the supervisor refused {} {}: {e}", r.op, r.module);
-    }
-    Ok(doc)
 }
 
 /// `hng kill MODULE [--signal SIG]`.

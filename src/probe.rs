@@ -3,8 +3,6 @@
 //! restarted probe marks the end of its recovery) and then every period. `hng bench recovery`
 //! kills it; the built-in default system runs it until the mission modules exist.
 
-use std::time::Duration;
-
 use hng_runtime::msg::Goal;
 use hng_runtime::{Context, Module, ModuleResult, Publisher, TimerId};
 use serde::Deserialize;
@@ -16,14 +14,14 @@ pub struct ProbeConfig {
     /// Channel of the count.
     pub output: String,
     /// Publishing period, ms.
-    pub period_ms: u64,
+    pub period_s: f64,
 }
 
 impl Default for ProbeConfig {
     fn default() -> Self {
         ProbeConfig {
             output: "probe/count".into(),
-            period_ms: 100,
+            period_s: 0.1,
         }
     }
 }
@@ -49,7 +47,7 @@ impl Module for Probe {
     type Config = ProbeConfig;
 
     fn configure(ctx: &mut Context, cfg: ProbeConfig) -> ModuleResult<Self> {
-        ctx.add_timer(Duration::from_millis(cfg.period_ms.max(1)));
+        ctx.add_timer(hng_modules::common::seconds("period_s", cfg.period_s)?);
         Ok(Probe {
             count: 0,
             output: ctx.publisher(&cfg.output)?,
@@ -64,13 +62,5 @@ impl Module for Probe {
         self.publish()
     }
 
-    fn checkpoint(&self) -> Option<Vec<u8>> {
-        Some(self.count.to_le_bytes().to_vec())
-    }
-
-    fn restore(&mut self, state: &[u8]) -> ModuleResult {
-        let bytes: [u8; 4] = state.try_into()?;
-        self.count = u32::from_le_bytes(bytes);
-        Ok(())
-    }
+    hng_runtime::checkpoint_field!(count);
 }

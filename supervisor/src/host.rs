@@ -1,4 +1,5 @@
-//! `hng run [FILE]`: start a system from a launch file and supervise it (HNG paper 5.4).
+//! The supervisor host: start a system from its launch plan and supervise it (HNG paper 5.4).
+//! `hng run` parses its arguments and calls [`supervise`].
 //!
 //! One process, two threads:
 //! - the main thread owns the [`Supervisor`] (module processes, pidfds, timers) and the
@@ -6,39 +7,26 @@
 //!   supervisor's `poll`, which wakes when a module exits, a timer is due, or the receiver
 //!   thread has something;
 //! - the receiver thread sleeps on `hng/report`, [`SUPERVISOR_COMMAND`] and SIGINT/SIGTERM/
-//!   SIGHUP (one [`Waiter`]), stamps each report when it arrives, hands everything to the main
-//!   thread over a channel and wakes its poll. Nothing polls on a period.
+//!   SIGHUP (one [`Waiter`](hng_runtime::wait::Waiter)), stamps each report when it arrives,
+//!   hands everything to the main thread over a channel and wakes its poll. Nothing polls on
+//!   a period.
 //!
 //! A heartbeat counts only if the report's pid is the module's current process. Supervisor
 //! events go out on [`SUPERVISOR_EVENTS`] as they happen (contracts route around a death at
-//! once); the status document goes out every `--status-period` and on every change.
+//! once); the status document goes out every [`HostOptions::status_period`] and on every
+//! change.
 //!
 //! Ctrl-C / SIGTERM (or `hng stop`): modules stop in reverse start order (SIGTERM, SIGKILL
 //! after each one's `stop_timeout`), then the cgroups and every file of the prefix are
 //! removed. A second signal SIGKILLs what is left at once.
 
-pub mod ctl;
-mod hooks;
-pub mod lock;
-pub mod logs;
-pub mod mission;
-pub mod monitor;
-mod nav_watch;
-pub mod probe;
-mod receiver;
-pub use receiver::block_termination_signals;
-pub mod status;
-mod validate;
-
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
-use std::process::ExitCode;
 use std::rc::Rc;
 use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
-use anyhow::{Context as _, Result};
-use clap::Args;
+use crate::error::{Context as _, Result};
 use hng_rm::cgroup::{CgroupRun, CgroupSupport, unique_run_id};
 use hng_runtime::msg::ModuleReport;
 use hng_runtime::system::{
@@ -47,329 +35,52 @@ use hng_runtime::system::{
 };
 use hng_runtime::{Node, NodeOptions, Publisher, SlicePublisher};
 use hng_watchdog::systemd::SdNotify;
-use hng_watchdog::{
-    Event, EventKind, LaunchPlan, LoadOptions, ModuleSpec, Signal, Supervisor, SupervisorOptions,
-    launch,
-};
+use hng_watchdog::{Event, EventKind, LaunchPlan, Signal, Supervisor, SupervisorOptions};
 
-use self::hooks::RunHooks;
-use self::lock::SystemLock;
-use self::mission::{Mission, MissionOptions};
-use self::monitor::{Monitor, MonitorOptions, Outcome};
-use self::receiver::{Inbox, Receiver};
-use self::status::{CommandResult, ReportFigures, StatusDoc};
+use crate::hooks::RunHooks;
+use crate::lock::{self, SystemLock};
+use crate::logs;
+use crate::monitor::{Monitor, Outcome};
+use crate::receiver::{Inbox, Receiver, block_termination_signals};
+use crate::status::{self, CommandResult, ReportFigures, StatusDoc};
 
-/// Options of `hng run`.
-#[derive(Debug, Args)]
-pub struct RunArgs {
-    /// The launch file (TOML); without it, the built-in default system.
-    pub file: Option<PathBuf>,
-    /// Do not add the resource manager (`hng module rm`) when the plan has no module "rm".
-    #[arg(long)]
-    pub no_rm: bool,
-    /// Run directory (checkpoints go to RUN_DIR/checkpoints unless the launch file sets
-    /// `checkpoint_dir`). Default: $XDG_RUNTIME_DIR/hng/PREFIX, else /tmp/hng-PREFIX.
-    #[arg(long, env = "HNG_RUN_DIR")]
-    pub run_dir: Option<PathBuf>,
-    /// Period of the status document (`hng ps`), ms; it is also sent on every change.
-    #[arg(long, default_value_t = 500)]
-    pub status_period_ms: u64,
-    /// Check the launch file and print the plan as JSON, start nothing.
-    #[arg(long)]
-    pub check: bool,
-    /// Built-in mission: print its launch file (TOML) and start nothing.
-    #[arg(long, conflicts_with = "file")]
-    pub print_plan: bool,
-    /// Built-in mission: the world, a TOML world or a map_server YAML (default: built in).
-    #[arg(long, conflicts_with = "file")]
-    pub world: Option<PathBuf>,
-    /// Built-in mission: start pose X,Y[,THETA] (default: the world's).
-    #[arg(long, conflicts_with = "file", value_parser = mission::parse_pose, allow_hyphen_values = true)]
-    pub start: Option<hng_simulator::Pose2D>,
-    /// Built-in mission: a goal X,Y (repeat for several, in order; default: the default
-    /// mission's goals, in the default world only).
-    #[arg(long, conflicts_with = "file", value_parser = mission::parse_goal, allow_hyphen_values = true)]
-    pub goal: Vec<(f64, f64)>,
-    /// Built-in mission: simulation speed, `realtime`, a factor (simulated seconds per wall
-    /// second) or `max`.
-    #[arg(long, conflicts_with = "file", value_parser = mission::parse_speed,
-          default_value = mission::DEFAULT_SPEED)]
-    pub speed: String,
-    /// Built-in mission: noise seed (overrides the world's).
-    #[arg(long, conflicts_with = "file")]
-    pub seed: Option<u64>,
-    /// Built-in mission: limit of simulated time, s; the mission fails when it is exceeded.
-    #[arg(long, conflicts_with = "file", default_value_t = mission::DEFAULT_DURATION_S)]
-    pub duration: f64,
-    /// Built-in mission: position tolerance of the goals, m (reached when the true pose is
-    /// within it).
-    #[arg(long, conflicts_with = "file", default_value_t = mission::GOAL_TOLERANCE_M)]
-    pub tolerance: f64,
-    /// Built-in mission: without the fused localization module (odometry + GPS): Servo and
-    /// Planning localize by the raw GPS and SLAM only.
-    #[arg(long, conflicts_with = "file")]
-    pub no_fusion: bool,
-    /// Built-in mission: also write the summary as JSON to this file.
-    #[arg(long, conflicts_with = "file")]
-    pub summary: Option<PathBuf>,
-    /// Louder terminal: `-v` shows `hng run`'s info lines and echoes every module's log
-    /// lines, `-vv` debug (`HNG_LOG`/`RUST_LOG` set the filter and echo too). Module logs are
-    /// always in RUN_DIR/logs (`hng logs`).
-    #[arg(short, long, action = clap::ArgAction::Count)]
-    pub verbose: u8,
-    #[command(flatten)]
-    pub recording: crate::recording::RunRecordArgs,
-    #[command(flatten)]
-    pub gui: crate::gui::RunGuiArgs,
+/// How the host runs a system.
+#[derive(Debug, Clone)]
+pub struct HostOptions {
+    /// The run directory: `logs/` and (unless the launch plan sets `checkpoint_dir`)
+    /// `checkpoints/` go there.
+    pub run_dir: PathBuf,
+    /// Period of the status document; it is also sent on every change.
+    pub status_period: Duration,
 }
 
-impl RunArgs {
-    fn mission_options(&self) -> MissionOptions {
-        MissionOptions {
-            world: self.world.clone(),
-            start: self.start,
-            goals: self.goal.clone(),
-            speed: self.speed.clone(),
-            seed: self.seed,
-            duration_s: self.duration,
-            tolerance_m: self.tolerance,
-            fusion: !self.no_fusion,
-        }
-    }
+/// Where a run keeps its files, for the companions started with it.
+#[derive(Debug, Clone, Copy)]
+pub struct RunPaths<'a> {
+    /// The modules' and the host's log files.
+    pub log_dir: &'a Path,
+    /// The modules' checkpoints.
+    pub checkpoint_dir: &'a Path,
 }
 
-/// A minimal launch file (the heartbeat probe), kept as an example and for tests; `hng run`
-/// without a file runs the built-in mission ([`mission`]).
-pub fn default_plan() -> &'static str {
-    r#"# hng's built-in default system.
-system = "hng"
-
-[defaults]
-restart = "on-failure"
-heartbeat_period = "100ms"
-checkpoint_period = "1s"
-stop_timeout = "2s"
-
-[[module]]
-name = "probe"
-command = ["hng", "module", "heartbeat-probe"]
-
-[module.config]
-output = "probe/count"
-period_ms = 100
-"#
+/// Something the caller runs beside the system for the length of the run (`hng run` starts
+/// its operator page and its recorder this way), told when the run reaches each stage.
+pub trait Companion {
+    /// With every status document (at least once a status period): a chance to notice
+    /// that the companion's own work ended.
+    fn check(&mut self) {}
+    /// Every module has stopped; the mission monitor has not finished yet.
+    fn modules_stopped(&mut self) {}
+    /// After the mission monitor finished, before the prefix's files are removed.
+    fn finish(self: Box<Self>) {}
 }
 
-/// Exit code for a launch file that does not validate.
-const EXIT_BAD_LAUNCH_FILE: u8 = 2;
-
-/// `hng run`: returns the process's exit code.
-pub fn run(prefix: &str, args: &RunArgs) -> ExitCode {
-    let _ = logs::RUN_LOG.set(logs::RunLog::init(logs::Verbosity::new(args.verbose)));
-    if args.file.is_none() {
-        return run_mission(prefix, args);
-    }
-    let plan = match load_plan(args) {
-        Ok(p) => p,
-        Err(e) => {
-            eprintln!("hng: error: {e}");
-            return ExitCode::from(EXIT_BAD_LAUNCH_FILE);
-        }
-    };
-    for w in &plan.warnings {
-        tracing::warn!("{}: {w}", plan.file.display());
-    }
-    if args.check {
-        return match serde_json::to_string_pretty(&plan) {
-            Ok(json) => {
-                println!("{json}");
-                ExitCode::SUCCESS
-            }
-            Err(e) => {
-                eprintln!("hng: error: {e}");
-                ExitCode::FAILURE
-            }
-        };
-    }
-    let lock = match lock::lock_prefix(prefix) {
-        Ok(l) => l,
-        Err(e) => {
-            eprintln!("hng: error: {e:#}");
-            return ExitCode::FAILURE;
-        }
-    };
-    match supervise(prefix, args, plan, None, lock).0 {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("hng: error: {e:#}");
-            ExitCode::FAILURE
-        }
-    }
-}
-
-/// `hng run` without a file: the built-in mission, its monitor and its summary.
-fn run_mission(prefix: &str, args: &RunArgs) -> ExitCode {
-    let run_dir = args
-        .run_dir
-        .clone()
-        .unwrap_or_else(|| default_run_dir(prefix));
-    let mission = match Mission::new(&args.mission_options(), &run_dir) {
-        Ok(m) => m,
-        Err(e) => {
-            eprintln!("hng: error: {e:#}");
-            return ExitCode::from(EXIT_BAD_LAUNCH_FILE);
-        }
-    };
-    if args.print_plan {
-        print!("{}", mission.plan);
-        return ExitCode::SUCCESS;
-    }
-    let plan = match add_rm(
-        launch::parse(
-            &mission.plan,
-            Path::new("<built-in mission>"),
-            &load_options(),
-        ),
-        args,
-    ) {
-        Ok(p) => p,
-        Err(e) => {
-            eprintln!("hng: error: {e}");
-            return ExitCode::from(EXIT_BAD_LAUNCH_FILE);
-        }
-    };
-    if args.check {
-        return match serde_json::to_string_pretty(&plan) {
-            Ok(json) => {
-                println!("{json}");
-                ExitCode::SUCCESS
-            }
-            Err(e) => {
-                eprintln!("hng: error: {e}");
-                ExitCode::FAILURE
-            }
-        };
-    }
-    let lock = match lock::lock_prefix(prefix) {
-        Ok(l) => l,
-        Err(e) => {
-            eprintln!("hng: error: {e:#}");
-            return ExitCode::FAILURE;
-        }
-    };
-    if let Err(e) = mission.prepare() {
-        eprintln!("hng: error: {e:#}");
-        lock.release();
-        return ExitCode::FAILURE;
-    }
-    println!(
-        "mission: {} goal(s) from ({:.2}, {:.2}), speed {}, limit {} s simulated",
-        mission.goals.len(),
-        mission.start.x,
-        mission.start.y,
-        args.speed,
-        mission.duration_s
-    );
-    println!(
-        "logs: {} (hng logs MODULE [-f]; -v shows them here)",
-        logs::log_dir(&run_dir).display()
-    );
-    let monitor = match Monitor::start(MonitorOptions {
-        prefix: prefix.to_owned(),
-        goals: mission.goals.clone(),
-        duration_s: mission.duration_s,
-        stall_timeout: Duration::from_secs(30),
-    }) {
-        Ok(m) => m,
-        Err(e) => {
-            eprintln!("hng: error: {e:#}");
-            lock::remove_prefix_files_but_lock(prefix);
-            lock.release();
-            return ExitCode::FAILURE;
-        }
-    };
-    let (result, outcome) = supervise(prefix, args, plan, Some(monitor), lock);
-    if let Err(e) = result {
-        eprintln!("hng: error: {e:#}");
-        return ExitCode::FAILURE;
-    }
-    let outcome = match outcome {
-        Some(Ok(o)) => o,
-        Some(Err(e)) => {
-            eprintln!("hng: error: mission monitor: {e:#}");
-            return ExitCode::FAILURE;
-        }
-        None => return ExitCode::FAILURE,
-    };
-    report(&outcome, args.summary.as_deref())
-}
-
-/// Prints the summary, writes it as JSON, and returns the exit code.
-fn report(outcome: &Outcome, file: Option<&Path>) -> ExitCode {
-    if let Some(why) = &outcome.failure {
-        println!("mission failed: {why}");
-    }
-    println!("{}", outcome.summary);
-    if let Some(f) = file {
-        let written = serde_json::to_string_pretty(&outcome.summary)
-            .map_err(anyhow::Error::from)
-            .and_then(|j| std::fs::write(f, j + "\n").map_err(anyhow::Error::from));
-        if let Err(e) = written {
-            eprintln!("hng: error: writing the summary to {}: {e:#}", f.display());
-            return ExitCode::FAILURE;
-        }
-    }
-    if outcome.summary.success {
-        ExitCode::SUCCESS
-    } else {
-        ExitCode::FAILURE
-    }
-}
-
-/// Loads the launch file (or the default plan) and adds the resource manager module.
-fn load_plan(args: &RunArgs) -> Result<LaunchPlan, launch::LaunchErrors> {
-    let opts = load_options();
-    let plan = match &args.file {
-        Some(f) => launch::load(f, &opts),
-        None => launch::parse(
-            default_plan(),
-            Path::new("<built-in default system>"),
-            &opts,
-        ),
-    };
-    add_rm(plan, args)
-}
-
-/// How launch files are loaded: built-in modules' names and configurations are checked too.
-fn load_options() -> LoadOptions {
-    LoadOptions {
-        check_module: validate::module_check(),
-        ..LoadOptions::default()
-    }
-}
-
-/// Adds the resource manager module unless the plan has one or `--no-rm`.
-fn add_rm(
-    plan: Result<LaunchPlan, launch::LaunchErrors>,
-    args: &RunArgs,
-) -> Result<LaunchPlan, launch::LaunchErrors> {
-    let mut plan = plan?;
-    let has_rm = plan.modules.iter().any(|m| m.name == "rm");
-    if !args.no_rm
-        && !has_rm
-        && crate::modules::BUILTIN.contains(&"rm")
-        && let Ok(exe) = std::env::current_exe()
-    {
-        let mut rm = ModuleSpec::new("rm", exe, &["module", "rm"]);
-        rm.heartbeat = plan.modules.iter().find_map(|m| m.heartbeat);
-        // The RM starts first and stops last: it measures everyone.
-        plan.modules.insert(0, rm);
-    }
-    Ok(plan)
-}
+/// Starts the companions once the run's paths are known; may add modules to the plan.
+pub type StartCompanions<'a> =
+    Box<dyn FnOnce(&mut LaunchPlan, RunPaths<'_>) -> Result<Vec<Box<dyn Companion>>> + 'a>;
 
 /// `$XDG_RUNTIME_DIR/hng/<prefix>` or `/tmp/hng-<prefix>`.
-pub(crate) fn default_run_dir(prefix: &str) -> PathBuf {
+pub fn default_run_dir(prefix: &str) -> PathBuf {
     let tag = prefix.trim_end_matches('_');
     match std::env::var_os("XDG_RUNTIME_DIR").filter(|d| !d.is_empty()) {
         Some(d) => PathBuf::from(d).join("hng").join(tag),
@@ -393,22 +104,22 @@ struct Runner {
     last_command: Option<CommandResult>,
     shutdown_signals: u32,
     monitor: Option<Monitor>,
-    recorder: Option<hng_recorder::RecorderThread>,
-    gui: Option<crate::gui::GuiChild>,
+    companions: Vec<Box<dyn Companion>>,
 }
 
 /// Runs the system until it stops; with a mission `monitor`, also returns its outcome (the
 /// monitor is finished before the prefix's files are removed).
 /// The prefix's files and its `lock` are removed last, whatever happened.
-fn supervise(
+pub fn supervise(
     prefix: &str,
-    args: &RunArgs,
+    opts: &HostOptions,
     plan: LaunchPlan,
     monitor: Option<Monitor>,
     lock: SystemLock,
+    companions: StartCompanions<'_>,
 ) -> (Result<()>, Option<Result<Outcome>>) {
     let mut monitor = monitor;
-    let r = supervise_inner(prefix, args, plan, &mut monitor);
+    let r = supervise_inner(prefix, opts, plan, &mut monitor, companions);
     let r = match r {
         Ok((r, outcome)) => (r, outcome),
         Err(e) => (Err(e), monitor.map(Monitor::finish)),
@@ -422,19 +133,17 @@ fn supervise(
 #[allow(clippy::type_complexity)]
 fn supervise_inner(
     prefix: &str,
-    args: &RunArgs,
+    opts: &HostOptions,
     mut plan: LaunchPlan,
     monitor: &mut Option<Monitor>,
+    companions: StartCompanions<'_>,
 ) -> Result<(Result<()>, Option<Result<Outcome>>)> {
     // Termination signals are read by the receiver thread (signalfd); `main` blocked them
     // before any thread started (this is for callers that did not). Modules start with an
     // empty mask and default dispositions (the supervisor's pre_exec).
     block_termination_signals();
 
-    let run_dir = args
-        .run_dir
-        .clone()
-        .unwrap_or_else(|| default_run_dir(prefix));
+    let run_dir = &opts.run_dir;
     let checkpoint_dir = plan
         .checkpoint_dir
         .clone()
@@ -506,18 +215,15 @@ fn supervise_inner(
         caps: HashMap::new(),
         software_enforcer: plan.modules.iter().any(|m| m.name == "rm"),
     };
-    // The operator page first: its address is among the first lines printed.
-    let gui = crate::gui::start_for_run(prefix, &args.gui);
-    let recorder = crate::recording::start_for_run(
-        prefix,
-        &args.recording,
+    let log_dir = logs::log_dir(run_dir);
+    let companions = companions(
         &mut plan,
-        &logs::log_dir(&run_dir),
-        &checkpoint_dir,
+        RunPaths {
+            log_dir: &log_dir,
+            checkpoint_dir: &checkpoint_dir,
+        },
     )?;
-    let logs = logs::RUN_LOG
-        .get()
-        .map(|l| l.open(&logs::log_dir(&run_dir)));
+    let logs = logs::RUN_LOG.get().map(|l| l.open(&log_dir));
     let sup = Supervisor::with_hooks(
         plan.modules,
         SupervisorOptions {
@@ -543,8 +249,7 @@ fn supervise_inner(
         last_command: None,
         shutdown_signals: 0,
         monitor: monitor.take(),
-        recorder,
-        gui,
+        companions,
     };
     tracing::info!(
         system = %runner.system,
@@ -552,10 +257,7 @@ fn supervise_inner(
         checkpoints = %checkpoint_dir.display(),
         "starting"
     );
-    let result = runner.event_loop(
-        &receiver,
-        Duration::from_millis(args.status_period_ms.max(10)),
-    );
+    let result = runner.event_loop(&receiver, opts.status_period.max(Duration::from_millis(10)));
     let outcome = runner.finish(receiver);
     Ok((result, outcome))
 }
@@ -614,8 +316,8 @@ impl Runner {
             }
             self.node.update_connections();
             if changed || now >= next_status {
-                if let Some(g) = &mut self.gui {
-                    g.check();
+                for c in &mut self.companions {
+                    c.check();
                 }
                 self.publish_status(now);
                 next_status = now + status_period;
@@ -777,15 +479,17 @@ impl Runner {
             commands_out,
             node,
             monitor,
-            recorder,
-            gui,
+            mut companions,
             ..
         } = self;
-        // The page's process goes first: its nodes are gone before the prefix's files.
-        drop(gui);
+        for c in &mut companions {
+            c.modules_stopped();
+        }
         let _ = sup.shutdown();
         let outcome = monitor.map(Monitor::finish);
-        crate::recording::finish_for_run(recorder);
+        for c in companions {
+            c.finish();
+        }
         sup.hooks_mut().remove_cgroups();
         drop(sup);
         drop((events, status, commands_out));

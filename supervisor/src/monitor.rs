@@ -18,7 +18,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use anyhow::{Context as _, Result};
+use crate::error::{Context as _, Result};
 use hng_modules::manager::{MISSION_PLAN_CHANNEL, MissionPlan};
 use hng_modules::planning::progress::{NavProgress, PROGRESS_CHANNEL};
 
@@ -145,8 +145,8 @@ impl Monitor {
             .context("starting the mission monitor")?;
         match ready_rx.recv() {
             Ok(Ok(())) => Ok(Monitor { stop, thread }),
-            Ok(Err(e)) => anyhow::bail!("mission monitor: {e}"),
-            Err(_) => anyhow::bail!("the mission monitor ended before it was ready"),
+            Ok(Err(e)) => crate::error::bail!("mission monitor: {e}"),
+            Err(_) => crate::error::bail!("the mission monitor ended before it was ready"),
         }
     }
 
@@ -155,7 +155,7 @@ impl Monitor {
         self.stop.store(true, Ordering::Release);
         match self.thread.join() {
             Ok(r) => r,
-            Err(_) => anyhow::bail!("the mission monitor panicked"),
+            Err(_) => crate::error::bail!("the mission monitor panicked"),
         }
     }
 }

@@ -15,7 +15,7 @@ use std::os::fd::AsRawFd;
 use std::os::unix::fs::{MetadataExt as _, OpenOptionsExt as _};
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context as _, Result, bail};
+use crate::error::{Context as _, Result, bail};
 use hng_runtime::shm;
 use nix::libc;
 
@@ -188,7 +188,7 @@ pub fn remove_prefix_files_but_lock(prefix: &str) -> usize {
 /// dead-node clean-up as this system's nodes start (not by removing the prefix's files, which
 /// a tool or a test may already have opened for this run), and the orderly stop removes the
 /// rest.
-pub(super) fn lock_prefix(prefix: &str) -> Result<SystemLock> {
+pub fn lock_prefix(prefix: &str) -> Result<SystemLock> {
     let got = SystemLock::acquire(prefix)?;
     if let Some(pid) = got.stale_pid {
         tracing::warn!(

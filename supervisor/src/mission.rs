@@ -9,7 +9,7 @@
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context as _, Result, bail};
+use crate::error::{Context as _, Result, bail};
 use hng_simulator::{Pose2D, World};
 
 /// Goals of the default mission in the default world (start 2, 2), all in the yard: east,
@@ -404,7 +404,7 @@ mod tests {
     fn a_map_server_world_needs_a_start_and_a_goal() {
         let yaml = concat!(
             env!("CARGO_MANIFEST_DIR"),
-            "/simulator/worlds/example_map.yaml"
+            "/../simulator/worlds/example_map.yaml"
         );
         let opts = MissionOptions {
             world: Some(yaml.into()),

@@ -7,17 +7,16 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
-use anyhow::{Context as _, Result};
+use crate::error::{Context as _, Result};
 use hng_runtime::module::REPORT_CHANNEL;
 use hng_runtime::msg::ModuleReport;
 use hng_runtime::system::{SUPERVISOR_COMMAND, SupervisorCommand};
 use hng_runtime::wait::{WaitMode, Waiter, Wake};
 use hng_runtime::{Node, NodeOptions};
 use hng_watchdog::Waker;
-use nix::sys::signal::{SigSet, Signal};
 
 /// What the receiver thread hands to the main thread.
-pub(super) enum Inbox {
+pub(crate) enum Inbox {
     Report { report: ModuleReport, at: Instant },
     Command(SupervisorCommand),
     Signal(i32),
@@ -25,14 +24,14 @@ pub(super) enum Inbox {
 }
 
 /// The receiver thread: reports, commands and termination signals.
-pub(super) struct Receiver {
-    pub(super) rx: mpsc::Receiver<Inbox>,
-    pub(super) stop: Arc<AtomicBool>,
-    pub(super) thread: Option<std::thread::JoinHandle<()>>,
+pub(crate) struct Receiver {
+    pub(crate) rx: mpsc::Receiver<Inbox>,
+    pub(crate) stop: Arc<AtomicBool>,
+    pub(crate) thread: Option<std::thread::JoinHandle<()>>,
 }
 
 impl Receiver {
-    pub(super) fn start(prefix: &str, waker: Waker) -> Result<Receiver> {
+    pub(crate) fn start(prefix: &str, waker: Waker) -> Result<Receiver> {
         let (tx, rx) = mpsc::channel();
         let stop = Arc::new(AtomicBool::new(false));
         let (ready_tx, ready_rx) = mpsc::channel::<Result<(), String>>();
@@ -54,8 +53,8 @@ impl Receiver {
                 stop,
                 thread: Some(thread),
             }),
-            Ok(Err(e)) => anyhow::bail!("receiver thread: {e}"),
-            Err(_) => anyhow::bail!("the receiver thread ended before it was ready"),
+            Ok(Err(e)) => crate::error::bail!("receiver thread: {e}"),
+            Err(_) => crate::error::bail!("the receiver thread ended before it was ready"),
         }
     }
 }
@@ -114,11 +113,7 @@ fn receive_loop(
 /// orderly stop, whichever thread the kernel would have picked (a signal delivered to a thread
 /// that did not block it would have killed the process by its default action).
 pub fn block_termination_signals() {
-    let mut mask = SigSet::empty();
-    mask.add(Signal::SIGINT);
-    mask.add(Signal::SIGTERM);
-    mask.add(Signal::SIGHUP);
-    if let Err(e) = mask.thread_block() {
-        eprintln!("hng: warning: cannot block termination signals: {e}");
+    if let Err(e) = hng_runtime::wait::block_termination_signals() {
+        eprintln!("hng: warning: {e}");
     }
 }

@@ -31,7 +31,7 @@ fn config_of<M: Module>(text: &str) -> Result<(), ModuleProblem> {
 fn check_config(name: &str, text: &str) -> Option<Result<(), ModuleProblem>> {
     use hng_modules as m;
     Some(match name {
-        "heartbeat-probe" => config_of::<crate::run::probe::Probe>(text),
+        "heartbeat-probe" => config_of::<crate::probe::Probe>(text),
         "simulator" => config_of::<hng_simulator::module::SimulatorModule>(text),
         "rm" => config_of::<hng_rm::RmModule>(text),
         "contract-probe" => config_of::<hng::contract_probe::Probe>(text),
