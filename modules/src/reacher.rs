@@ -35,8 +35,9 @@ use crate::common::{relative, wrap_angle};
 #[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, SmartDefault)]
 #[serde(default, deny_unknown_fields)]
 pub struct ReachParams {
-    /// Stop this far from the beacon's axis (the tracker's range), m (default 0.45: 0.15 m
-    /// between a 0.2 m robot and a 0.1 m marker, more than Security's 0.10 m).
+    /// Stop this far from the beacon's axis (the tracker's range), m (default 0.45: Security's
+    /// default envelope, a 0.25 m swept radius plus 0.10 m, holds the robot 0.45 m from a
+    /// 0.1 m marker's axis on a straight approach, so a shorter stop is never reached).
     #[default(0.45)]
     pub stop_distance_m: f64,
     /// Top forward speed, m/s (default 0.4).
