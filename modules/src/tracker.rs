@@ -4,9 +4,8 @@
 //! ([`hng_runtime::msg::beacon_colors`]). [`ColourTracker`] segments an RGB8 image by
 //! chromaticity (each colour divided by its brightness, so a uniformly darker scene keeps its
 //! hues), keeps the columns where the designated beacon's top band lies above its bottom band,
-//! and reports the blob's bearing (from its centre column) and range to the marker's axis (from
-//! its height in pixels, since the marker's height is known: that gives the distance to its
-//! near face, plus its radius). Pixels darker than `min_brightness` carry no usable hue
+//! and reports the blob's bearing (from its centre column) and range (from its height in pixels,
+//! since the marker's height is known). Pixels darker than `min_brightness` carry no usable hue
 //! and are ignored, so in poor light the blob thins out and the quality falls: the honest
 //! self-evaluation attention needs to switch trackers.
 //!
@@ -215,12 +214,10 @@ pub(crate) fn marker(
     let height_px = f64::from(v1 - v0);
     let width_px = (u1 - u0) as f64;
     let clipped = v0 == 0 || v1 >= camera.height;
-    // Range to the marker's axis: its width subtends its diameter seen from the axis's
-    // distance; its height is seen on its near face, one radius closer.
     let range = if clipped && u0 > 0 && u1 < w {
         f * 2.0 * camera.beacon_radius / width_px / bearing.cos()
     } else {
-        f * camera.beacon_height / height_px / bearing.cos() + camera.beacon_radius
+        f * camera.beacon_height / height_px / bearing.cos()
     };
     // Quality: how much of the box is band-coloured, how big the blob is (a few pixels say
     // little about range), and how bright its pixels are (dim colours are noisy hues).
@@ -315,15 +312,14 @@ mod tests {
     fn finds_the_designated_beacon_with_bearing_and_range() {
         let cam = CameraModel::default();
         let f = cam.focal_px();
-        // A marker whose near face is 2 m away straight ahead: f * 0.6 / 2 pixels tall; its
-        // axis (the range) 2.1 m away.
+        // A marker 2 m away straight ahead: f * 0.6 / 2 pixels tall, 2 * f * 0.1 / 2 wide.
         let hpx = (f * 0.6 / 2.0).round() as usize;
         let wpx = (f * 0.2 / 2.0).round() as usize;
         let img = painted(3, 160 - wpx / 2, 160 + wpx / 2, 100, 100 + hpx, 1.0);
         let mut t = ColourTracker::new(ColourTrackerConfig::default(), cam);
         let d = t.detect(&img, 3).expect("beacon 3 seen");
         assert!(d.bearing.abs() < 0.01, "{d:?}");
-        assert!((d.range - 2.1).abs() < 0.05, "{d:?}");
+        assert!((d.range - 2.0).abs() < 0.05, "{d:?}");
         assert!(d.quality > 0.9, "{d:?}");
         // Another id (other colours) is not there.
         assert_eq!(t.detect(&img, 4), None);
