@@ -114,7 +114,20 @@ impl GuiRun {
     /// A WebSocket handshake on `/ws` (optionally with `?token=`): the open stream and the
     /// status line.
     fn ws(&self, token: Option<&str>) -> (TcpStream, String) {
-        let mut s = TcpStream::connect(&self.addr).expect("connect");
+        self.ws_on(TcpStream::connect(&self.addr).expect("connect"), token)
+    }
+
+    /// A WebSocket client whose receive buffer is a few kilobytes: a client that stops
+    /// reading then fills its buffers within seconds, whatever the frames' size and the
+    /// machine's load.
+    fn ws_small_buffer(&self) -> (TcpStream, String) {
+        let s = TcpStream::connect(&self.addr).expect("connect");
+        nix::sys::socket::setsockopt(&s, nix::sys::socket::sockopt::RcvBuf, &4096)
+            .expect("SO_RCVBUF");
+        self.ws_on(s, None)
+    }
+
+    fn ws_on(&self, mut s: TcpStream, token: Option<&str>) -> (TcpStream, String) {
         let q = token.map_or(String::new(), |t| format!("?token={t}"));
         write!(
             s,
@@ -287,8 +300,9 @@ fn a_client_that_stops_reading_is_dropped_and_never_slows_the_robot() {
     waiter.attach(&scans).expect("attach");
     // Hold the robot (the mission does not end under the test).
     hold(&run, None);
-    // A client that completes the handshake and then never reads a byte.
-    let (stuck, status) = run.ws(None);
+    // A client that completes the handshake and then never reads a byte (with a small
+    // receive buffer, so that its buffers fill in seconds rather than after megabytes).
+    let (stuck, status) = run.ws_small_buffer();
     assert!(status.contains(" 101 "), "{status}");
     let started = Instant::now();
     let mut per_second = Vec::new();
