@@ -17,6 +17,7 @@
 mod astar;
 mod clearance;
 pub mod config;
+pub mod core;
 pub mod costmap;
 mod inflate;
 pub mod movingai;
