@@ -137,16 +137,7 @@ pub fn run(prefix: &str, args: &RunArgs) -> ExitCode {
         tracing::warn!("{}: {w}", plan.file.display());
     }
     if args.check {
-        return match serde_json::to_string_pretty(&plan) {
-            Ok(json) => {
-                println!("{json}");
-                ExitCode::SUCCESS
-            }
-            Err(e) => {
-                eprintln!("hng: error: {e}");
-                ExitCode::FAILURE
-            }
-        };
+        return print_plan(&plan);
     }
     let lock = match lock::lock_prefix(prefix) {
         Ok(l) => l,
@@ -196,16 +187,7 @@ fn run_mission(prefix: &str, args: &RunArgs) -> ExitCode {
         }
     };
     if args.check {
-        return match serde_json::to_string_pretty(&plan) {
-            Ok(json) => {
-                println!("{json}");
-                ExitCode::SUCCESS
-            }
-            Err(e) => {
-                eprintln!("hng: error: {e}");
-                ExitCode::FAILURE
-            }
-        };
+        return print_plan(&plan);
     }
     let lock = match lock::lock_prefix(prefix) {
         Ok(l) => l,
@@ -259,6 +241,20 @@ fn run_mission(prefix: &str, args: &RunArgs) -> ExitCode {
         None => return ExitCode::FAILURE,
     };
     report(&outcome, args.summary.as_deref())
+}
+
+/// `--check`: the plan as JSON on stdout.
+fn print_plan(plan: &LaunchPlan) -> ExitCode {
+    match serde_json::to_string_pretty(plan) {
+        Ok(json) => {
+            println!("{json}");
+            ExitCode::SUCCESS
+        }
+        Err(e) => {
+            eprintln!("hng: error: {e}");
+            ExitCode::FAILURE
+        }
+    }
 }
 
 /// Prints the summary, writes it as JSON, and returns the exit code.
