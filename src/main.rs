@@ -216,6 +216,10 @@ fn main() -> ExitCode {
         Command::Foxglove(args) => recording::foxglove(&cli.prefix, &args),
         Command::Gui(args) => gui::run(&cli.prefix, &args),
     };
+    // A client of a system that stopped meanwhile (`hng kill` during the supervisor's clean-up)
+    // may have opened a channel after the prefix was cleaned: its wake segment would outlive
+    // everything. When nothing but such system files is left of the prefix, they go with us.
+    hng_runtime::shm::remove_system_files_if_alone(&cli.prefix);
     match result {
         Ok(()) => ExitCode::SUCCESS,
         // The reader went away (`hng topic list | head -2`): nothing more to say.

@@ -1,5 +1,6 @@
 //! The command line's small promises, with real processes: a reader that goes away ends a
-//! tool quietly, read-only tools leave no file behind, launch-file problems (built-in module
+//! tool quietly, read-only tools leave no file behind (and take with them system files left
+//! where no system runs), launch-file problems (built-in module
 //! names and configurations, durations that would switch safety off) are found before
 //! anything starts, with the file's line and field.
 
@@ -106,6 +107,37 @@ fn read_only_tools_without_a_system_fail_clearly_and_leave_no_file() {
         let files = shm::prefix_files(&prefix);
         assert!(files.is_empty(), "{args:?} left {files:?}");
     }
+}
+
+/// A client that opened a channel of a system while it stopped (a `hng kill` during the
+/// supervisor's clean-up, seen once in CI) creates that channel's wake segment after the prefix
+/// was cleaned. Such system files, alone on a prefix where no system runs, go with the client's
+/// exit; on a prefix where a system lives they stay (it is theirs).
+#[test]
+fn a_client_removes_system_files_left_on_a_prefix_where_no_system_runs() {
+    let prefix = shm::unique_prefix("clileft");
+    let wake = std::path::Path::new("/dev/shm").join(format!("{prefix}hngwake_0123456789abcdef"));
+    std::fs::write(&wake, [0u8; 64]).expect("a wake segment");
+    let out = Command::new(HNG)
+        .args(["kill", "camera"])
+        .env("HNG_PREFIX", &prefix)
+        .output()
+        .expect("hng");
+    assert_eq!(out.status.code(), Some(1), "no system: {out:?}");
+    let files = shm::prefix_files(&prefix);
+    assert!(files.is_empty(), "left {files:?}");
+
+    // Beside a file of a living node, the system's files are left alone.
+    let node = std::path::Path::new("/dev/shm").join(format!("{prefix}some_node_file"));
+    std::fs::write(&wake, [0u8; 64]).expect("a wake segment");
+    std::fs::write(&node, [0u8; 8]).expect("a node's file");
+    let _ = Command::new(HNG)
+        .args(["ps"])
+        .env("HNG_PREFIX", &prefix)
+        .output()
+        .expect("hng");
+    assert!(wake.exists(), "a living system's wake segment was removed");
+    shm::remove_prefix_files(&prefix);
 }
 
 #[test]
