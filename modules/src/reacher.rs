@@ -35,9 +35,10 @@ use crate::common::{relative, wrap_angle};
 #[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, SmartDefault)]
 #[serde(default, deny_unknown_fields)]
 pub struct ReachParams {
-    /// Stop this far from the beacon's axis (the tracker's range), m (default 0.45: Security's
-    /// default envelope, a 0.25 m swept radius plus 0.10 m, holds the robot 0.45 m from a
-    /// 0.1 m marker's axis on a straight approach, so a shorter stop is never reached).
+    /// Stop this far from the beacon's axis (the tracker's range), m (default 0.45: 0.15 m
+    /// between the robot's 0.2 m disc and a 0.1 m marker). Beacons are markers, not obstacles:
+    /// the lidar does not see them and Security does not slow the robot near them, so this
+    /// stop is what keeps the robot off the marker.
     #[default(0.45)]
     pub stop_distance_m: f64,
     /// Top forward speed, m/s (default 0.4).

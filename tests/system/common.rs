@@ -343,19 +343,30 @@ impl Watch {
             .expect("answer")
     }
 
-    /// Waits until the robot's true pose has moved less than 1 mm per sample for `still_s`
-    /// simulated seconds (by the poses' own time stamps); returns the time it last moved.
+    /// Waits until the robot's true pose has stayed within 1 mm and 5 mrad of where it last
+    /// moved to for `still_s` simulated seconds (by the poses' own time stamps); returns the
+    /// time it last moved (the stamp of the pose that left that bound).
+    ///
+    /// The bound holds over the whole span, not between consecutive poses: at 100 poses per
+    /// second, a robot creeping at 0.05 m/s moves 0.5 mm per pose, and a per-pose bound
+    /// called it at rest (whether it did depended on how many poses the test's loop read).
     pub(crate) fn until_still(&mut self, what: &str, still_s: f64) -> f64 {
+        const STILL_M: f64 = 0.001;
+        const STILL_RAD: f64 = 0.005;
         let (p0, t0) = self.pose.expect("pose");
-        let mut last = (p0.x, p0.y);
+        let mut rest = (p0.x, p0.y, p0.theta);
         let mut since = t0;
         let mut seen = self.track.len();
         self.until(what, |w| {
-            for &(t, x, y) in &w.track[seen.min(w.track.len())..] {
-                if dist((x, y), last) > 0.001 {
+            let new = w.track.iter().zip(&w.headings).skip(seen);
+            for (&(t, x, y), &(_, theta)) in new {
+                let turned = (theta - rest.2 + std::f64::consts::PI)
+                    .rem_euclid(std::f64::consts::TAU)
+                    - std::f64::consts::PI;
+                if dist((x, y), (rest.0, rest.1)) > STILL_M || turned.abs() > STILL_RAD {
                     since = t;
+                    rest = (x, y, theta);
                 }
-                last = (x, y);
             }
             seen = w.track.len();
             w.pose.is_some_and(|(_, t)| t - since > still_s)

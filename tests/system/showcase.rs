@@ -12,7 +12,8 @@
 //!   whole path to it is read on `planning/path`, then an empty one; the wall is withdrawn;
 //! - teleop turning until a tracker finds beacon 3 by itself (no designation) and attention
 //!   offers "reach beacon 3"; `hng order reach-beacon 3` (the CLI, a real process) while
-//!   turning; the reacher drives the robot to within 0.5 m of the beacon (true pose),
+//!   turning; the reacher drives the robot to the beacon, reports it reached, and the robot
+//!   comes to rest within 0.5 m of it (true pose),
 //!   through a dark zone on the way, where "Track beacon" moves from the colour tracker to
 //!   the histogram tracker within 1 s (simulated) and back once out of it;
 //! - teleop again toward the north wall, and "follow wall right" ordered as soon as it is
@@ -27,7 +28,7 @@ use hng_runtime::{Node, NodeOptions, shm};
 use nix::sys::signal::Signal;
 
 use hng_modules::interface::{FOLLOW_WALL_NEED, REACH_BEACON_NEED, REACH_GOAL_NEED};
-use hng_modules::reacher_module::TRACK_NEED;
+use hng_modules::reacher_module::{REACH_REACHED, ReachStatus, TRACK_NEED};
 
 use crate::common::{Watch, dist, goal};
 use crate::signals::Run;
@@ -107,9 +108,6 @@ fn tree(w: &mut Watch, order: &str, want: [Option<&str>; 3]) -> (String, [Option
 }
 
 #[test]
-#[ignore = "on the main merged in session 11 the robot comes to rest about 0.54 m from beacon 3 \
-            (must: 0.5 m) in 3 of 4 runs, the reacher still commanding its least speed; before \
-            the merge 8 of 8 runs passed at 0.454-0.462 m; see the session 11 note under #17"]
 fn the_showcase_switches_orders_of_every_kind_while_the_robot_moves() {
     let _heavy = crate::common::heavy();
     let prefix = shm::unique_prefix("showcase");
@@ -126,6 +124,10 @@ fn the_showcase_switches_orders_of_every_kind_while_the_robot_moves() {
             *path = Some((p.header().goal_id, p.data().len(), last));
         }
     };
+    // The reacher's state (a state channel: the latest).
+    let reach = node
+        .subscriber::<ReachStatus>("reacher/status")
+        .expect("reach status");
     // The trackers' discoveries of beacon 3 (seen while none is designated): the latest
     // (stamp, bearing), so that the operator orders it while it is near the image's centre,
     // not at its edge where the next turn loses it.
@@ -356,10 +358,22 @@ fn the_showcase_switches_orders_of_every_kind_while_the_robot_moves() {
         note(w, &mut log, &mut zone);
         dist(w.xy(), BEACON) < 1.0
     });
+    // The reacher says it has arrived (it stops at its stop distance, by its tracker's
+    // range), and the robot is then at rest where it stopped.
+    let mut reached: Option<ReachStatus> = None;
+    watch.until("the reacher reporting beacon 3 reached", |_| {
+        while let Some(s) = reach.receive().expect("reach status") {
+            if s.beacon_id == 3 && s.state == REACH_REACHED {
+                reached = Some(*s);
+            }
+        }
+        reached.is_some()
+    });
     watch.until_still("the robot at rest at the beacon", 1.0);
     let d = dist(watch.xy(), BEACON);
+    let range = reached.map_or(f64::NAN, |s| s.range);
     eprintln!(
-        "showcase: hng order reach-beacon 3 from {seen_from:.2} m: at rest {d:.3} m from the beacon's centre"
+        "showcase: hng order reach-beacon 3 from {seen_from:.2} m: reached on the tracker's range {range:.3} m, at rest {d:.3} m from the beacon's centre"
     );
     assert!(d <= 0.5, "stopped {d:.3} m from the beacon");
     watch.until(
