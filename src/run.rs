@@ -169,7 +169,7 @@ fn run_mission(prefix: &str, args: &RunArgs) -> ExitCode {
         }
     };
     if args.print_plan {
-        print!("{}", mission.plan);
+        hng_supervisor::say!("{}", mission.plan.trim_end());
         return ExitCode::SUCCESS;
     }
     let plan = match add_rm(
@@ -201,7 +201,7 @@ fn run_mission(prefix: &str, args: &RunArgs) -> ExitCode {
         lock.release();
         return ExitCode::FAILURE;
     }
-    println!(
+    hng_supervisor::say!(
         "mission: {} goal(s) from ({:.2}, {:.2}), speed {}, limit {} s simulated",
         mission.goals.len(),
         mission.start.x,
@@ -209,7 +209,7 @@ fn run_mission(prefix: &str, args: &RunArgs) -> ExitCode {
         args.speed,
         mission.duration_s
     );
-    println!(
+    hng_supervisor::say!(
         "logs: {} (hng logs MODULE [-f]; -v shows them here)",
         logs::log_dir(&run_dir).display()
     );
@@ -247,7 +247,7 @@ fn run_mission(prefix: &str, args: &RunArgs) -> ExitCode {
 fn print_plan(plan: &LaunchPlan) -> ExitCode {
     match serde_json::to_string_pretty(plan) {
         Ok(json) => {
-            println!("{json}");
+            hng_supervisor::say!("{json}");
             ExitCode::SUCCESS
         }
         Err(e) => {
@@ -260,9 +260,9 @@ fn print_plan(plan: &LaunchPlan) -> ExitCode {
 /// Prints the summary, writes it as JSON, and returns the exit code.
 fn report(outcome: &Outcome, file: Option<&Path>) -> ExitCode {
     if let Some(why) = &outcome.failure {
-        println!("mission failed: {why}");
+        hng_supervisor::say!("mission failed: {why}");
     }
-    println!("{}", outcome.summary);
+    hng_supervisor::say!("{}", outcome.summary);
     if let Some(f) = file {
         let written = serde_json::to_string_pretty(&outcome.summary)
             .map_err(anyhow::Error::from)

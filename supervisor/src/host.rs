@@ -361,7 +361,7 @@ impl Runner {
         {
             // The mission's progress names why a module went (a missed heartbeat above all:
             // the monitor only sees that it died).
-            println!("[watchdog] module {} (pid {pid}) {cause}", e.module);
+            crate::say!("[watchdog] module {} (pid {pid}) {cause}", e.module);
         }
         let wire = match &e.kind {
             EventKind::Started { pid, .. } => {

@@ -27,6 +27,7 @@ pub mod monitor;
 mod nav_watch;
 mod receiver;
 pub mod status;
+pub mod stdout;
 
 pub use error::{HostError, Result};
 pub use host::{Companion, HostOptions, RunPaths, default_run_dir, supervise};

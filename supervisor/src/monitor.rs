@@ -252,7 +252,7 @@ impl State {
     }
 
     fn say(&self, what: &str) {
-        println!("[{:7.1} s] {what}", self.sim_time_s);
+        crate::say!("[{:7.1} s] {what}", self.sim_time_s);
     }
 
     fn run(&mut self, opts: &MonitorOptions, stop: &AtomicBool) -> Result<Outcome> {

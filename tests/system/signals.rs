@@ -44,6 +44,16 @@ impl Run {
 
     /// Like [`Run::start`] on a given prefix.
     pub fn start_on(prefix: &str, args: &[&str]) -> Run {
+        Run::spawn(prefix, args, true)
+    }
+
+    /// Like [`Run::start`] with nobody reading its stdout (a closed terminal, `| head -1`
+    /// done): the pipe's reading end is closed at once, so its every write fails.
+    pub fn start_with_stdout_closed(tag: &str, args: &[&str]) -> Run {
+        Run::spawn(&shm::unique_prefix(tag), args, false)
+    }
+
+    fn spawn(prefix: &str, args: &[&str], read_stdout: bool) -> Run {
         let dir = test_dir(prefix);
         std::fs::create_dir_all(&dir).expect("test dir");
         let n = std::fs::read_dir(&dir).map_or(0, Iterator::count);
@@ -64,7 +74,12 @@ impl Run {
             .spawn()
             .expect("spawn hng run");
         let out = child.stdout.take().expect("stdout");
-        let lines = crate::common::stdout_lines(out);
+        let lines = if read_stdout {
+            crate::common::stdout_lines(out)
+        } else {
+            drop(out);
+            mpsc::channel().1
+        };
         Run {
             prefix: prefix.to_owned(),
             pid: child.id(),
@@ -347,9 +362,51 @@ fn sigint_mid_mission_stops_in_order_and_leaves_nothing() {
     mission_stopped_by("sigint", Signal::SIGINT);
 }
 
+/// SIGHUP is what a closed terminal sends, and with the terminal gone nobody reads stdout any
+/// more: the run must neither die of its progress lines (a write to a closed pipe) nor leave
+/// its files. Its stdout is closed from the start; it is stopped once every module runs.
 #[test]
-fn sighup_mid_mission_stops_in_order_and_leaves_nothing() {
-    mission_stopped_by("sighup", Signal::SIGHUP);
+fn sighup_with_its_stdout_closed_stops_in_order_and_leaves_nothing() {
+    let _heavy = heavy();
+    let mut run = Run::start_with_stdout_closed("sighup", &["--speed", "5"]);
+    let deadline = Instant::now() + TIMEOUT;
+    loop {
+        let log = run.log();
+        let (started, _) = start_and_stop_order(&log);
+        let running = log.matches("running (first heartbeat)").count();
+        if started.len() >= 10 && running >= started.len() {
+            break;
+        }
+        assert!(
+            run.try_wait().is_none(),
+            "hng run ended with its stdout closed; log tail:\n{}",
+            tail(&log)
+        );
+        assert!(
+            Instant::now() < deadline,
+            "not up; log tail:\n{}",
+            tail(&log)
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    run.signal(Signal::SIGHUP);
+    let status = run.wait();
+    let log = run.assert_left_nothing();
+    assert_eq!(
+        status.code(),
+        Some(1),
+        "exit {status:?}; log tail:\n{}",
+        tail(&log)
+    );
+    assert!(
+        log.contains("stdout is closed"),
+        "the dropped lines are said; log tail:\n{}",
+        tail(&log)
+    );
+    let (started, stopped) = start_and_stop_order(&log);
+    let mut reverse = started.clone();
+    reverse.reverse();
+    assert_eq!(stopped, reverse, "stopped in reverse start order");
 }
 
 /// Writes `text` as a launch file in `dir`; returns its path.
