@@ -3,8 +3,8 @@
 //!
 //! Pure pursuit steers on the arc through the carrot, so it cuts the inside of every bend by a
 //! distance that grows with the carrot's distance: with a 0.6 m carrot the robot passed a
-//! door's jamb 0.1 m closer than the planned path (generated world 8: plan 0.154 m, robot
-//! 0.048 m). The carrot is therefore taken at the largest distance (from `lookahead_m` down to
+//! door's jamb 0.1 m closer than the planned path (generated problem 8: plan 0.154 m,
+//! robot 0.048 m). The carrot is therefore taken at the largest distance (from `lookahead_m` down to
 //! `min_lookahead_m`, in 5 cm steps) for which the straight line from the robot to it keeps
 //! at least the clearance the path itself keeps over that stretch (less 2 cm), or `comfort_m`
 //! from obstacles where the path keeps more (in the open the carrot stays at `lookahead_m`).
