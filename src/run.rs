@@ -66,7 +66,8 @@ pub struct RunArgs {
     /// Planning localize by the raw GPS and SLAM only.
     #[arg(long, conflicts_with = "file")]
     pub no_fusion: bool,
-    /// Built-in mission: also write the summary as JSON to this file.
+    /// Built-in mission: also write the summary as JSON to this file (as soon as the mission
+    /// ends, before the system stops, and again at the end; each time whole, by a rename).
     #[arg(long, conflicts_with = "file")]
     pub summary: Option<PathBuf>,
     /// Louder terminal: `-v` shows `hng run`'s info lines and echoes every module's log
@@ -218,6 +219,7 @@ fn run_mission(prefix: &str, args: &RunArgs) -> ExitCode {
         goals: mission.goals.clone(),
         duration_s: mission.duration_s,
         stall_timeout: Duration::from_secs(30),
+        summary_file: args.summary.clone(),
     }) {
         Ok(m) => m,
         Err(e) => {
@@ -263,14 +265,11 @@ fn report(outcome: &Outcome, file: Option<&Path>) -> ExitCode {
         hng_supervisor::say!("mission failed: {why}");
     }
     hng_supervisor::say!("{}", outcome.summary);
-    if let Some(f) = file {
-        let written = serde_json::to_string_pretty(&outcome.summary)
-            .map_err(anyhow::Error::from)
-            .and_then(|j| std::fs::write(f, j + "\n").map_err(anyhow::Error::from));
-        if let Err(e) = written {
-            eprintln!("hng: error: writing the summary to {}: {e:#}", f.display());
-            return ExitCode::FAILURE;
-        }
+    if let Some(f) = file
+        && let Err(e) = hng_supervisor::monitor::write_summary(f, &outcome.summary)
+    {
+        eprintln!("hng: error: {:#}", anyhow::Error::from(e));
+        return ExitCode::FAILURE;
     }
     if outcome.summary.success {
         ExitCode::SUCCESS

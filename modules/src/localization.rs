@@ -144,6 +144,8 @@ impl Module for LocalizationModule {
             ("filter.angular_per_m", f.angular_per_m),
             ("filter.position_per_sqrt_s", f.position_per_sqrt_s),
             ("filter.heading_per_sqrt_s", f.heading_per_sqrt_s),
+            ("filter.scale_sigma", f.scale_sigma),
+            ("filter.scale_per_sqrt_m", f.scale_per_sqrt_m),
         ] {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(field_error(name, "must be finite and >= 0").into());

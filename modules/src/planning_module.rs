@@ -6,7 +6,8 @@
 //! the robot to the current goal, shortens the grid path by line of sight, and then, at every
 //! pose, publishes one [`Waypoint`]: the point `lookahead_m` ahead of the robot's projection on
 //! the path (the pure-pursuit carrot the Servo-controller steers to; `is_final` once it is the
-//! goal itself). It replans when the goal or the map changes, or when the robot strays more
+//! goal itself), shorter and slower where the path passes near obstacles
+//! ([`crate::planning::carrot`]). It replans when the goal or the map changes, or when the robot strays more
 //! than `deviation_m` from the path.
 //!
 //! Goals outside the map, inside obstacles (after inflation, beyond the goal's tolerance) or
@@ -184,6 +185,8 @@ impl Module for PlanningModule {
         let p = &cfg.params;
         positive("params.robot_radius", p.robot_radius)?;
         positive("params.lookahead_m", p.lookahead_m)?;
+        positive("params.min_lookahead_m", p.min_lookahead_m)?;
+        positive("params.comfort_m", p.comfort_m)?;
         positive("params.deviation_m", p.deviation_m)?;
         positive("params.speed", p.speed)?;
         for (field, v) in [

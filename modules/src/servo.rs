@@ -6,8 +6,16 @@
 //! its distance), at `max_speed` (or the waypoint's suggested speed if lower), turning in place
 //! first when the carrot is more than `rotate_in_place_rad` off the heading. Near a final
 //! waypoint the speed falls linearly over `slow_radius_m` (to at least `min_speed`); within
-//! `goal_tolerance_m` of it the goal is reached: a stop, a [`GoalStatus`] `Reached`, and
-//! silence until the next goal (so the client above regains the robot).
+//! `goal_tolerance_m` of it (by the robot's estimate) the goal is reached: a stop, a
+//! [`GoalStatus`] `Reached`, and silence until the next goal (so the client above regains the
+//! robot). A goal the robot has just passed (behind it, within `3 · goal_tolerance_m`) is
+//! reached too: turning back round a point that close would circle it.
+//!
+//! The stopping radius is kept small (5 cm) because whoever judges the goal does so on the
+//! true pose, whose distance to the goal is the stopping radius plus the localization's
+//! error: with the fused localization's error of up to about 0.2 m at a stop, a 0.15 m radius
+//! left goals 0.33-0.43 m away against a 0.3 m tolerance (arena, `hng eval nav`); with 5 cm the
+//! error budget of a 0.3 m tolerance is 0.25 m.
 //!
 //! Its commands go to the Robot's "Robot control" channel under its contract with the Robot
 //! (priority 2.2.1.1 in the paper's tree: the operator and Security override it); before that
@@ -39,8 +47,9 @@ pub struct ServoParams {
     /// Turn rate limit, rad/s (default 1.5).
     #[default(1.5)]
     pub max_angular: f64,
-    /// Distance to the final waypoint at which the goal counts as reached, m (default 0.15).
-    #[default(0.15)]
+    /// Distance to the final waypoint at which the goal counts as reached, m (default 0.05;
+    /// keep it well below the goals' tolerance, which must also hold the localization error).
+    #[default(0.05)]
     pub goal_tolerance_m: f64,
     /// Distance to the final waypoint over which the robot slows down, m (default 0.8).
     #[default(0.8)]
@@ -113,7 +122,9 @@ impl ServoCore {
         if self.reached == Some(wp.goal_id) {
             return out;
         }
-        if wp.is_final != 0 && dist <= p.goal_tolerance_m {
+        let passed =
+            dist <= 3.0 * p.goal_tolerance_m && bearing.abs() > std::f64::consts::FRAC_PI_2;
+        if wp.is_final != 0 && (dist <= p.goal_tolerance_m || passed) {
             self.reached = Some(wp.goal_id);
             out.cmd = Some(Twist::default());
             out.reached = true;
@@ -421,7 +432,7 @@ mod tests {
                 drive(&mut pose, &mut vel, &out.cmd.unwrap(), 0.01);
             }
             assert!(reached, "start heading {theta}: ended at {pose:?}");
-            assert!((pose.x - 3.0).hypot(pose.y - 2.0) <= 0.15 + 1e-9);
+            assert!((pose.x - 3.0).hypot(pose.y - 2.0) <= 0.05 + 1e-9);
             assert_eq!(core.command(&pose, &goal).cmd, None, "silent once reached");
         }
     }
@@ -494,5 +505,79 @@ mod tests {
         }
         assert!(reached, "ended at {pose:?}");
         assert!(min_clear > 0.0, "the robot touched the wall: {min_clear}");
+    }
+
+    /// Planning and the Servo in a closed loop (perfect localisation) from (2, 1) to (8, 1)
+    /// through a 0.9 m door in the wall x = 5: the robot's least gap to an obstacle, and the
+    /// planned path's.
+    fn through_a_door(params: PlanningParams, goal: (f64, f64)) -> (f64, f64) {
+        use crate::planning::{FREE, OCCUPIED, OccupancyGrid, path_clearance};
+        let mut grid = OccupancyGrid::new(100, 60, 0.1, [0.0, 0.0], FREE).unwrap();
+        for x in 0..100 {
+            grid.set(x, 0, OCCUPIED);
+            grid.set(x, 59, OCCUPIED);
+        }
+        for y in 0..60 {
+            grid.set(0, y, OCCUPIED);
+            grid.set(99, y, OCCUPIED);
+            if !(26..35).contains(&y) {
+                grid.set(50, y, OCCUPIED);
+            }
+        }
+        let mut planner = PlanningCore::new(params);
+        planner.set_map(&grid);
+        planner.set_goal(hng_runtime::msg::Goal {
+            id: 1,
+            pose: Pose2D::new(goal.0, goal.1, 0.0),
+            tolerance_m: 0.2,
+            ..Default::default()
+        });
+        let mut servo = ServoCore::new(ServoParams::default());
+        let mut pose = Pose2D::new(2.0, 1.0, 0.0);
+        let mut vel = (0.0, 0.0);
+        let gap = |points: &[[f64; 2]]| path_clearance(&grid, points, 50, 5.0) - 0.2;
+        let mut plan_gap = None;
+        let mut driven = f64::INFINITY;
+        for step in 0..8000 {
+            let plan = planner.update(&pose);
+            plan_gap.get_or_insert_with(|| gap(planner.path_points()));
+            let w = plan
+                .waypoint
+                .unwrap_or_else(|| panic!("no waypoint at step {step}"));
+            let out = servo.command(&pose, &w);
+            if out.reached {
+                assert!(
+                    (pose.x - goal.0).hypot(pose.y - goal.1) <= 0.15 + 1e-9,
+                    "{pose:?}"
+                );
+                return (driven, plan_gap.unwrap_or(f64::NAN));
+            }
+            drive(&mut pose, &mut vel, &out.cmd.unwrap(), 0.01);
+            driven = driven.min(gap(&[[pose.x, pose.y]]));
+        }
+        panic!("not reached: {pose:?}");
+    }
+
+    #[test]
+    fn through_a_door_the_robot_keeps_the_planned_clearance() {
+        // Through the door, then up along the wall on its far side.
+        let goal = (6.0, 5.0);
+        let (driven, plan) = through_a_door(PlanningParams::default(), goal);
+        // The fixed 0.6 m carrot of before, for comparison.
+        let fixed_carrot = PlanningParams {
+            min_lookahead_m: 0.6,
+            ..PlanningParams::default()
+        };
+        let (fixed, _) = through_a_door(fixed_carrot, goal);
+        eprintln!("plan {plan:.3} m, driven {driven:.3} m, with a fixed carrot {fixed:.3} m");
+        assert!(plan > 0.24, "the plan keeps to the door's middle: {plan}");
+        assert!(
+            plan - driven <= 0.015,
+            "driven {driven} against the plan's {plan}"
+        );
+        assert!(
+            plan - fixed >= 0.025,
+            "with a fixed carrot {fixed}, plan {plan}"
+        );
     }
 }

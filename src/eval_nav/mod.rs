@@ -292,8 +292,15 @@ pub fn run(a: &EvalNavArgs) -> Result<()> {
     }
     let mut results = Vec::new();
     let mut stopped = None;
+    // Runs of finished problems still stopping (see `runner`); at most two at a time.
+    let mut stopping: Vec<runner::Stopping> = Vec::new();
     for p in &list {
-        let r = runner::run(p, &opts)?;
+        stopping.retain_mut(|s| !s.poll());
+        while stopping.len() >= 2 {
+            stopping.remove(0).wait();
+        }
+        let (r, still) = runner::run(p, &opts)?;
+        stopping.extend(still);
         if let Some(sig) = stop::requested() {
             // Stopped by a signal: the interrupted problem is not a result.
             eprintln!(
@@ -325,6 +332,9 @@ pub fn run(a: &EvalNavArgs) -> Result<()> {
             writeln!(f, "{line}")?;
         }
         results.push(r);
+    }
+    for s in stopping {
+        s.wait();
     }
     let s = summary(&results);
     if a.json {

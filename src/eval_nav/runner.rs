@@ -1,6 +1,10 @@
 //! One problem of `hng eval nav`: the whole system (`hng run`, every module its own process,
 //! lockstep) started at the problem's start, one goal, its summary read back; the CPU time of
 //! each module process sampled from /proc while it runs.
+//!
+//! `hng run` writes its summary as soon as the mission ends, before it stops its modules
+//! (one after the other, about 2 s): the problem is done then, and its run goes on stopping
+//! in the background ([`Stopping`]) while the next problem starts, under its own prefix.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -128,6 +132,54 @@ fn f64_of(v: &Value, k: &str) -> Option<f64> {
     v.get(k).and_then(Value::as_f64)
 }
 
+/// A problem's `hng run` still stopping after its summary was read: reaped later (its prefix's
+/// files removed, its run directory too when the problem needs it no more).
+#[derive(Debug)]
+pub struct Stopping {
+    child: std::process::Child,
+    prefix: String,
+    /// The run directory to remove once it has stopped.
+    remove: Option<PathBuf>,
+    since: Instant,
+}
+
+impl Stopping {
+    fn done(&mut self) {
+        hng_runtime::shm::remove_prefix_files(&self.prefix);
+        if let Some(d) = self.remove.take() {
+            let _ = std::fs::remove_dir_all(d);
+        }
+    }
+
+    /// True (and cleaned up) once it has stopped; SIGKILL if it has not within 30 s.
+    pub fn poll(&mut self) -> bool {
+        match self.child.try_wait() {
+            Ok(Some(_)) | Err(_) => {
+                self.done();
+                true
+            }
+            Ok(None) if self.since.elapsed() > Duration::from_secs(30) => {
+                tracing::warn!(
+                    pid = self.child.id(),
+                    "a finished run did not stop in 30 s: killed"
+                );
+                let _ = self.child.kill();
+                let _ = self.child.wait();
+                self.done();
+                true
+            }
+            Ok(None) => false,
+        }
+    }
+
+    /// Waits until it has stopped.
+    pub fn wait(mut self) {
+        while !self.poll() {
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    }
+}
+
 /// Sends SIGTERM to `hng run` and waits for its orderly stop (at most 30 s, then SIGKILL).
 fn stop_child(child: &mut std::process::Child, sig: i32) -> Option<std::process::ExitStatus> {
     tracing::info!(
@@ -152,8 +204,8 @@ fn stop_child(child: &mut std::process::Child, sig: i32) -> Option<std::process:
     child.wait().ok()
 }
 
-/// Runs one problem.
-pub fn run(p: &Problem, o: &RunOptions) -> Result<ProblemResult> {
+/// Runs one problem: its result, and its run if it is still stopping.
+pub fn run(p: &Problem, o: &RunOptions) -> Result<(ProblemResult, Option<Stopping>)> {
     let prefix = hng_runtime::shm::unique_prefix("evalnav");
     let dir = o.dir.join(format!("p{:04}", p.id));
     std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
@@ -200,9 +252,15 @@ pub fn run(p: &Problem, o: &RunOptions) -> Result<ProblemResult> {
     // Wall limit: the run gives up by itself at its duration; this only guards against a
     // system that never ends (0.25x real time or slower).
     let wall_limit = Duration::from_secs_f64(60.0 + 4.0 * duration);
+    // Set when the summary was written before `hng run` ended: it is still stopping.
+    let mut finished = false;
     let status = loop {
         if let Some(st) = child.try_wait()? {
             break Some(st);
+        }
+        if summary_path.exists() {
+            finished = true;
+            break None;
         }
         sample_children(pid, &mut seen);
         if let Some((_, t)) = proc_stat(pid) {
@@ -221,7 +279,9 @@ pub fn run(p: &Problem, o: &RunOptions) -> Result<ProblemResult> {
         std::thread::sleep(Duration::from_millis(200));
     };
     let wall_s = started.elapsed().as_secs_f64();
-    hng_runtime::shm::remove_prefix_files(&prefix);
+    if !finished {
+        hng_runtime::shm::remove_prefix_files(&prefix);
+    }
     let tps = ticks_per_s();
     let mut cpu_s: BTreeMap<String, f64> = BTreeMap::new();
     for (name, t) in seen.values() {
@@ -260,10 +320,20 @@ pub fn run(p: &Problem, o: &RunOptions) -> Result<ProblemResult> {
             }
         }
     };
-    if !o.keep && result.success {
-        let _ = std::fs::remove_dir_all(&dir);
+    let remove = (!o.keep && result.success).then_some(dir);
+    if finished {
+        let stopping = Stopping {
+            child,
+            prefix,
+            remove,
+            since: Instant::now(),
+        };
+        return Ok((result, Some(stopping)));
     }
-    Ok(result)
+    if let Some(d) = remove {
+        let _ = std::fs::remove_dir_all(d);
+    }
+    Ok((result, None))
 }
 
 fn last_lines(path: &Path, n: usize) -> String {

@@ -48,8 +48,8 @@ fn mission_modules(fusion: bool) -> Vec<&'static str> {
 /// Position tolerance of the mission's goals, m. A goal counts as reached only when the
 /// simulator's true pose is within it; the robot localizes by odometry fused with GPS (the
 /// `localization` module, σ about 0.05-0.1 m against the GPS's 0.3 m per axis) and stops when
-/// its own estimate is within 0.15 m, so its true error at a goal is that estimate's error
-/// plus up to 0.15 m.
+/// its own estimate is within 0.05 m, so its true error at a goal is that estimate's error
+/// plus up to 0.05 m.
 pub const GOAL_TOLERANCE_M: f64 = 0.3;
 
 /// Default limit of simulated time for a mission, s.

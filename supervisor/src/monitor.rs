@@ -113,6 +113,22 @@ pub struct MonitorOptions {
     pub duration_s: f64,
     /// Fail when the simulator is silent this long (wall time).
     pub stall_timeout: Duration,
+    /// Write the summary (JSON) to this file as soon as the mission ends, before the system
+    /// is stopped (written to a temporary file and renamed: a reader sees all or nothing),
+    /// so that `hng eval nav` can go on while this run stops.
+    pub summary_file: Option<std::path::PathBuf>,
+}
+
+/// Writes `summary` as JSON to `path` through a temporary file and a rename.
+pub fn write_summary(path: &std::path::Path, summary: &Summary) -> Result<()> {
+    let text = serde_json::to_string_pretty(summary).context("encoding the summary")?;
+    let mut tmp = path.as_os_str().to_owned();
+    tmp.push(".tmp");
+    let tmp = std::path::PathBuf::from(tmp);
+    std::fs::write(&tmp, text + "\n")
+        .with_context(|| format!("writing the summary to {}", tmp.display()))?;
+    std::fs::rename(&tmp, path)
+        .with_context(|| format!("writing the summary to {}", path.display()))
 }
 
 /// The monitor thread.
@@ -306,6 +322,13 @@ impl State {
             failure: None,
         };
         if ended {
+            if let Some(f) = &opts.summary_file {
+                let mut early = summary.clone();
+                early.failure.clone_from(&failure);
+                if let Err(e) = write_summary(f, &early) {
+                    self.say(&format!("{e:#}"));
+                }
+            }
             // Stop the system: the supervisor stops every module in order.
             let _ = self
                 .command

@@ -7,6 +7,7 @@ use serde::{Deserialize, Serialize};
 use smart_default::SmartDefault;
 
 use crate::msgs::{GoalState, GoalStatus, RefusalReason};
+use crate::planning::carrot::{ClearanceField, carrot_distance};
 use crate::planning::path::{PathState, nearest_cell};
 use crate::planning::progress::{
     Action, Event, NavProgress, ProgressMonitor, ProgressParams, progress_message,
@@ -41,9 +42,18 @@ pub struct PlanningParams {
     /// rather than grazing the lethal band).
     #[default(8.0)]
     pub cost_decay: f64,
-    /// Distance of the carrot ahead of the robot on the path, m (default 0.6).
+    /// Distance of the carrot ahead of the robot on the path, m (default 0.6): the longest,
+    /// in the open ([`crate::planning::carrot`]).
     #[default(0.6)]
     pub lookahead_m: f64,
+    /// Shortest distance of the carrot, where the path passes near obstacles, m (default
+    /// 0.25): the carrot is shortened so that the line to it keeps the path's clearance.
+    #[default(0.25)]
+    pub min_lookahead_m: f64,
+    /// Distance from obstacles beyond which the line to the carrot may leave the path's
+    /// clearance, m (default 0.7: a 0.5 m gap for the 0.2 m robot).
+    #[default(0.7)]
+    pub comfort_m: f64,
     /// Replan when the robot is farther than this from the path, m (default 0.5).
     #[default(0.5)]
     pub deviation_m: f64,
@@ -401,7 +411,23 @@ impl PlanningCore {
         };
         let (s, _) = path.project(p);
         let total = path.total();
-        let target = s + self.params.lookahead_m;
+        let lookahead = match &self.grid {
+            Some(grid) if self.clearances.len() == grid.data().len() => carrot_distance(
+                &ClearanceField {
+                    grid,
+                    clearances: &self.clearances,
+                },
+                path,
+                s,
+                p,
+                self.params.lookahead_m,
+                self.params.min_lookahead_m,
+                self.params.comfort_m,
+                self.params.robot_radius + self.params.clearance,
+            ),
+            _ => self.params.lookahead_m,
+        };
+        let target = s + lookahead;
         let is_final = target >= total;
         let (point, heading) = path.at(target);
         let theta = if is_final && goal.use_theta != 0 {
@@ -421,7 +447,8 @@ impl PlanningCore {
                 y: point[1],
                 theta,
             },
-            speed: self.params.speed,
+            // Slower where the carrot is short (near obstacles), at most by half.
+            speed: self.params.speed * (lookahead / self.params.lookahead_m).clamp(0.5, 1.0),
             is_final: u8::from(is_final),
         });
         out.status = Some(self.status(goal.id, GoalState::Active, (total - s).max(0.0)));

@@ -15,6 +15,7 @@
 //! grid path into waypoints for the controller.
 
 mod astar;
+pub(crate) mod carrot;
 mod clearance;
 pub mod config;
 pub mod core;
