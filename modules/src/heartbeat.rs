@@ -6,7 +6,8 @@
 //! The SDK sends a module's report (its heartbeat) from the module's thread, between
 //! callbacks. [`BusyHeartbeat`] adds a thread with its own node that sends the same report,
 //! pid and name while the module marks itself busy ([`BusyHeartbeat::busy`], a guard around
-//! the computation), at the report period, and for at most `max_busy`: a computation that
+//! the computation), a quarter period into it and then at the report period, and for at most
+//! `max_busy`: a computation that
 //! runs longer than that is treated as a hang again (the thread falls silent and the watchdog
 //! kills the module after its heartbeat timeout). Outside computations the thread sleeps on a
 //! condition variable; nothing wakes on a period.
@@ -142,6 +143,16 @@ impl Drop for BusyHeartbeat {
     }
 }
 
+/// How long after `busy_for` into a computation the next beat is due: beats at `first`,
+/// then every `period` after it.
+fn next_beat_in(busy_for: Duration, first: Duration, period: Duration) -> Duration {
+    if busy_for < first {
+        return first - busy_for;
+    }
+    let into = (busy_for - first).as_nanos() % period.as_nanos().max(1);
+    period.saturating_sub(Duration::from_nanos(u64::try_from(into).unwrap_or(0)))
+}
+
 /// The thread's loop: asleep while idle, a report every `period` while busy (up to
 /// `max_busy`).
 fn beat(
@@ -159,10 +170,16 @@ fn beat(
             st = shared.wake.wait(st).unwrap_or_else(PoisonError::into_inner);
             continue;
         };
-        // The module's own report went out when its callback began: the first beat is due
-        // one period into the computation.
+        // The module's own report may have gone out up to a period before the computation
+        // began (the SDK reports after its callbacks, when due), and one computation may
+        // follow another within a callback (Planning reads a map, then plans): a first beat
+        // one period in left up to two periods of silence, plus the scheduling delays of a
+        // loaded machine, against a timeout of about three (`long_compute` was killed as
+        // hung, silent 107 and 163 ms against 100 ms, at load 15-22). The first beat is due
+        // a quarter period in; computations shorter than that send none.
         let busy_for = since.elapsed();
-        if busy_for >= period && busy_for <= max_busy {
+        let first = period / 4;
+        if busy_for >= first && busy_for <= max_busy {
             drop(st);
             if let Err(e) = publisher.publish(report) {
                 tracing::warn!("heartbeat during a computation: {e}");
@@ -173,16 +190,7 @@ fn beat(
             // Too long: silent until the computation ends (the watchdog decides).
             None
         } else {
-            Some(
-                period.saturating_sub(
-                    busy_for
-                        .as_nanos()
-                        .checked_rem(period.as_nanos())
-                        .map_or(Duration::ZERO, |r| {
-                            Duration::from_nanos(u64::try_from(r).unwrap_or(0))
-                        }),
-                ),
-            )
+            Some(next_beat_in(busy_for, first, period))
         };
         st = match wait {
             Some(w) => {
@@ -194,5 +202,22 @@ fn beat(
             }
             None => shared.wake.wait(st).unwrap_or_else(PoisonError::into_inner),
         };
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_first_beat_comes_a_quarter_period_in_then_one_every_period() {
+        let ms = Duration::from_millis;
+        let (first, period) = (ms(30) / 4, ms(30));
+        assert_eq!(next_beat_in(ms(0), first, period), first);
+        assert_eq!(next_beat_in(ms(5), first, period), first - ms(5));
+        // Just after the first beat: the next a period later.
+        assert_eq!(next_beat_in(first, first, period), period);
+        assert_eq!(next_beat_in(first + ms(10), first, period), ms(20));
+        assert_eq!(next_beat_in(first + ms(61), first, period), ms(29));
     }
 }

@@ -101,6 +101,8 @@ pub struct Supervisor<H: SupervisorHooks = NoHooks> {
     seq: u64,
     shutting_down: bool,
     stop_queue: Vec<usize>,
+    /// The last poll was woken and judged no hang (see [`Supervisor::poll`]).
+    hangs_deferred: bool,
 }
 
 impl<H: SupervisorHooks> fmt::Debug for Supervisor<H> {
@@ -165,6 +167,7 @@ impl<H: SupervisorHooks> Supervisor<H> {
             seq: 0,
             shutting_down: false,
             stop_queue: Vec::new(),
+            hangs_deferred: false,
         })
     }
 
@@ -473,9 +476,11 @@ impl<H: SupervisorHooks> Supervisor<H> {
         let tokens = self.epoll.wait(wait).map_err(io_err("epoll_wait"))?;
         let now = Instant::now();
         let before = self.pending.len();
+        let mut woken = false;
         for t in tokens {
             if t == WAKE_TOKEN {
                 self.wake.drain();
+                woken = true;
             } else if let Ok(i) = usize::try_from(t) {
                 self.reap(i, now);
             }
@@ -483,7 +488,14 @@ impl<H: SupervisorHooks> Supervisor<H> {
         // A death is reported at once: restarts due now (clean-up and spawn take
         // milliseconds) wait for the next call, which returns without sleeping.
         let reaped = self.pending.len() > before;
-        self.run_timers(now, !reaped);
+        // Woken (the caller's receiver has heartbeats it has not handed over yet): no hang is
+        // judged before the caller applied them; the next call judges, without sleeping when
+        // a deadline passed. Once only, so a stream of wake-ups cannot put it off. Before, a
+        // supervisor woken late on a loaded machine could kill a module whose heartbeat was
+        // already waiting in its inbox.
+        let defer = woken && !self.hangs_deferred;
+        self.hangs_deferred = defer;
+        self.run_timers(now, !reaped, !defer);
         self.advance_shutdown(now);
         Ok(std::mem::take(&mut self.pending))
     }
@@ -609,14 +621,15 @@ impl<H: SupervisorHooks> Supervisor<H> {
         self.push(now, i, EventKind::Restarting { delay, attempt });
     }
 
-    fn run_timers(&mut self, now: Instant, restarts: bool) {
+    fn run_timers(&mut self, now: Instant, restarts: bool, hangs: bool) {
         for i in 0..self.slots.len() {
             // Hang detection and stop escalation.
             let slot = &mut self.slots[i];
             let mut hang = None;
             let mut escalated = None;
             if let Some(p) = slot.proc_.as_mut() {
-                if p.kill_cause.is_none()
+                if hangs
+                    && p.kill_cause.is_none()
                     && p.stop.is_none()
                     && let Some(deadline) = hang_deadline(&slot.spec, p)
                     && now >= deadline
