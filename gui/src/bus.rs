@@ -88,7 +88,9 @@ impl Default for Channels {
 pub fn min_interval(topic: &str) -> Duration {
     Duration::from_millis(match topic {
         "order_status" | "events" | "designation" => 0,
-        "pose" | "truth" | "odom" | "scan" => 50,
+        // About 10 Hz, the lidar's own rate (a page drawing at 20 Hz cost a browser about
+        // twice the CPU); 90 ms, so that a 10 Hz lidar's scan is never held back by jitter.
+        "pose" | "truth" | "odom" | "scan" => 90,
         "clock" | "waypoint" | "path" | "goal" | "beacons" | "tracks" | "behaviours" => 100,
         "image" => 200,
         "status" | "mission" => 250,
@@ -296,7 +298,8 @@ pub fn run(opts: &BusOptions, hub: &Arc<Hub>, stop: &AtomicBool) -> Result<(), c
                 })
                 .collect(),
         ),
-        image: sliced(&node, &mut w, &c.image),
+        // Opened while a browser watches (below).
+        image: None,
         order_status: fixed(&node, &mut w, ORDER_STATUS_CHANNEL),
         behaviours: fixed(&node, &mut w, BEHAVIOURS_CHANNEL),
         designation: fixed(&node, &mut w, DESIGNATION_CHANNEL),
@@ -320,6 +323,15 @@ pub fn run(opts: &BusOptions, hub: &Arc<Hub>, stop: &AtomicBool) -> Result<(), c
     while !stop.load(Ordering::Acquire) {
         poll_all(&mut src, &mut st);
         let clients = hub.clients();
+        // The camera image is read only while a browser watches: a reader of `camera/image`
+        // makes the Camera relay, and the simulator render, every frame.
+        if clients > 0 && had_clients == 0 {
+            src.image = sliced(&node, &mut w, &c.image);
+        } else if clients == 0
+            && let Some(i) = src.image.take()
+        {
+            let _ = w.detach(i.sub.id());
+        }
         if clients > had_clients {
             // A newcomer gets every topic held.
             st.dirty.iter_mut().for_each(|d| *d = true);

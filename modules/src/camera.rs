@@ -7,12 +7,20 @@
 //! A frame whose payload does not match its header (`width * height * 3` bytes of `rgb8`) is
 //! dropped and counted (`dropped` in the checkpoint, `msgs_dropped` in the report).
 //!
-//! Quality Q: 1 while frames arrive, -1 (aptitude 0) after `frame_timeout_s` without one.
+//! Frames only when read: the Camera takes the device's frames only while someone reads
+//! its own images (a tracker, the operator page, a recorder: a subscriber of `image_out`).
+//! With no reader it drops its subscription to `image_in`, and the simulator, whose image
+//! channel then has no subscriber, renders nothing. It looks for readers every
+//! `demand_check_s` (and after each frame). At start (and after a restart) it takes frames
+//! until the first one, to know the device works.
+//!
+//! Quality Q: 1 while frames arrive, -1 (aptitude 0) after `frame_timeout_s` without one
+//! (while it takes frames). While nobody reads, Q stays what the last frames said.
 
 use hng_runtime::channel::InputId;
 use hng_runtime::contract::ServiceOffer;
 use hng_runtime::msg::ImageInfo;
-use hng_runtime::{Context, Module, ModuleResult, SlicePublisher, SliceSubscriber};
+use hng_runtime::{Context, Module, ModuleResult, SlicePublisher, SliceSubscriber, TimerId};
 use serde::{Deserialize, Serialize};
 use smart_default::SmartDefault;
 
@@ -32,6 +40,10 @@ pub struct CameraModuleConfig {
     /// No frame for this long means the camera is gone, s (default 1.0).
     #[default(1.0)]
     pub frame_timeout_s: f64,
+    /// How often, with no frames taken, the Camera looks for readers of `image_out`, s
+    /// (default 0.2).
+    #[default(0.2)]
+    pub demand_check_s: f64,
 }
 
 #[derive(Debug, Clone, Copy, Default, Serialize, Deserialize, PartialEq)]
@@ -43,9 +55,38 @@ struct CameraState {
 /// The Camera driver module.
 #[derive(Debug)]
 pub struct CameraModule {
-    input: SliceSubscriber<ImageInfo>,
+    image_in: String,
+    frame_timeout: std::time::Duration,
+    /// The device's frames, taken only while someone reads `output` (and until the first).
+    input: Option<SliceSubscriber<ImageInfo>>,
+    /// A frame came since this process started (the device works).
+    probed: bool,
     output: SlicePublisher<ImageInfo>,
     state: CameraState,
+}
+
+impl CameraModule {
+    /// Takes the device's frames when `output` has readers (or no frame came yet), and stops
+    /// taking them when it has none.
+    fn follow_demand(&mut self, ctx: &mut Context) -> ModuleResult {
+        let wanted = self.output.subscribers() > 0 || !self.probed;
+        match (&self.input, wanted) {
+            (None, true) => {
+                self.input = Some(ctx.subscribe_slice(&self.image_in, Some(self.frame_timeout))?);
+                tracing::debug!(module = ctx.name(), "images read: taking frames");
+            }
+            (Some(input), false) => {
+                ctx.unsubscribe(input.id())?;
+                self.input = None;
+                tracing::debug!(
+                    module = ctx.name(),
+                    "nobody reads the images: no frames taken"
+                );
+            }
+            _ => {}
+        }
+        Ok(())
+    }
 }
 
 impl Module for CameraModule {
@@ -53,19 +94,31 @@ impl Module for CameraModule {
 
     fn configure(ctx: &mut Context, cfg: CameraModuleConfig) -> ModuleResult<Self> {
         let timeout = seconds("frame_timeout_s", cfg.frame_timeout_s)?;
+        let check = seconds("demand_check_s", cfg.demand_check_s)?;
         let mut offer = ServiceOffer::new("Video", VIDEO_TYPE);
         offer.channel = cfg.image_out.clone();
         ctx.provide(offer);
         ctx.set_quality(false, -1.0);
+        ctx.add_timer(check);
         Ok(CameraModule {
-            input: ctx.subscribe_slice(&cfg.image_in, Some(timeout))?,
+            input: Some(ctx.subscribe_slice(&cfg.image_in, Some(timeout))?),
+            probed: false,
+            image_in: cfg.image_in,
+            frame_timeout: timeout,
             output: ctx.slice_publisher(&cfg.image_out, 320 * 240 * 3)?,
             state: CameraState::default(),
         })
     }
 
+    fn on_tick(&mut self, ctx: &mut Context, _timer: TimerId) -> ModuleResult {
+        self.follow_demand(ctx)
+    }
+
     fn on_input(&mut self, ctx: &mut Context, _input: InputId) -> ModuleResult {
-        while let Some(f) = self.input.receive()? {
+        let Some(input) = &self.input else {
+            return Ok(());
+        };
+        while let Some(f) = input.receive()? {
             if let Some(why) = check_rgb8(f.header(), f.data().len()) {
                 self.state.dropped += 1;
                 let c = &ctx.node().counters().msgs_dropped;
@@ -91,9 +144,10 @@ impl Module for CameraModule {
             };
             loan.publish()?; // restamped, frame kept
             self.state.frames += 1;
+            self.probed = true;
             ctx.set_quality(true, 1.0);
         }
-        Ok(())
+        self.follow_demand(ctx)
     }
 
     fn on_deadline_missed(&mut self, ctx: &mut Context, _input: InputId) -> ModuleResult {

@@ -337,6 +337,19 @@ impl<T: Message> FollowProvider for Option<Publisher<T>> {
     }
 }
 
+/// The provider alone, for a need whose data the module does not read itself (the
+/// Interface's "Video": the operator page reads the images).
+impl FollowProvider for Option<ProviderInfo> {
+    fn follow_provider(
+        &mut self,
+        _ctx: &mut Context,
+        p: Option<&ProviderInfo>,
+    ) -> Result<(), Error> {
+        *self = p.cloned();
+        Ok(())
+    }
+}
+
 /// Writes `Module::on_provider_changed` for a module whose needs are each followed by one
 /// field ([`FollowProvider`]): `follow_needs!(ODOMETRY_NEED => odom, LIDAR_NEED => scan);`
 /// inside `impl Module for ...`.

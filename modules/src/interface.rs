@@ -142,7 +142,6 @@ pub struct InterfaceConfig {
 struct InterfaceState {
     forwarded: u64,
     dropped: u64,
-    frames: u64,
     /// Teleoperation commands with a NaN or infinite velocity (dropped).
     invalid: u64,
     orders_accepted: u64,
@@ -163,7 +162,10 @@ pub struct InterfaceModule {
     teleop_in: Subscriber<Twist>,
     /// Commands to the contracted Robot's channel.
     cmd_out: Option<Publisher<Twist>>,
-    video: crate::video::VideoInput,
+    /// The contracted "Video" provider. The Interface does not take its frames (the operator
+    /// page reads the images itself): a reader would make the Camera relay, and the
+    /// simulator render, every frame for nobody.
+    video: Option<hng_runtime::control::ProviderInfo>,
     orders_in: Subscriber<Order>,
     status_out: Publisher<OrderStatus>,
     goal_in: Subscriber<Goal>,
@@ -191,6 +193,12 @@ fn secs(d: Duration) -> f64 {
 }
 
 impl InterfaceModule {
+    /// The contracted "Video" provider, if any.
+    #[must_use]
+    pub fn video_provider(&self) -> Option<&hng_runtime::control::ProviderInfo> {
+        self.video.as_ref()
+    }
+
     fn providers(&self, ctx: &Context) -> Providers {
         let listening = |service: &str| {
             ctx.contracts()
@@ -556,7 +564,7 @@ impl Module for InterfaceModule {
             limits,
             teleop_in: ctx.subscribe(&cfg.teleop_in, None)?,
             cmd_out: None,
-            video: crate::video::VideoInput::new(),
+            video: None,
             orders_in: ctx.subscribe(ORDER_CHANNEL, None)?,
             status_out: ctx.publisher(ORDER_STATUS_CHANNEL)?,
             goal_in: ctx.subscribe(&cfg.goal_in, None)?,
@@ -606,10 +614,6 @@ impl Module for InterfaceModule {
             while let Some(s) = self.goal_status_in[i].receive()? {
                 let s = *s;
                 self.on_goal_status(ctx, &s)?;
-            }
-        } else if self.video.is(input) {
-            while self.video.receive()?.is_some() {
-                self.state.frames += 1;
             }
         } else {
             self.read_attention(ctx)?;

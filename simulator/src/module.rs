@@ -416,6 +416,8 @@ impl Module for SimulatorModule {
             lockstep_steps_without_round =
                 self.lockstep.as_ref().map_or(0, |l| l.steps_without_round),
             lockstep_calls = self.lockstep.as_ref().map_or(0, |l| l.members),
+            images_published = self.outputs.image.as_ref().map_or(0, |c| c.published),
+            images_skipped_unread = self.outputs.image.as_ref().map_or(0, |c| c.skipped),
             "simulator stopped"
         );
     }
@@ -435,6 +437,10 @@ pub fn main() -> ExitCode {
         }
     };
     opts.clock = ClockMode::Wall;
+    let env_wait = std::env::var("HNG_WAIT").ok();
+    if let Some(w) = config::wait_mode(&opts.config_toml, env_wait.as_deref()) {
+        opts.wait = w;
+    }
     match run_module_with::<SimulatorModule>(&opts) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
@@ -558,12 +564,12 @@ impl SimulatorModule {
             // truth is for evaluation) and reaches no module's deadline needs no round.
             // The step's readers are the round's members: what it writes is noted.
             let _ = self.node.take_written();
-            let image_due = self.outputs.image.as_ref().map(|c| c.next_ns());
+            let images = self.outputs.image.as_ref().map(|c| c.published);
             let sent = out
                 .iter()
                 .try_for_each(|o| self.publish(o))
                 .and_then(|()| self.publish_image());
-            let image_sent = image_due != self.outputs.image.as_ref().map(|c| c.next_ns());
+            let image_sent = images != self.outputs.image.as_ref().map(|c| c.published);
             let data = out
                 .iter()
                 .any(|o| !matches!(o, SensorOutput::GroundTruth(_)));

@@ -146,6 +146,13 @@ impl<H: SliceMessage> SlicePublisher<H> {
         self.out.notified.get()
     }
 
+    /// Subscribers connected to the channel now (modules, recorders, live views, tools):
+    /// a publisher of costly data (camera images) can skip producing what nobody reads.
+    /// A subscriber of a process that died counts until iceoryx2 cleans it up.
+    pub fn subscribers(&self) -> usize {
+        self.port.service.dynamic_config().number_of_subscribers()
+    }
+
     /// The longest payload that fits the current segment (it grows on demand).
     pub fn capacity(&self) -> usize {
         self.port.max_len.get()

@@ -9,6 +9,14 @@
 //! `sensors.camera.lighting` and follows `SimLighting` messages on `channels.lighting`
 //! (`sim/lighting`, a state channel: the latest value counts; a value that is not finite or
 //! outside [0, 4] is dropped and counted). Boxes the world script adds are drawn.
+//!
+//! Images only when read: a frame whose time comes while the image channel has no subscriber
+//! (no Camera module relaying, no tracker, operator page, recorder or `hng topic`) is neither
+//! rendered nor published, only counted (`skipped`): rendering and noising an image is most of
+//! the simulator's work. The pixel noise of frame `k` (the `k`-th image period of simulated
+//! time) is drawn from the ChaCha stream `k` of a generator seeded by the world's seed, so an
+//! image depends only on the seed, the simulated time and the scene: the same whether or not
+//! earlier frames were rendered, and after a restart from a checkpoint.
 
 use hng_runtime::msg::{FrameId, Header, ImageInfo};
 use hng_runtime::qos::ChannelKind;
@@ -41,9 +49,12 @@ pub(super) struct ImageCamera {
     period_ns: u64,
     next_ns: u64,
     lighting: f64,
-    rng: ChaCha8Rng,
+    /// Seed of the pixel noise (frame `k` draws from stream `k`).
+    seed: u64,
     /// Images published.
     pub published: u64,
+    /// Frames due while nobody subscribed to the images: not rendered.
+    pub skipped: u64,
     /// Lighting messages dropped (not finite, negative or above 4).
     pub bad_lighting: u64,
 }
@@ -71,8 +82,9 @@ impl ImageCamera {
             period_ns: ((1e9 / c.image_rate) as u64).max(1),
             next_ns: 0,
             lighting: c.lighting,
-            rng: ChaCha8Rng::seed_from_u64(world.seed ^ 0x1a6e_ca3e),
+            seed: world.seed ^ 0x1a6e_ca3e,
             published: 0,
+            skipped: 0,
             bad_lighting: 0,
         }))
     }
@@ -99,14 +111,9 @@ impl ImageCamera {
         self.next_ns = now_ns;
     }
 
-    /// Renders and publishes an image of `pose` if one is due at simulated time `now_ns`,
-    /// with the world script's lighting (`script_lighting`, zones included) times the
-    /// lighting set on the channel, and the boxes the script added.
-    /// When the next image is due (simulated ns).
-    pub(super) fn next_ns(&self) -> u64 {
-        self.next_ns
-    }
-
+    /// Renders and publishes an image of `pose` if one is due at simulated time `now_ns` and
+    /// someone subscribes to the images, with the world script's lighting (`script_lighting`,
+    /// zones included) times the lighting set on the channel, and the boxes the script added.
     pub(super) fn step<'a>(
         &mut self,
         now_ns: u64,
@@ -117,8 +124,13 @@ impl ImageCamera {
         if now_ns < self.next_ns {
             return Ok(());
         }
+        let frame = self.next_ns / self.period_ns;
         while self.next_ns <= now_ns {
             self.next_ns = self.next_ns.saturating_add(self.period_ns);
+        }
+        if self.publisher.subscribers() == 0 {
+            self.skipped += 1;
+            return Ok(());
         }
         let p = *self.renderer.params();
         let mut loan = self
@@ -138,8 +150,10 @@ impl ImageCamera {
         };
         self.renderer.set_script_boxes(script_boxes);
         let lighting = script_lighting * self.lighting;
+        let mut rng = ChaCha8Rng::seed_from_u64(self.seed);
+        rng.set_stream(frame);
         self.renderer
-            .render(pose, lighting, Some(&mut self.rng), loan.payload_mut());
+            .render(pose, lighting, Some(&mut rng), loan.payload_mut());
         loan.publish()?;
         self.published += 1;
         Ok(())
