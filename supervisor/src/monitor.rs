@@ -333,6 +333,9 @@ impl State {
                 g.true_error_m = Some((x - g.x).hypot(y - g.y));
             }
         }
+        if !ended && failure.is_none() {
+            failure = Some("the system was stopped before the mission ended".to_owned());
+        }
         let summary = Summary {
             success: ended && failure.is_none(),
             goals_reached: self.reached(),
@@ -348,25 +351,19 @@ impl State {
             stuck_time_s: self.nav.stuck_time_s(),
             stalls: self.nav.stalls(),
             recoveries: self.nav.recoveries(),
-            failure: None,
+            failure: failure.clone(),
         };
         if ended {
-            if let Some(f) = &opts.summary_file {
-                let mut early = summary.clone();
-                early.failure.clone_from(&failure);
-                if let Err(e) = write_summary(f, &early) {
-                    self.say(&format!("{e:#}"));
-                }
+            if let Some(f) = &opts.summary_file
+                && let Err(e) = write_summary(f, &summary)
+            {
+                self.say(&format!("{e:#}"));
             }
             // Stop the system: the supervisor stops every module in order.
             let _ = self
                 .command
                 .publish(SupervisorCommand::new(CommandOp::Shutdown, ""));
-        } else if failure.is_none() {
-            failure = Some("the system was stopped before the mission ended".to_owned());
         }
-        let mut summary = summary;
-        summary.failure.clone_from(&failure);
         Ok(Outcome { summary, failure })
     }
 

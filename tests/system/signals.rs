@@ -320,6 +320,18 @@ fn mission_stopped_by(tag: &str, sig: Signal) {
     let _heavy = heavy();
     let mut run = Run::start(tag, &["--speed", "5"]);
     run.wait_line("a progress line", |l| l.starts_with('['));
+    stopped_in_order(&mut run, sig);
+    assert!(
+        run.stdout.iter().any(|l| l.starts_with("mission")),
+        "the summary is printed: {}",
+        run.stdout.join("\n")
+    );
+}
+
+/// Sends `sig` to the running `hng run` and checks the orderly stop: exit 1 (the built-in
+/// mission stopped before it ended), the signal named in the log, the whole robot stopped in
+/// the reverse of its start order, nothing left. Returns the log.
+fn stopped_in_order(run: &mut Run, sig: Signal) -> String {
     run.signal(sig);
     let status = run.wait();
     let log = run.assert_left_nothing();
@@ -345,11 +357,7 @@ fn mission_stopped_by(tag: &str, sig: Signal) {
         stopped, reverse,
         "{sig:?}: modules stop in the reverse of their start order"
     );
-    assert!(
-        run.stdout.iter().any(|l| l.starts_with("mission")),
-        "the summary is printed: {}",
-        run.stdout.join("\n")
-    );
+    log
 }
 
 #[test]
@@ -389,24 +397,12 @@ fn sighup_with_its_stdout_closed_stops_in_order_and_leaves_nothing() {
         );
         std::thread::sleep(Duration::from_millis(50));
     }
-    run.signal(Signal::SIGHUP);
-    let status = run.wait();
-    let log = run.assert_left_nothing();
-    assert_eq!(
-        status.code(),
-        Some(1),
-        "exit {status:?}; log tail:\n{}",
-        tail(&log)
-    );
+    let log = stopped_in_order(&mut run, Signal::SIGHUP);
     assert!(
         log.contains("stdout is closed"),
         "the dropped lines are said; log tail:\n{}",
         tail(&log)
     );
-    let (started, stopped) = start_and_stop_order(&log);
-    let mut reverse = started.clone();
-    reverse.reverse();
-    assert_eq!(stopped, reverse, "stopped in reverse start order");
 }
 
 /// Writes `text` as a launch file in `dir`; returns its path.
