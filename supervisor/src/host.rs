@@ -26,7 +26,7 @@ use std::rc::Rc;
 use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
-use crate::error::{Context as _, Result};
+use crate::error::{Context as _, HostError, Result};
 use hng_rm::cgroup::{CgroupRun, CgroupSupport, unique_run_id};
 use hng_runtime::msg::ModuleReport;
 use hng_runtime::system::{
@@ -119,10 +119,26 @@ pub fn supervise(
     companions: StartCompanions<'_>,
 ) -> (Result<()>, Option<Result<Outcome>>) {
     let mut monitor = monitor;
-    let r = supervise_inner(prefix, opts, plan, &mut monitor, companions);
-    let r = match r {
-        Ok((r, outcome)) => (r, outcome),
-        Err(e) => (Err(e), monitor.map(Monitor::finish)),
+    // A panic in the host (a bug, a companion's) must not leave the prefix's files behind:
+    // unwinding drops the watchdog's `Supervisor`, which SIGKILLs and reaps every module; the
+    // files and the lock go below, and the panic becomes the run's error.
+    let inner = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        supervise_inner(prefix, opts, plan, &mut monitor, companions)
+    }));
+    let r = match inner {
+        Ok(Ok((r, outcome))) => (r, outcome),
+        Ok(Err(e)) => (Err(e), monitor.map(Monitor::finish)),
+        Err(panic) => {
+            let what = panic
+                .downcast_ref::<&str>()
+                .map(|s| (*s).to_owned())
+                .or_else(|| panic.downcast_ref::<String>().cloned())
+                .unwrap_or_else(|| "(no message)".to_owned());
+            let e = HostError::Message(format!(
+                "the supervisor host panicked ({what}); every module was killed"
+            ));
+            (Err(e), None)
+        }
     };
     let n = lock::remove_prefix_files_but_lock(prefix);
     lock.release();
