@@ -84,6 +84,18 @@ fn first_seq() -> u32 {
         .max(1)
 }
 
+/// Nice value of the threads that build and send the view (the bus reader and the HTTP
+/// workers): a page never takes a core from the control loop. Orders go out on threads of
+/// normal priority (`orders`, `control`); an order's HTTP request is read by a worker at this
+/// value, which under full load can delay it by a scheduler slice (milliseconds).
+pub const VIEW_NICE: i32 = 10;
+
+fn view_priority() {
+    if let Err(e) = hng_runtime::cpus::lower_thread_priority(VIEW_NICE) {
+        tracing::debug!("operator page: the view's thread keeps its priority: {e}");
+    }
+}
+
 impl Server {
     /// Serves on `listener` (already bound: the caller printed its address).
     pub fn start(listener: std::net::TcpListener, opts: Options) -> Result<Server, Error> {
@@ -110,7 +122,13 @@ impl Server {
                 prefix: opts.prefix.clone(),
                 channels: opts.channels.clone(),
             };
-            threads.push(spawn("bus", Box::new(move || bus::run(&bus, &hub, &stop)))?);
+            threads.push(spawn(
+                "bus",
+                Box::new(move || {
+                    view_priority();
+                    bus::run(&bus, &hub, &stop)
+                }),
+            )?);
         }
         {
             let (prefix, stop) = (opts.prefix.clone(), Arc::clone(&stop));
@@ -139,6 +157,7 @@ impl Server {
         let runtime = tokio::runtime::Builder::new_multi_thread()
             .worker_threads(2)
             .thread_name("gui-http")
+            .on_thread_start(view_priority)
             .enable_all()
             .build()?;
         let (shutdown, on_shutdown) = tokio::sync::oneshot::channel::<()>();

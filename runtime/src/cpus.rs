@@ -209,10 +209,49 @@ impl Drop for CpuShare {
     }
 }
 
+/// Lowers the calling thread's scheduling priority to nice value `nice` (1-19; higher is
+/// lower): for work that must never take a core from the control loop, such as the operator
+/// page's view. Linux keeps a nice value per thread (`setpriority(2)`, notes), so the rest of
+/// the process keeps its priority; raising one's own nice value needs no privilege.
+pub fn lower_thread_priority(nice: i32) -> std::io::Result<()> {
+    // SAFETY: plain integers; with PRIO_PROCESS and who = 0, Linux changes the calling thread.
+    let rc = unsafe { nix::libc::setpriority(nix::libc::PRIO_PROCESS, 0, nice) };
+    if rc == 0 {
+        Ok(())
+    } else {
+        Err(std::io::Error::last_os_error())
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::shm;
+
+    /// Field 19 of /proc/thread-self/stat: the calling thread's nice value.
+    fn thread_nice() -> i32 {
+        let stat = std::fs::read_to_string("/proc/thread-self/stat").expect("stat");
+        let after_name = &stat[stat.rfind(')').expect("comm") + 2..];
+        after_name
+            .split(' ')
+            .nth(16)
+            .expect("nice")
+            .parse()
+            .expect("a number")
+    }
+
+    #[test]
+    fn a_lowered_thread_alone_gets_the_new_nice_value() {
+        let before = thread_nice();
+        let lowered = std::thread::spawn(move || {
+            lower_thread_priority(before + 7).expect("setpriority");
+            thread_nice()
+        })
+        .join()
+        .expect("thread");
+        assert_eq!(lowered, before + 7);
+        assert_eq!(thread_nice(), before, "the other threads keep theirs");
+    }
 
     #[test]
     fn waiters_that_fit_the_cpus_spin_others_leave_a_core_free() {

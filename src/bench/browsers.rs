@@ -49,6 +49,27 @@ pub fn missing() -> Option<String> {
     None
 }
 
+/// Starts `cmd` at nice value `nice`, for it and every process it starts. Chromium raises
+/// its display threads to nice -8 when it may (as root, with CAP_SYS_NICE): the capability
+/// is dropped from the bounding set first, so nothing below the driver can lower the value.
+fn at_nice(cmd: &mut Command, nice: i32) {
+    use std::os::unix::process::CommandExt as _;
+    // SAFETY: between fork and exec only async-signal-safe calls with plain integers; their
+    // failures (not root: no capability to drop) change nothing the child needs.
+    unsafe {
+        cmd.pre_exec(move || {
+            let _ = nix::libc::prctl(nix::libc::PR_CAPBSET_DROP, CAP_SYS_NICE, 0, 0, 0);
+            if nix::libc::setpriority(nix::libc::PRIO_PROCESS, 0, nice) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            Ok(())
+        });
+    }
+}
+
+/// `CAP_SYS_NICE` (linux/capability.h).
+const CAP_SYS_NICE: nix::libc::c_ulong = 23;
+
 /// The page server and the browsers; both stopped on drop.
 pub struct Watchers {
     server: Option<Server>,
@@ -61,8 +82,9 @@ pub struct Watchers {
 
 impl Watchers {
     /// Serves the page for `prefix` (the scan shown read from `scan`) and opens it in
-    /// `browsers` headless Chromium instances; returns once every page is connected to the live stream.
-    pub fn start(prefix: &str, scan: &str, browsers: usize) -> Result<Watchers> {
+    /// `browsers` headless Chromium instances at nice value `nice` (see [`at_nice`]); returns
+    /// once every page is connected to the live stream.
+    pub fn start(prefix: &str, scan: &str, browsers: usize, nice: i32) -> Result<Watchers> {
         let server = super::gui::serve_page(
             prefix,
             Channels {
@@ -71,7 +93,9 @@ impl Watchers {
             },
         )?;
         let url = format!("http://{}/", server.local_addr());
-        let mut driver = Command::new("node")
+        let mut node = Command::new("node");
+        at_nice(&mut node, nice);
+        let mut driver = node
             .arg(js_dir().join("watch.mjs"))
             .arg(&url)
             .arg(browsers.to_string())

@@ -61,6 +61,12 @@ pub struct LoopArgs {
     /// saying why, without chromium, node or playwright-core.
     #[arg(long, default_value_t = 0)]
     pub browsers: usize,
+    /// The browsers' nice value. On a robot the operator's browsers run on the operator's
+    /// machine; here they share the loop's cores, and at 19 they get what the loop leaves
+    /// (the page server's own threads run at `hng_gui::VIEW_NICE`). 0 gives them the loop's
+    /// priority.
+    #[arg(long, default_value_t = 19, value_parser = clap::value_parser!(i32).range(0..=19))]
+    pub browser_nice: i32,
 }
 
 const SCAN: &str = "bench/scan";
@@ -240,7 +246,12 @@ fn lidar_to_command_watched(a: &LoopArgs, browsers: usize) -> Result<Vec<BenchRo
         None
     };
     let watchers = if browsers > 0 {
-        Some(super::browsers::Watchers::start(&prefix, SCAN, browsers)?)
+        Some(super::browsers::Watchers::start(
+            &prefix,
+            SCAN,
+            browsers,
+            a.browser_nice,
+        )?)
     } else {
         None
     };
@@ -342,6 +353,7 @@ fn lidar_to_command_watched(a: &LoopArgs, browsers: usize) -> Result<Vec<BenchRo
             .with("hops", hops)
             .with("limited_commands", limited)
             .with("browsers", browsers as u64)
+            .with("browser_nice", a.browser_nice)
             .with("page_scan_frames", serde_json::Value::from(frames.clone()))
     };
     Ok(vec![
