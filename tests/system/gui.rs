@@ -300,6 +300,13 @@ fn a_client_that_stops_reading_is_dropped_and_never_slows_the_robot() {
     waiter.attach(&scans).expect("attach");
     // Hold the robot (the mission does not end under the test).
     hold(&run, None);
+    // Scans flow before the client gets stuck (under load the laser's first scan can come
+    // seconds after the page is up).
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while scans.receive().expect("scan").is_none() {
+        assert!(Instant::now() < deadline, "no scan within 60 s");
+        waiter.wait(Some(Duration::from_millis(500))).expect("wait");
+    }
     // A client that completes the handshake and then never reads a byte (with a small
     // receive buffer, so that its buffers fill in seconds rather than after megabytes).
     let (stuck, status) = run.ws_small_buffer();
