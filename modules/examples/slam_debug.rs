@@ -3,10 +3,13 @@
 //!
 //! `cargo run --release -p hng-modules --example slam_debug -- <log> [wide_below] [thresh_m]`
 //!
-//! Front end alone (no loop closure). Parameters to try, from the environment: `WIDE_WEIGHT`,
+//! Front end alone (no loop closure) unless `LC=1`: then the whole pipeline, and at the end
+//! each accepted loop closure's error against the corrected log and the final trajectory's
+//! mean per-scan error. Parameters to try, from the environment: `WIDE_WEIGHT`,
 //! `MATCH_RANGE`, `FUSE` (1: fuse with odometry), `FUSE_SCALE`, `ODOM_NOISE`, `LOCAL`
 //! (local-map scans), `CANDS` (wide-search candidates), `SIGMA` (field width), `TW` (prior
-//! penalty weights). Ends with the mean per-scan error.
+//! penalty weights), `UNKNOWN_FLOOR` (0 or 1), `RERENDER` (m, the back end's
+//! `rerender_after`). Ends with the mean per-scan error.
 
 use std::path::PathBuf;
 
