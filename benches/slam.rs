@@ -4,7 +4,9 @@
 //!    alone and through the whole pipeline (front end, pose graph, loop closures, inline
 //!    optimisation, final map), one JSON line per (pipeline, log) with the per-scan time
 //!    distribution (`p50_ns`, `p99_ns`, `max_ns`, `samples`), `scans_per_s` and
-//!    `realtime_factor` (log duration / processing time), on one core.
+//!    `realtime_factor` (log duration / processing time), on one core; `cpu_s`,
+//!    `scans_per_cpu_s` and `realtime_factor_cpu` are the same from the thread's CPU time,
+//!    which a loaded machine does not inflate.
 //! 2. Criterion micro-benchmarks: scan matching and mapping per scan on the Intel log
 //!    (synthetic scans of a rectangular room if it is missing).
 //!
@@ -31,6 +33,14 @@ fn percentile(sorted: &[u64], q: f64) -> u64 {
     }
     let k = ((q * sorted.len() as f64).ceil() as usize).clamp(1, sorted.len()) - 1;
     sorted[k]
+}
+
+/// CPU seconds used by this thread so far (the evaluation runs on one thread, so this is its
+/// cost on one core whatever the machine's load; 0 if the clock cannot be read).
+fn thread_cpu_s() -> f64 {
+    nix::time::clock_gettime(nix::time::ClockId::CLOCK_THREAD_CPUTIME_ID)
+        .map(|t| t.tv_sec() as f64 + t.tv_nsec() as f64 * 1e-9)
+        .unwrap_or(0.0)
 }
 
 /// Runs every log through the front end alone and the whole pipeline; one JSON line each.
@@ -66,6 +76,7 @@ fn whole_logs() {
                 pose_from(first.laser_pose),
             );
             let mut ns = Vec::with_capacity(scans.len());
+            let cpu0 = thread_cpu_s();
             let t0 = Instant::now();
             for (s, d) in scans.iter().zip(&deltas) {
                 let t = Instant::now();
@@ -76,22 +87,28 @@ fn whole_logs() {
             slam.finish();
             ns.push(tf.elapsed().as_nanos() as u64);
             let total = t0.elapsed().as_secs_f64();
+            let cpu = thread_cpu_s() - cpu0;
             let mut sorted = ns.clone();
             sorted.sort_unstable();
             let rate = scans.len() as f64 / total;
             // JSON has no NaN: a log without timestamps has no real-time factor.
-            let realtime = if duration > 0.0 {
-                format!("{:.1}", duration / total)
-            } else {
-                "null".to_owned()
+            let factor = |t: f64| {
+                if duration > 0.0 {
+                    format!("{:.1}", duration / t)
+                } else {
+                    "null".to_owned()
+                }
             };
+            let (realtime, realtime_cpu) = (factor(total), factor(cpu));
             println!(
-                "{{\"bench\":\"slam\",\"case\":\"{case}/{name}\",\"p50_ns\":{},\"p99_ns\":{},\"max_ns\":{},\"samples\":{},\"scans_per_s\":{:.1},\"realtime_factor\":{realtime},\"loop_closures\":{}}}",
+                "{{\"bench\":\"slam\",\"case\":\"{case}/{name}\",\"p50_ns\":{},\"p99_ns\":{},\"max_ns\":{},\"samples\":{},\"scans_per_s\":{:.1},\"realtime_factor\":{realtime},\"cpu_s\":{:.2},\"scans_per_cpu_s\":{:.1},\"realtime_factor_cpu\":{realtime_cpu},\"loop_closures\":{}}}",
                 percentile(&sorted, 0.5),
                 percentile(&sorted, 0.99),
                 sorted.last().copied().unwrap_or(0),
                 ns.len(),
                 rate,
+                cpu,
+                scans.len() as f64 / cpu.max(1e-9),
                 slam.stats().closures
             );
         }

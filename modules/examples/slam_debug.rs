@@ -3,10 +3,13 @@
 //!
 //! `cargo run --release -p hng-modules --example slam_debug -- <log> [wide_below] [thresh_m]`
 //!
-//! Front end alone (no loop closure). Parameters to try, from the environment: `WIDE_WEIGHT`,
+//! Front end alone (no loop closure) unless `LC=1`: then the whole pipeline, and at the end
+//! each accepted loop closure's error against the corrected log and the final trajectory's
+//! mean per-scan error. Parameters to try, from the environment: `WIDE_WEIGHT`,
 //! `MATCH_RANGE`, `FUSE` (1: fuse with odometry), `FUSE_SCALE`, `ODOM_NOISE`, `LOCAL`
 //! (local-map scans), `CANDS` (wide-search candidates), `SIGMA` (field width), `TW` (prior
-//! penalty weights). Ends with the mean per-scan error.
+//! penalty weights), `UNKNOWN_FLOOR` (0 or 1), `RERENDER` (m, the back end's
+//! `rerender_after`). Ends with the mean per-scan error.
 
 use std::path::PathBuf;
 
@@ -53,6 +56,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     if let Ok(v) = std::env::var("SIGMA") {
         cfg.matcher.sigma = v.parse()?;
     }
+    if let Ok(v) = std::env::var("UNKNOWN_FLOOR") {
+        cfg.wide.unknown_floor = v == "1";
+    }
+    let loop_closure = std::env::var("LC").is_ok_and(|v| v == "1");
     if let Ok(v) = std::env::var("TW") {
         cfg.matcher.translation_weight = v.parse()?;
         cfg.matcher.rotation_weight = v.parse()?;
@@ -65,7 +72,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut slam = Slam::new(
         cfg,
         BackendConfig {
-            loop_closure: false,
+            loop_closure,
+            rerender_after: std::env::var("RERENDER")
+                .ok()
+                .and_then(|v| v.parse().ok())
+                .unwrap_or(0.1),
             ..BackendConfig::default()
         },
         truth[0],
@@ -134,5 +145,30 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     }
     let n = (scans.len() - 1) as f64;
     println!("mean {:.4} m {:.3} deg", sum_t / n, sum_r / n);
+    slam.finish();
+    for c in slam.closures() {
+        let (Some(a), Some(b)) = (slam.node_scan(c.from), slam.node_scan(c.to)) else {
+            continue;
+        };
+        let gt = truth[a].inverse() * truth[b];
+        let err = gt.inverse() * c.measurement;
+        println!(
+            "closure scan {a} -> {b} score {:.3}: err {:.3} m {:.2} deg (gt {:.2} m)",
+            c.score,
+            err.translation.vector.norm(),
+            err.rotation.angle().to_degrees(),
+            gt.translation.vector.norm()
+        );
+    }
+    if loop_closure {
+        let t = slam.trajectory();
+        let (mut st, mut sr) = (0.0, 0.0);
+        for k in 1..t.len() {
+            let err = (truth[k - 1].inverse() * truth[k]).inverse() * (t[k - 1].inverse() * t[k]);
+            st += err.translation.vector.norm();
+            sr += err.rotation.angle().abs().to_degrees();
+        }
+        println!("with loop closure: mean {:.4} m {:.3} deg", st / n, sr / n);
+    }
     Ok(())
 }

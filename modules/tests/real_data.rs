@@ -4,7 +4,7 @@
 
 use std::path::{Path, PathBuf};
 
-use hng_modules::slam::{EvalOptions, SlamEvalError, eval_slam_with, logs_in};
+use hng_modules::slam::{EvalOptions, SlamEval, SlamEvalError, eval_slam_with, logs_in};
 
 /// `<workspace>/tests/data/<rel>`: test data kept in the repository (never skipped).
 fn repo_data(rel: &str) -> PathBuf {
@@ -50,75 +50,96 @@ fn movingai_arena_every_optimal_length_exact() {
     assert!(eval.max_abs_err < 1e-4, "{eval:?}");
 }
 
+/// Per shipped log: (file, mean translation bound m, mean rotation bound deg).
+///
 /// Issue #19 asks, on every shipped log, for a mean per-scan error of at most 3 cm and
 /// 0.5 degrees, below odometry's. Below odometry holds on every log (asserted). The 3 cm /
 /// 0.5 degree aim holds on Intel and Seattle; on ACES, Freiburg 101 and Orebro the
 /// measured means are above it, and the test holds them to their measured level (with a
 /// small margin) so that a regression shows: see docs/slam.md (measured).
+const BOUNDS: [(&str, f64, f64); 5] = [
+    ("aces-corrected.log", 0.045, 0.5),
+    ("freiburg-101-corrected.log", 0.035, 0.5),
+    ("intel-corrected.log", 0.03, 0.5),
+    ("orebro-corrected.log", 0.085, 0.75),
+    ("seattle-corrected.log", 0.03, 0.5),
+];
+
+/// Evaluates `log` and checks it against its line of [`BOUNDS`]: the mean per-scan errors
+/// within the bounds and below odometry's. Returns the figures, or what failed.
+fn eval_within_bounds(log: &Path, opts: &EvalOptions) -> Result<SlamEval, String> {
+    let name = log.file_name().and_then(|n| n.to_str()).unwrap_or_default();
+    let (_, max_t, max_r) = BOUNDS
+        .iter()
+        .find(|b| b.0 == name)
+        .copied()
+        .ok_or_else(|| format!("{name}: no bounds"))?;
+    let e = eval_slam_with(log, opts).map_err(|e| e.to_string())?;
+    println!(
+        "{}: {} beams, {} scans: {:.2} cm {:.3} deg (odometry {:.2} cm {:.3} deg), \
+         ATE {:.3} m (front end alone {:.3} m, odometry {:.3} m), {} closures, {:.0} scans/s",
+        log.display(),
+        e.beams,
+        e.scans,
+        e.trans_err_mean_m * 100.0,
+        e.rot_err_mean_deg,
+        e.odom_trans_err_mean_m * 100.0,
+        e.odom_rot_err_mean_deg,
+        e.ate_rmse_m,
+        e.ate_front_end_rmse_m,
+        e.odom_ate_rmse_m,
+        e.loop_closures,
+        e.scans_per_s
+    );
+    let ok = e.trans_err_mean_m <= max_t
+        && e.rot_err_mean_deg <= max_r
+        && e.trans_err_mean_m < e.odom_trans_err_mean_m
+        && e.rot_err_mean_deg < e.odom_rot_err_mean_deg;
+    if ok {
+        Ok(e)
+    } else {
+        Err(format!("{}: {e:?}", log.display()))
+    }
+}
+
+/// Every shipped log but Intel (which has its own test below, so that the two run in
+/// parallel: Intel's pipeline alone takes about as long as the four others).
 #[test]
 fn slam_on_every_carmen_log_beats_odometry_and_holds_its_accuracy() {
-    // (log, mean translation bound m, mean rotation bound deg)
-    let bounds = [
-        ("aces-corrected.log", 0.045, 0.5),
-        ("freiburg-101-corrected.log", 0.035, 0.5),
-        ("intel-corrected.log", 0.03, 0.5),
-        ("orebro-corrected.log", 0.115, 0.8),
-        ("seattle-corrected.log", 0.03, 0.5),
-    ];
     let logs = logs_in(&carmen_dir()).expect("tests/data/carmen holds the logs");
-    assert_eq!(logs.len(), bounds.len(), "{logs:?}");
+    assert_eq!(logs.len(), BOUNDS.len(), "{logs:?}");
     let mut failures = Vec::new();
-    for (log, (name, max_t, max_r)) in logs.iter().zip(bounds) {
+    for (log, (name, _, _)) in logs.iter().zip(BOUNDS) {
         assert!(log.ends_with(name), "{log:?} vs {name}");
-        let e = eval_slam_with(
-            log,
-            &EvalOptions {
-                compare_front_end: false,
-                ..EvalOptions::default()
-            },
-        )
-        .expect("eval");
-        println!(
-            "{}: {} beams, {} scans: {:.2} cm {:.3} deg (odometry {:.2} cm {:.3} deg), \
-             ATE {:.3} m (odometry {:.3} m), {} closures, {:.0} scans/s",
-            log.display(),
-            e.beams,
-            e.scans,
-            e.trans_err_mean_m * 100.0,
-            e.rot_err_mean_deg,
-            e.odom_trans_err_mean_m * 100.0,
-            e.odom_rot_err_mean_deg,
-            e.ate_rmse_m,
-            e.odom_ate_rmse_m,
-            e.loop_closures,
-            e.scans_per_s
-        );
-        let ok = e.trans_err_mean_m <= max_t
-            && e.rot_err_mean_deg <= max_r
-            && e.trans_err_mean_m < e.odom_trans_err_mean_m
-            && e.rot_err_mean_deg < e.odom_rot_err_mean_deg;
-        if !ok {
-            failures.push(format!("{}: {e:?}", log.display()));
+        if name == "intel-corrected.log" {
+            continue;
+        }
+        let opts = EvalOptions {
+            compare_front_end: false,
+            ..EvalOptions::default()
+        };
+        if let Err(f) = eval_within_bounds(log, &opts) {
+            failures.push(f);
         }
     }
     assert!(failures.is_empty(), "{failures:#?}");
 }
 
-/// Issue #19: on Intel, the absolute trajectory error with loop closure is at most half of the
-/// error without it; the map is written.
+/// Issue #19: on Intel, the per-scan error within its bounds and below odometry's, and the
+/// absolute trajectory error with loop closure at most half of the error without it (the
+/// front end alone, run on the same log); the map is written.
 #[test]
 fn intel_loop_closure_halves_the_absolute_trajectory_error() {
     let dir = Scratch::new("intel");
     let out = dir.0.join("intel.yaml");
-    let e = eval_slam_with(
+    let e = eval_within_bounds(
         &carmen("intel-corrected.log"),
         &EvalOptions {
             map_out: Some(out.clone()),
             ..EvalOptions::default()
         },
     )
-    .expect("eval");
-    println!("intel: {e:#?}");
+    .unwrap_or_else(|f| panic!("{f}"));
     assert_eq!(e.scans, 910);
     assert!(e.loop_closures > 0, "{e:?}");
     assert!(
@@ -160,9 +181,20 @@ fn bad_logs_give_clear_errors_or_counted_skips() {
     assert!(matches!(e, SlamEvalError::TooFewScans { scans: 0, .. }));
     assert!(e.to_string().contains("none.log"), "{e}");
 
-    // NaN and negative readings and unknown message types in a real log.
+    // NaN and negative readings and unknown message types in a real log (its first 80
+    // scans: enough for the check, a third of the log's cost).
+    const SCANS: usize = 80;
     let mut bad = String::new();
+    let mut scans = 0;
+    let mut lines = 0;
     for (i, l) in text.lines().enumerate() {
+        if l.starts_with("FLASER") {
+            if scans == SCANS {
+                break;
+            }
+            scans += 1;
+        }
+        lines += 1;
         if i % 7 == 0 {
             bad.push_str("WEIRDMSG 1 2 3\n");
         }
@@ -186,8 +218,9 @@ fn bad_logs_give_clear_errors_or_counted_skips() {
         },
     )
     .expect("NaN readings are skipped, not fatal");
-    assert_eq!(e.invalid_ranges, 2 * 237);
-    assert!(e.skipped_lines >= text.lines().count() / 7, "{e:?}");
+    assert_eq!(e.scans, SCANS);
+    assert_eq!(e.invalid_ranges, 2 * SCANS);
+    assert!(e.skipped_lines >= lines / 7, "{e:?}");
     assert!(e.trans_err_mean_m < e.odom_trans_err_mean_m, "{e:?}");
 }
 

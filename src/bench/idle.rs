@@ -12,6 +12,12 @@
 //! window (`samples` = windows); `cpu_percent` and `wakeups_per_s` are the means. Targets
 //! (issue #15): an idle module under 10 wake-ups a second and 0.3 % of a core; the whole
 //! default system under 10 % of one core.
+//!
+//! `default_system_1x` is followed by one row per process of the system,
+//! `default_system_1x/NAME` (NAME: the module's `HNG_MODULE_NAME`, else the executable's name
+//! and the pid), with its own `cpu_percent`, `wakeups_per_s` and `share_percent` (its part
+//! of the whole system's CPU): the SLAM module's CPU share in the default mission (issue
+//! #19) is the row `default_system_1x/slam`.
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -100,10 +106,43 @@ fn tree_usage(root: i32) -> BTreeMap<i32, Usage> {
         .collect()
 }
 
-/// Measures `root`'s tree once a second for `seconds`; per-window CPU ns and switches.
+/// One process's part of a measurement: per-window CPU ns and switches.
+#[derive(Debug, Clone, Default)]
+struct ProcessWindows {
+    cpu: Vec<u64>,
+    wakeups: Vec<u64>,
+}
+
+/// A process's name for the per-process rows: its `HNG_MODULE_NAME` (a module), else its
+/// executable's name and pid.
+fn process_name(pid: i32) -> String {
+    let Ok(p) = procfs::process::Process::new(pid) else {
+        return format!("pid{pid}");
+    };
+    if let Ok(env) = p.environ()
+        && let Some(n) = env.get(std::ffi::OsStr::new("HNG_MODULE_NAME"))
+    {
+        return n.to_string_lossy().into_owned();
+    }
+    let comm = p.stat().map(|s| s.comm).unwrap_or_default();
+    format!("{comm}-{pid}")
+}
+
+/// Measures `root`'s tree once a second for `seconds`; per-window CPU ns and switches, in
+/// all and per pid (a pid's windows count only while it is seen at both ends).
 fn measure(root: i32, seconds: u32) -> (Vec<u64>, Vec<u64>, f64) {
+    let (cpu, wakeups, wall, _) = measure_per_process(root, seconds);
+    (cpu, wakeups, wall)
+}
+
+/// [`measure`], also per pid.
+fn measure_per_process(
+    root: i32,
+    seconds: u32,
+) -> (Vec<u64>, Vec<u64>, f64, BTreeMap<i32, ProcessWindows>) {
     let mut cpu = Vec::new();
     let mut wakeups = Vec::new();
+    let mut per: BTreeMap<i32, ProcessWindows> = BTreeMap::new();
     let mut before = tree_usage(root);
     let start = Instant::now();
     let mut next = start;
@@ -115,15 +154,22 @@ fn measure(root: i32, seconds: u32) -> (Vec<u64>, Vec<u64>, f64) {
         let (mut c, mut w) = (0, 0);
         for (pid, u) in &now {
             if let Some(b) = before.get(pid) {
-                c += u.cpu_ns.saturating_sub(b.cpu_ns);
-                w += u.switches.saturating_sub(b.switches);
+                let (pc, pw) = (
+                    u.cpu_ns.saturating_sub(b.cpu_ns),
+                    u.switches.saturating_sub(b.switches),
+                );
+                c += pc;
+                w += pw;
+                let e = per.entry(*pid).or_default();
+                e.cpu.push(pc);
+                e.wakeups.push(pw);
             }
         }
         cpu.push(c);
         wakeups.push(w);
         before = now;
     }
-    (cpu, wakeups, start.elapsed().as_secs_f64())
+    (cpu, wakeups, start.elapsed().as_secs_f64(), per)
 }
 
 /// A child process that is stopped (SIGTERM, then SIGKILL) when dropped.
@@ -187,7 +233,7 @@ fn module_no_input(args: &IdleArgs) -> Result<BenchRow> {
         .with("meets_target", ok))
 }
 
-fn default_system(args: &IdleArgs) -> Result<BenchRow> {
+fn default_system(args: &IdleArgs) -> Result<Vec<BenchRow>> {
     let prefix = shm::unique_prefix("benchidlesys");
     let exe = std::env::current_exe().context("the hng binary")?;
     let run_dir: PathBuf = std::env::temp_dir().join(format!("hng-{prefix}bench"));
@@ -205,17 +251,40 @@ fn default_system(args: &IdleArgs) -> Result<BenchRow> {
     let guard = Guard(child);
     std::thread::sleep(Duration::from_secs(u64::from(args.warmup)));
     let processes = tree(guard.0.id() as i32).len();
-    let (mut cpu, wake, wall) = measure(guard.0.id() as i32, args.seconds);
+    let (mut cpu, wake, wall, per) = measure_per_process(guard.0.id() as i32, args.seconds);
+    // Named while the processes still run.
+    let names: Vec<(String, ProcessWindows)> = per
+        .into_iter()
+        .map(|(pid, w)| (process_name(pid), w))
+        .collect();
     drop(guard);
     shm::remove_prefix_files(&prefix);
     let _ = std::fs::remove_dir_all(&run_dir);
+    let total_cpu: u64 = cpu.iter().sum();
     let r = row("default_system_1x", &mut cpu, &wake, wall, processes);
     let ok = r
         .get("cpu_percent")
         .and_then(|v| v.as_f64())
         .is_some_and(|c| c < TARGET_SYSTEM_CPU_PERCENT);
-    Ok(r.with("target_cpu_percent", TARGET_SYSTEM_CPU_PERCENT)
-        .with("meets_target", ok))
+    let mut rows = vec![
+        r.with("target_cpu_percent", TARGET_SYSTEM_CPU_PERCENT)
+            .with("meets_target", ok),
+    ];
+    for (name, mut w) in names {
+        let own: u64 = w.cpu.iter().sum();
+        let share = own as f64 / total_cpu.max(1) as f64 * 100.0;
+        rows.push(
+            row(
+                &format!("default_system_1x/{name}"),
+                &mut w.cpu,
+                &w.wakeups,
+                wall,
+                1,
+            )
+            .with("share_percent", (share * 10.0).round() / 10.0),
+        );
+    }
+    Ok(rows)
 }
 
 /// `hng bench idle`.
@@ -233,7 +302,7 @@ pub fn run(args: &IdleArgs) -> Result<()> {
         rows.push(module_no_input(args)?);
     }
     if want("default_system_1x") {
-        rows.push(default_system(args)?);
+        rows.extend(default_system(args)?);
     }
     crate::bench::print_rows(&rows, args.json);
     Ok(())

@@ -95,6 +95,17 @@ pub struct BackendConfig {
     /// Gauss-Newton iterations per optimisation. Default 10.
     #[default(10)]
     pub iterations: usize,
+    /// Inline optimisation (no worker) re-renders the map from the optimised
+    /// nodes once the map's content may have moved this far (m) since it was
+    /// rendered: the sum over optimisations of the largest node displacement
+    /// (translation plus rotation times 5 m). The front end ranks matches by
+    /// what the map has observed ([`SlamConfig::unknown_score`]), so a map
+    /// left in the frame before a large correction misjudges new structure
+    /// (Örebro with [`super::WideSearch::unknown_floor`]: 90° errors after
+    /// its first closures). The worker re-renders after every optimisation.
+    /// Default 0.1.
+    #[default(0.1)]
+    pub rerender_after: f64,
 }
 
 /// A node's scan: its valid end points (sensor frame), for the map. The
@@ -128,6 +139,8 @@ pub struct LoopClosure {
     pub to: usize,
     /// Fine match score.
     pub score: f64,
+    /// The matched pose of `to` in the frame of `from` (the closure edge's measurement).
+    pub measurement: Isometry2<f64>,
 }
 
 /// Counters of the back end.
@@ -143,6 +156,8 @@ pub struct BackendStats {
     pub optimisations: usize,
     /// Optimisations that failed (the graph is kept as it was).
     pub failed_optimisations: usize,
+    /// Inline re-renderings of the map ([`BackendConfig::rerender_after`]).
+    pub map_renders: usize,
 }
 
 struct Job {
@@ -226,6 +241,8 @@ pub struct Slam {
     scan_nodes: Vec<(usize, Isometry2<f64>)>,
     closures: Vec<LoopClosure>,
     dirty: bool,
+    /// How far the map's content may have moved since it was rendered (m).
+    map_stale: f64,
     worker: Option<Worker>,
     stats: BackendStats,
 }
@@ -287,6 +304,7 @@ impl Slam {
             scan_nodes: Vec::new(),
             closures: Vec::new(),
             dirty: false,
+            map_stale: 0.0,
             worker,
             stats: BackendStats::default(),
         }
@@ -308,6 +326,13 @@ impl Slam {
     /// Accepted loop closures.
     pub fn closures(&self) -> &[LoopClosure] {
         &self.closures
+    }
+
+    /// The scan (0-based, in processing order) that made node `node`, if it exists.
+    pub fn node_scan(&self, node: usize) -> Option<usize> {
+        self.scan_nodes
+            .iter()
+            .position(|(n, off)| *n == node && *off == Isometry2::identity())
     }
 
     /// Current pose (the front end's, corrected by the back end).
@@ -473,6 +498,7 @@ impl Slam {
                 from: mid,
                 to: k,
                 score: m.score,
+                measurement: self.poses[mid].inverse() * m.pose,
             });
             self.stats.closures += 1;
             self.dirty = true;
@@ -544,6 +570,14 @@ impl Slam {
             return;
         };
         let correction = last_opt * r.sent_last.inverse();
+        let moved = self.poses[..m]
+            .iter()
+            .zip(&opt)
+            .map(|(a, b)| {
+                let d = a.inverse() * b;
+                d.translation.vector.norm() + 5.0 * d.rotation.angle().abs()
+            })
+            .fold(0.0, f64::max);
         self.poses[..m].copy_from_slice(&opt);
         for p in &mut self.poses[m..] {
             *p = correction * *p;
@@ -554,6 +588,15 @@ impl Slam {
                 map.integrate(p, &s.all);
             }
             self.fe.set_map(map);
+            self.map_stale = 0.0;
+        } else {
+            self.map_stale += moved;
+            if self.map_stale > self.be.rerender_after {
+                let map = render_map(self.cfg.mapper, &self.poses, &self.scans);
+                self.fe.set_map(map);
+                self.map_stale = 0.0;
+                self.stats.map_renders += 1;
+            }
         }
         self.stats.optimisations += 1;
     }
