@@ -49,17 +49,41 @@ pub fn missing() -> Option<String> {
     None
 }
 
-/// Starts `cmd` at nice value `nice`, for it and every process it starts. Chromium raises
-/// its display threads to nice -8 when it may (as root, with CAP_SYS_NICE): the capability
-/// is dropped from the bounding set first, so nothing below the driver can lower the value.
-fn at_nice(cmd: &mut Command, nice: i32) {
+/// How the browsers are scheduled beside the loop (`hng bench loop --browser-priority`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum BrowserPriority {
+    /// `SCHED_IDLE`: they run only on a core nothing else wants, and any other task that wakes
+    /// takes the core from them at once (standing for browsers on the operator's machine).
+    Idle,
+    /// Nice 19: the smallest share, but a waking loop process may still wait for the end of a
+    /// browser's time slice (milliseconds: the kernel lets the current task run to parity).
+    Low,
+    /// The loop's own priority.
+    Normal,
+}
+
+/// Starts `cmd` at `priority`, for it and every process it starts. Chromium raises its display
+/// threads to nice -8 when it may (as root, with CAP_SYS_NICE): the capability is dropped from
+/// the bounding set first, so nothing below the driver can raise its priority.
+fn at_priority(cmd: &mut Command, priority: BrowserPriority) {
     use std::os::unix::process::CommandExt as _;
-    // SAFETY: between fork and exec only async-signal-safe calls with plain integers; their
-    // failures (not root: no capability to drop) change nothing the child needs.
+    if priority == BrowserPriority::Normal {
+        return;
+    }
+    // SAFETY: between fork and exec only async-signal-safe calls with plain integers and a
+    // stack value; the capability drop's failure (not root: nothing to drop) changes nothing.
     unsafe {
         cmd.pre_exec(move || {
             let _ = nix::libc::prctl(nix::libc::PR_CAPBSET_DROP, CAP_SYS_NICE, 0, 0, 0);
-            if nix::libc::setpriority(nix::libc::PRIO_PROCESS, 0, nice) != 0 {
+            let rc = match priority {
+                BrowserPriority::Idle => {
+                    let param = nix::libc::sched_param { sched_priority: 0 };
+                    nix::libc::sched_setscheduler(0, nix::libc::SCHED_IDLE, &param)
+                }
+                _ => nix::libc::setpriority(nix::libc::PRIO_PROCESS, 0, 19),
+            };
+            if rc != 0 {
                 return Err(std::io::Error::last_os_error());
             }
             Ok(())
@@ -82,9 +106,14 @@ pub struct Watchers {
 
 impl Watchers {
     /// Serves the page for `prefix` (the scan shown read from `scan`) and opens it in
-    /// `browsers` headless Chromium instances at nice value `nice` (see [`at_nice`]); returns
+    /// `browsers` headless Chromium instances scheduled at `priority`; returns
     /// once every page is connected to the live stream.
-    pub fn start(prefix: &str, scan: &str, browsers: usize, nice: i32) -> Result<Watchers> {
+    pub fn start(
+        prefix: &str,
+        scan: &str,
+        browsers: usize,
+        priority: BrowserPriority,
+    ) -> Result<Watchers> {
         let server = super::gui::serve_page(
             prefix,
             Channels {
@@ -94,7 +123,7 @@ impl Watchers {
         )?;
         let url = format!("http://{}/", server.local_addr());
         let mut node = Command::new("node");
-        at_nice(&mut node, nice);
+        at_priority(&mut node, priority);
         let mut driver = node
             .arg(js_dir().join("watch.mjs"))
             .arg(&url)

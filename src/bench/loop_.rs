@@ -61,12 +61,12 @@ pub struct LoopArgs {
     /// saying why, without chromium, node or playwright-core.
     #[arg(long, default_value_t = 0)]
     pub browsers: usize,
-    /// The browsers' nice value. On a robot the operator's browsers run on the operator's
-    /// machine; here they share the loop's cores, and at 19 they get what the loop leaves
-    /// (the page server's own threads run at `hng_gui::VIEW_NICE`). 0 gives them the loop's
-    /// priority.
-    #[arg(long, default_value_t = 19, value_parser = clap::value_parser!(i32).range(0..=19))]
-    pub browser_nice: i32,
+    /// How the browsers are scheduled. On a robot the operator's browsers run on the
+    /// operator's machine; here they share the loop's cores. `idle` (SCHED_IDLE) gives them
+    /// only what the loop leaves, `low` nice 19, `normal` the loop's priority. The page
+    /// server's own view threads run at nice `hng_gui::VIEW_NICE` in every case.
+    #[arg(long, value_enum, default_value_t = super::browsers::BrowserPriority::Idle)]
+    pub browser_priority: super::browsers::BrowserPriority,
 }
 
 const SCAN: &str = "bench/scan";
@@ -250,7 +250,7 @@ fn lidar_to_command_watched(a: &LoopArgs, browsers: usize) -> Result<Vec<BenchRo
             &prefix,
             SCAN,
             browsers,
-            a.browser_nice,
+            a.browser_priority,
         )?)
     } else {
         None
@@ -353,7 +353,10 @@ fn lidar_to_command_watched(a: &LoopArgs, browsers: usize) -> Result<Vec<BenchRo
             .with("hops", hops)
             .with("limited_commands", limited)
             .with("browsers", browsers as u64)
-            .with("browser_nice", a.browser_nice)
+            .with(
+                "browser_priority",
+                serde_json::to_value(a.browser_priority).unwrap_or_default(),
+            )
             .with("page_scan_frames", serde_json::Value::from(frames.clone()))
     };
     Ok(vec![
