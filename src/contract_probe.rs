@@ -29,7 +29,7 @@ use std::time::Duration;
 use hng_modules::common::{ConfigError, seconds};
 use hng_runtime::channel::InputId;
 use hng_runtime::contract::{NeedSpec, ServiceOffer, Timing, Verdict};
-use hng_runtime::control::{ProviderInfo, ProviderInput};
+use hng_runtime::control::{FollowProvider as _, ProviderInfo, ProviderInput, ProviderOutput};
 use hng_runtime::msg::{Odometry, Pose2D, Twist};
 use hng_runtime::{Context, Module, ModuleResult, Publisher, Subscriber, TimerId};
 use serde::Deserialize;
@@ -143,8 +143,7 @@ struct Output {
 struct NeedPort {
     rank: u16,
     input: ProviderInput<Odometry>,
-    command: Option<(String, Publisher<Twist>)>,
-    command_cache: Vec<(String, Publisher<Twist>)>,
+    command: ProviderOutput<Twist>,
     sends_commands: bool,
 }
 
@@ -178,7 +177,7 @@ impl Probe {
             }
         }
         for n in &self.needs {
-            if let Some((_, p)) = &n.command {
+            if let Some(p) = n.command.publisher() {
                 p.publish(Twist {
                     linear_x: 0.1,
                     ..Default::default()
@@ -226,8 +225,7 @@ impl Module for Probe {
             needs.push(NeedPort {
                 rank,
                 input: ProviderInput::new(),
-                command: None,
-                command_cache: Vec::new(),
+                command: ProviderOutput::new(),
                 sends_commands: cfg.commands.contains(s),
             });
         }
@@ -335,25 +333,8 @@ impl Module for Probe {
             return Ok(());
         };
         if n.sends_commands {
-            let target = provider.map(|p| p.channel.as_str());
-            if n.command.as_ref().map(|(c, _)| c.as_str()) == target {
-                return Ok(());
-            }
-            // Keep the publishers left (like `ProviderInput`): going back to a driver opens
-            // no channel.
-            if let Some(old) = n.command.take() {
-                if n.command_cache.len() >= 4 {
-                    n.command_cache.remove(0);
-                }
-                n.command_cache.push(old);
-            }
-            n.command = match target {
-                Some(c) => match n.command_cache.iter().position(|(k, _)| k == c) {
-                    Some(pos) => Some(n.command_cache.remove(pos)),
-                    None => Some((c.to_string(), ctx.publisher::<Twist>(c)?)),
-                },
-                None => None,
-            };
+            // The publishers left are kept: going back to a driver opens no channel.
+            n.command.follow(ctx, provider)?;
         } else {
             n.input.follow(ctx, provider)?;
         }

@@ -155,13 +155,18 @@ impl<H: hng_runtime::msg::SliceMessage> Sliced<H> {
     }
 }
 
-fn fixed<T: Message>(node: &Node, w: &mut Waiter, ch: &str) -> Option<Fixed<T>> {
-    match node.subscriber::<T>(ch) {
+/// A subscriber on `ch` that `w` watches, or `None` (said once) when it cannot be opened.
+fn watched<K: hng_runtime::channel::Kind>(
+    w: &mut Waiter,
+    ch: &str,
+    opened: Result<hng_runtime::channel::Receiver<K>, hng_runtime::Error>,
+) -> Option<hng_runtime::channel::Receiver<K>> {
+    match opened {
         Ok(sub) => {
             if let Err(e) = w.attach(&sub) {
                 tracing::warn!("operator page: cannot wait on {ch}: {e}");
             }
-            Some(Fixed { sub, latest: None })
+            Some(sub)
         }
         Err(e) => {
             tracing::warn!("operator page: not showing {ch}: {e}");
@@ -170,23 +175,16 @@ fn fixed<T: Message>(node: &Node, w: &mut Waiter, ch: &str) -> Option<Fixed<T>> 
     }
 }
 
+fn fixed<T: Message>(node: &Node, w: &mut Waiter, ch: &str) -> Option<Fixed<T>> {
+    watched(w, ch, node.subscriber::<T>(ch)).map(|sub| Fixed { sub, latest: None })
+}
+
 fn sliced<H: hng_runtime::msg::SliceMessage>(
     node: &Node,
     w: &mut Waiter,
     ch: &str,
 ) -> Option<Sliced<H>> {
-    match node.slice_subscriber::<H>(ch) {
-        Ok(sub) => {
-            if let Err(e) = w.attach(&sub) {
-                tracing::warn!("operator page: cannot wait on {ch}: {e}");
-            }
-            Some(Sliced { sub, latest: None })
-        }
-        Err(e) => {
-            tracing::warn!("operator page: not showing {ch}: {e}");
-            None
-        }
-    }
+    watched(w, ch, node.slice_subscriber::<H>(ch)).map(|sub| Sliced { sub, latest: None })
 }
 
 struct Sources {

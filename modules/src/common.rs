@@ -1,14 +1,11 @@
-//! Helpers shared by the navigation modules: inputs that follow a contracted provider, command
-//! sources arbitrated by priority (a driver's static wiring), poses, angles.
+//! Helpers shared by the navigation modules: command sources arbitrated by priority (a
+//! driver's static wiring), configuration checks, poses, angles. (Inputs and outputs that follow
+//! a contracted provider are the runtime's: `hng_runtime::control::ProviderInput`.)
 
 use std::time::Duration;
 
-use hng_runtime::Context;
-use hng_runtime::channel::{InputId, Sample};
 use hng_runtime::contract::{CommandArbiter, ModuleId, Priority, Verdict};
-use hng_runtime::control::ProviderInfo;
-use hng_runtime::msg::{Message, Pose2D, Twist};
-use hng_runtime::{Error, Publisher, Subscriber};
+use hng_runtime::msg::{Pose2D, Twist};
 use serde::{Deserialize, Serialize};
 
 /// One client that may command a driver without contracts (static wiring for benches and
@@ -63,6 +60,18 @@ pub fn positive(field: &str, v: f64) -> Result<f64, ConfigError> {
         Err(field_error(
             field,
             format!("must be finite and > 0, got {v}"),
+        ))
+    }
+}
+
+/// Checks that `v` is finite and >= 0.
+pub fn non_negative(field: &str, v: f64) -> Result<f64, ConfigError> {
+    if v.is_finite() && v >= 0.0 {
+        Ok(v)
+    } else {
+        Err(field_error(
+            field,
+            format!("must be finite and >= 0, got {v}"),
         ))
     }
 }
@@ -151,114 +160,6 @@ impl CommandMux {
     }
 }
 
-/// A data input that follows the provider of a need (paper 5.6, "Consumer"): its samples are
-/// read from the channel the provider named in its proposal, and only those the provider
-/// published (by `Header::source`), so a contract decides where the data comes from. Until a
-/// provider is known (the module is not yet, or not, selected), the configured channel is the
-/// fallback and any publisher on it is accepted. When the provider's channel is the configured
-/// one, the one subscription serves both.
-#[derive(Debug)]
-pub struct ContractedInput<T: Message> {
-    configured: Subscriber<T>,
-    followed: Option<Subscriber<T>>,
-    provider: Option<ProviderInfo>,
-    deadline: Option<Duration>,
-    foreign: u64,
-}
-
-impl<T: Message> ContractedInput<T> {
-    /// Subscribes to the fallback `channel`; `deadline` watches whichever channel is read.
-    ///
-    /// # Errors
-    /// The channel cannot be opened.
-    pub fn new(
-        ctx: &mut Context,
-        channel: &str,
-        deadline: Option<Duration>,
-    ) -> Result<ContractedInput<T>, Error> {
-        Ok(ContractedInput {
-            configured: ctx.subscribe(channel, deadline)?,
-            followed: None,
-            provider: None,
-            deadline,
-            foreign: 0,
-        })
-    }
-
-    /// Follows `provider` (or none, back to the fallback), from `on_provider_changed`.
-    ///
-    /// # Errors
-    /// The provider's channel cannot be opened (e.g. it carries another type).
-    pub fn follow(
-        &mut self,
-        ctx: &mut Context,
-        provider: Option<&ProviderInfo>,
-    ) -> Result<(), Error> {
-        let want = provider
-            .map(|p| p.channel.as_str())
-            .filter(|c| !c.is_empty() && *c != self.configured.channel());
-        let have = self.followed.as_ref().map(|s| s.channel().to_string());
-        if want != have.as_deref() {
-            if let Some(old) = self.followed.take() {
-                ctx.unsubscribe(old.id())?;
-            }
-            if let Some(c) = want {
-                self.followed = Some(ctx.subscribe(c, self.deadline)?);
-            }
-        }
-        self.provider = provider.cloned();
-        Ok(())
-    }
-
-    /// The provider followed (`None`: the fallback channel is read).
-    pub fn provider(&self) -> Option<&ProviderInfo> {
-        self.provider.as_ref()
-    }
-
-    /// True when `input` is one of this input's subscriptions.
-    pub fn is(&self, input: InputId) -> bool {
-        self.configured.id() == input || self.followed.as_ref().is_some_and(|s| s.id() == input)
-    }
-
-    /// The channel read now.
-    pub fn channel(&self) -> &str {
-        self.followed
-            .as_ref()
-            .map_or(self.configured.channel(), |s| s.channel())
-    }
-
-    /// The next sample of the provider (or of the fallback channel while none is known).
-    ///
-    /// # Errors
-    /// The channel failed.
-    pub fn receive(&mut self) -> Result<Option<Sample<T>>, Error> {
-        let Some(p) = &self.provider else {
-            return self.configured.receive();
-        };
-        let source = p.module.0;
-        let sub = match &self.followed {
-            Some(f) => {
-                // Not read while another channel is followed: drain it.
-                while self.configured.receive()?.is_some() {}
-                f
-            }
-            None => &self.configured,
-        };
-        while let Some(s) = sub.receive()? {
-            if s.header().source == source {
-                return Ok(Some(s));
-            }
-            self.foreign += 1;
-        }
-        Ok(None)
-    }
-
-    /// Samples skipped because a module other than the provider published them.
-    pub fn foreign(&self) -> u64 {
-        self.foreign
-    }
-}
-
 /// Wraps an angle to (-π, π].
 pub fn wrap_angle(a: f64) -> f64 {
     let mut a = a % std::f64::consts::TAU;
@@ -289,110 +190,6 @@ pub fn relative(a: &Pose2D, b: &Pose2D) -> Pose2D {
         y: -s * dx + c * dy,
         theta: wrap_angle(b.theta - a.theta),
     }
-}
-
-/// Whatever follows the data channel of a need's provider: an input that reads it
-/// ([`ContractedInput`], [`hng_runtime::control::ProviderInput`], [`crate::video::VideoInput`])
-/// or a command output that writes to it (`Option<Publisher<T>>`, [`follow_output`]). With
-/// [`crate::follow_needs!`] a module names, per need, the field that follows it.
-pub trait FollowProvider {
-    /// Follows `provider` (or none), from `on_provider_changed`.
-    ///
-    /// # Errors
-    /// The provider's channel cannot be opened.
-    fn follow_provider(
-        &mut self,
-        ctx: &mut Context,
-        provider: Option<&ProviderInfo>,
-    ) -> Result<(), Error>;
-}
-
-impl<T: Message> FollowProvider for ContractedInput<T> {
-    fn follow_provider(
-        &mut self,
-        ctx: &mut Context,
-        p: Option<&ProviderInfo>,
-    ) -> Result<(), Error> {
-        self.follow(ctx, p)
-    }
-}
-
-impl<T: Message> FollowProvider for hng_runtime::control::ProviderInput<T> {
-    fn follow_provider(
-        &mut self,
-        ctx: &mut Context,
-        p: Option<&ProviderInfo>,
-    ) -> Result<(), Error> {
-        self.follow(ctx, p)
-    }
-}
-
-impl<T: Message> FollowProvider for Option<Publisher<T>> {
-    fn follow_provider(
-        &mut self,
-        ctx: &mut Context,
-        p: Option<&ProviderInfo>,
-    ) -> Result<(), Error> {
-        follow_output(ctx, self, p)
-    }
-}
-
-/// The provider alone, for a need whose data the module does not read itself (the
-/// Interface's "Video": the operator page reads the images).
-impl FollowProvider for Option<ProviderInfo> {
-    fn follow_provider(
-        &mut self,
-        _ctx: &mut Context,
-        p: Option<&ProviderInfo>,
-    ) -> Result<(), Error> {
-        *self = p.cloned();
-        Ok(())
-    }
-}
-
-/// Writes `Module::on_provider_changed` for a module whose needs are each followed by one
-/// field ([`FollowProvider`]): `follow_needs!(ODOMETRY_NEED => odom, LIDAR_NEED => scan);`
-/// inside `impl Module for ...`.
-#[macro_export]
-macro_rules! follow_needs {
-    ($($need:path => $field:ident),+ $(,)?) => {
-        fn on_provider_changed(
-            &mut self,
-            ctx: &mut ::hng_runtime::Context,
-            need: u16,
-            provider: ::std::option::Option<&::hng_runtime::control::ProviderInfo>,
-        ) -> ::hng_runtime::ModuleResult {
-            $(
-                if need == $need {
-                    $crate::common::FollowProvider::follow_provider(&mut self.$field, ctx, provider)?;
-                }
-            )+
-            ::std::result::Result::Ok(())
-        }
-    };
-}
-
-/// Points `out` at the data channel of a need's new provider (a command publisher following
-/// the contracted Robot, say): opens a publisher when the channel changes, none when the need
-/// has no provider.
-///
-/// # Errors
-/// Opening the publisher failed.
-pub fn follow_output<T: Message>(
-    ctx: &mut Context,
-    out: &mut Option<Publisher<T>>,
-    provider: Option<&ProviderInfo>,
-) -> Result<(), Error> {
-    let want = provider
-        .map(|p| p.channel.as_str())
-        .filter(|c| !c.is_empty());
-    if want != out.as_ref().map(|p| p.channel()) {
-        *out = match want {
-            Some(c) => Some(ctx.publisher(c)?),
-            None => None,
-        };
-    }
-    Ok(())
 }
 
 #[cfg(test)]

@@ -43,6 +43,7 @@ use std::time::Duration;
 
 use hng_runtime::channel::InputId;
 use hng_runtime::contract::{NeedSpec, ServiceOffer};
+use hng_runtime::control::ProviderOutput;
 use hng_runtime::msg::{
     BEHAVIOURS_CHANNEL, BeaconObservation, BeaconTrack, Behaviours, DESIGNATION_CHANNEL,
     Designation, FOLLOW_WALL_CHANNEL, FollowWallRequest, Goal, ORDER_CHANNEL, ORDER_STATUS_CHANNEL,
@@ -161,11 +162,7 @@ pub struct InterfaceModule {
     limits: OrderLimits,
     teleop_in: Subscriber<Twist>,
     /// Commands to the contracted Robot's channel.
-    cmd_out: Option<Publisher<Twist>>,
-    /// The contracted "Video" provider. The Interface does not take its frames (the operator
-    /// page reads the images itself): a reader would make the Camera relay, and the
-    /// simulator render, every frame for nobody.
-    video: Option<hng_runtime::control::ProviderInfo>,
+    cmd_out: ProviderOutput<Twist>,
     orders_in: Subscriber<Order>,
     status_out: Publisher<OrderStatus>,
     goal_in: Subscriber<Goal>,
@@ -193,12 +190,6 @@ fn secs(d: Duration) -> f64 {
 }
 
 impl InterfaceModule {
-    /// The contracted "Video" provider, if any.
-    #[must_use]
-    pub fn video_provider(&self) -> Option<&hng_runtime::control::ProviderInfo> {
-        self.video.as_ref()
-    }
-
     fn providers(&self, ctx: &Context) -> Providers {
         let listening = |service: &str| {
             ctx.contracts()
@@ -226,7 +217,7 @@ impl InterfaceModule {
     }
 
     fn send_command(&self, cmd: Twist) -> ModuleResult {
-        if let Some(out) = &self.cmd_out {
+        if let Some(out) = self.cmd_out.publisher() {
             out.publish(cmd)?;
         }
         Ok(())
@@ -420,7 +411,7 @@ impl InterfaceModule {
                 continue;
             }
             self.last_teleop = secs(ctx.now());
-            match &self.cmd_out {
+            match self.cmd_out.publisher() {
                 Some(out) => {
                     out.publish(Twist {
                         header: Default::default(),
@@ -525,6 +516,9 @@ impl Module for InterfaceModule {
             ctx.need(NeedSpec::optional(REACH_GOAL, REACH_GOAL_NEED, 0.2));
         }
         if cfg.video {
+            // Held for the operator page, which reads the images itself: the Interface takes
+            // no frames (a reader would make the Camera relay, and the simulator render,
+            // every frame for nobody), so the need has no field in `follow_needs!`.
             ctx.need(NeedSpec::optional("Video", VIDEO_NEED, 0.1));
         }
         // The behaviours' needs: no penalty (they are asked for only under their order).
@@ -563,8 +557,7 @@ impl Module for InterfaceModule {
         Ok(InterfaceModule {
             limits,
             teleop_in: ctx.subscribe(&cfg.teleop_in, None)?,
-            cmd_out: None,
-            video: None,
+            cmd_out: ProviderOutput::new(),
             orders_in: ctx.subscribe(ORDER_CHANNEL, None)?,
             status_out: ctx.publisher(ORDER_STATUS_CHANNEL)?,
             goal_in: ctx.subscribe(&cfg.goal_in, None)?,
@@ -650,7 +643,7 @@ impl Module for InterfaceModule {
         self.publish_behaviours(ctx)
     }
 
-    crate::follow_needs!(ROBOT_CONTROL_NEED => cmd_out, VIDEO_NEED => video);
+    hng_runtime::follow_needs!(ROBOT_CONTROL_NEED => cmd_out);
 
     hng_runtime::checkpoint_field!(state);
 }

@@ -23,12 +23,13 @@ use std::time::Duration;
 
 use hng_runtime::channel::InputId;
 use hng_runtime::contract::{NeedSpec, ServiceOffer};
+use hng_runtime::control::ProviderInput;
 use hng_runtime::msg::{FrameId, Header, Odometry, PoseWithCovariance};
 use hng_runtime::{Context, Module, ModuleResult, Publisher, Subscriber, TimerId};
 use serde::{Deserialize, Serialize};
 use smart_default::SmartDefault;
 
-use crate::common::{ContractedInput, field_error, positive, seconds};
+use crate::common::{field_error, non_negative, positive, seconds};
 use crate::ekf::{Ekf, EkfParams, EkfState, FixOutcome};
 use crate::gps::gps_quality;
 
@@ -77,7 +78,7 @@ struct LocState {
 pub struct LocalizationModule {
     ekf: Ekf,
     params: EkfParams,
-    odom: ContractedInput<Odometry>,
+    odom: ProviderInput<Odometry>,
     fix_in: Subscriber<PoseWithCovariance>,
     pose_out: Publisher<PoseWithCovariance>,
     good: f64,
@@ -147,9 +148,7 @@ impl Module for LocalizationModule {
             ("filter.scale_sigma", f.scale_sigma),
             ("filter.scale_per_sqrt_m", f.scale_per_sqrt_m),
         ] {
-            if !(v.is_finite() && v >= 0.0) {
-                return Err(field_error(name, "must be finite and >= 0").into());
-            }
+            non_negative(name, v)?;
         }
         positive("filter.gate", f.gate)?;
         if f.max_rejections == 0 {
@@ -165,7 +164,9 @@ impl Module for LocalizationModule {
         Ok(LocalizationModule {
             ekf: Ekf::new(cfg.filter),
             params: cfg.filter,
-            odom: ContractedInput::new(ctx, &cfg.odom, Some(odom_timeout))?,
+            odom: ProviderInput::new()
+                .with_deadline(Some(odom_timeout))
+                .with_fallback(ctx, &cfg.odom)?,
             fix_in: ctx.subscribe(&cfg.fix_in, None)?,
             pose_out: ctx.publisher(&cfg.pose_out)?,
             good: cfg.sigma_good_m,
@@ -243,7 +244,7 @@ impl Module for LocalizationModule {
         Ok(())
     }
 
-    crate::follow_needs!(ODOMETRY_NEED => odom);
+    hng_runtime::follow_needs!(ODOMETRY_NEED => odom);
 
     hng_runtime::checkpoint_with!(Self::save_state, Self::load_state);
 }

@@ -23,12 +23,12 @@
 
 use hng_runtime::channel::InputId;
 use hng_runtime::contract::{NeedSpec, ServiceOffer};
-use hng_runtime::control::{ProviderInfo, ProviderInput};
+use hng_runtime::control::{FollowProvider as _, ProviderInfo, ProviderInput, SliceProviderInput};
 use hng_runtime::msg::{Goal, GridInfo, Pose2D, PoseWithCovariance, Waypoint};
-use hng_runtime::{Context, Module, ModuleResult, Publisher, SliceSubscriber, Subscriber};
+use hng_runtime::{Context, Module, ModuleResult, Publisher, Subscriber};
 use serde::{Deserialize, Serialize};
 
-use crate::common::positive;
+use crate::common::{non_negative, positive};
 use crate::heartbeat::BusyHeartbeat;
 use crate::maps::grid_from_msg;
 use crate::msgs::GoalStatus;
@@ -62,20 +62,15 @@ pub struct PlanningModule {
     /// Heartbeats during long computations (`None` if its thread could not start).
     heartbeat: Option<std::rc::Rc<BusyHeartbeat>>,
     core: PlanningCore,
-    /// The configured map channel: read until a "Mapping" provider is known, and for the
-    /// provider when it publishes there.
-    map: SliceSubscriber<GridInfo>,
-    /// The "Mapping" provider (need rank [`MAPPING_NEED`]), and its channel when it is not
-    /// the configured one.
-    map_provider: Option<ProviderInfo>,
-    map_followed: Option<SliceSubscriber<GridInfo>>,
-    /// The latest map of each publisher seen on the map inputs (a provider's map is on a
-    /// state channel, published once or rarely: kept so that switching providers back and
-    /// forth never leaves Planning without the provider's map).
+    /// The "Mapping" provider's maps (need rank [`MAPPING_NEED`]); the configured `map`
+    /// channel's until one is known. A left channel is closed, not kept: on the way back a new
+    /// subscription receives the provider's latest map (a state channel, published rarely).
+    map: SliceProviderInput<GridInfo>,
+    /// The latest map of each publisher seen on the map input (kept so that switching
+    /// providers back and forth never leaves Planning without the provider's map).
     maps_seen: Vec<(u32, OccupancyGrid)>,
-    /// The configured pose channel: used only until a "Localization" provider is known.
-    pose: Subscriber<PoseWithCovariance>,
-    /// The contracted "Localization" provider's pose (need rank [`LOCALIZATION_NEED`]).
+    /// The contracted "Localization" provider's pose (need rank [`LOCALIZATION_NEED`]); the
+    /// configured `pose` channel's until one is known.
     localization: ProviderInput<PoseWithCovariance>,
     goal: Subscriber<Goal>,
     waypoint_out: Publisher<Waypoint>,
@@ -94,27 +89,23 @@ impl PlanningModule {
     fn read_map(&mut self, ctx: &mut Context) -> ModuleResult {
         let hb = self.heartbeat.clone();
         let _busy = hb.as_ref().map(|h| h.busy(ctx));
-        let source = self.map_provider.as_ref().map(|p| p.module.0);
         let mut use_now = None;
-        let subs = std::iter::once(&self.map).chain(self.map_followed.as_ref());
-        for sub in subs {
-            while let Some(m) = sub.receive()? {
-                let from = m.header().header.source;
-                let g = match grid_from_msg(m.header(), m.data()) {
-                    Ok(g) => g,
-                    Err(e) => {
-                        tracing::warn!(module = ctx.name(), "map ignored: {e}");
-                        continue;
-                    }
-                };
-                // Before a provider is known, the configured channel's maps are used.
-                if source.is_none_or(|s| s == from) {
-                    use_now = Some(from);
+        while let Some(m) = self.map.receive_any()? {
+            let from = m.header().header.source;
+            let g = match grid_from_msg(m.header(), m.data()) {
+                Ok(g) => g,
+                Err(e) => {
+                    tracing::warn!(module = ctx.name(), "map ignored: {e}");
+                    continue;
                 }
-                match self.maps_seen.iter_mut().find(|(s, _)| *s == from) {
-                    Some(e) => e.1 = g,
-                    None => self.maps_seen.push((from, g)),
-                }
+            };
+            // Before a provider is known, the configured channel's maps are used.
+            if self.map.accepts(from) {
+                use_now = Some(from);
+            }
+            match self.maps_seen.iter_mut().find(|(s, _)| *s == from) {
+                Some(e) => e.1 = g,
+                None => self.maps_seen.push((from, g)),
             }
         }
         if let Some(from) = use_now
@@ -193,13 +184,9 @@ impl Module for PlanningModule {
             ("params.inflation_m", p.inflation_m),
             ("params.cost_weight", p.cost_weight),
             ("params.cost_decay", p.cost_decay),
+            ("params.clearance", p.clearance),
         ] {
-            if !(v.is_finite() && v >= 0.0) {
-                return Err(crate::common::field_error(field, "must be >= 0").into());
-            }
-        }
-        if !(p.clearance.is_finite() && p.clearance >= 0.0) {
-            return Err(crate::common::field_error("params.clearance", "must be >= 0").into());
+            non_negative(field, v)?;
         }
         // Provides "Reach goal" (needed by the Interface, under Human control) and needs
         // "Reach waypoint" (Servo; the waypoints go on `waypoint_out`), "Mapping" and
@@ -225,12 +212,11 @@ impl Module for PlanningModule {
         Ok(PlanningModule {
             heartbeat,
             core: PlanningCore::new(cfg.params),
-            map: ctx.subscribe_slice(&cfg.map, None)?,
-            map_provider: None,
-            map_followed: None,
+            map: SliceProviderInput::new()
+                .keep_left(0)
+                .with_fallback(ctx, &cfg.map)?,
             maps_seen: Vec::new(),
-            pose: ctx.subscribe(&cfg.pose, None)?,
-            localization: ProviderInput::new(),
+            localization: ProviderInput::new().with_fallback(ctx, &cfg.pose)?,
             goal: ctx.subscribe(&cfg.goal, None)?,
             waypoint_out: ctx.publisher(&cfg.waypoint_out)?,
             status_out: ctx.publisher(&cfg.status_out)?,
@@ -246,7 +232,7 @@ impl Module for PlanningModule {
         if self.map_rating.is(input) {
             return self.map_rating.on_input(ctx, self.last_pose, MAPPING_NEED);
         }
-        if input == self.map.id() || self.map_followed.as_ref().is_some_and(|s| s.id() == input) {
+        if self.map.is(input) {
             self.read_map(ctx)?;
         } else if input == self.goal.id() {
             while let Some(g) = self.goal.receive()? {
@@ -259,13 +245,6 @@ impl Module for PlanningModule {
         } else if self.localization.is(input) {
             while let Some(p) = self.localization.receive()? {
                 self.last_pose = Some(p.pose);
-            }
-        } else if input == self.pose.id() {
-            let fallback = self.localization.provider().is_none();
-            while let Some(p) = self.pose.receive()? {
-                if fallback {
-                    self.last_pose = Some(p.pose);
-                }
             }
         }
         self.step(ctx)
@@ -282,20 +261,8 @@ impl Module for PlanningModule {
         if need == LOCALIZATION_NEED {
             self.localization.follow(ctx, provider)?;
         } else if need == MAPPING_NEED {
-            let want = provider
-                .map(|p| p.channel.as_str())
-                .filter(|c| !c.is_empty() && *c != self.map.channel());
-            let have = self.map_followed.as_ref().map(|s| s.channel().to_string());
-            if want != have.as_deref() {
-                if let Some(old) = self.map_followed.take() {
-                    ctx.unsubscribe(old.id())?;
-                }
-                if let Some(c) = want {
-                    self.map_followed = Some(ctx.subscribe_slice(c, None)?);
-                }
-            }
-            let changed = self.map_provider.as_ref() != provider;
-            self.map_provider = provider.cloned();
+            let changed = self.map.provider() != provider;
+            self.map.follow(ctx, provider)?;
             // No provider: a switch is in flight (no refusal is final until it settles).
             self.core.set_provider_settled(provider.is_some());
             if changed {
@@ -344,8 +311,8 @@ pub(crate) mod tests {
     use crate::msgs::{GoalState, RefusalReason};
     use crate::planning::{FREE, OCCUPIED};
 
-    /// 10 x 6 m room at 0.1 m, with a wall at x = 5 from y = 0 to y = 4 (a gap above).
-    pub(crate) fn room() -> OccupancyGrid {
+    /// A walled 10 x 6 m room at 0.1 m, split by a wall at x = 5 but for the cells `gap` of y.
+    pub(crate) fn walled_room(gap: std::ops::Range<i64>) -> OccupancyGrid {
         let mut g = OccupancyGrid::new(100, 60, 0.1, [0.0, 0.0], FREE).unwrap();
         for x in 0..100 {
             g.set(x, 0, OCCUPIED);
@@ -354,11 +321,16 @@ pub(crate) mod tests {
         for y in 0..60 {
             g.set(0, y, OCCUPIED);
             g.set(99, y, OCCUPIED);
-        }
-        for y in 0..40 {
-            g.set(50, y, OCCUPIED);
+            if !gap.contains(&y) {
+                g.set(50, y, OCCUPIED);
+            }
         }
         g
+    }
+
+    /// The room with a wall at x = 5 from y = 0 to y = 4 (a gap above).
+    pub(crate) fn room() -> OccupancyGrid {
+        walled_room(40..60)
     }
 
     fn goal(id: u32, x: f64, y: f64) -> Goal {
@@ -372,6 +344,59 @@ pub(crate) mod tests {
 
     fn at(x: f64, y: f64) -> Pose2D {
         Pose2D { x, y, theta: 0.0 }
+    }
+
+    /// The module's own loop (in-process harness), with "Mapping" and "Localization" served
+    /// by the test: it plans round the wall in the provider's map (a map on its fallback
+    /// channel is not read), sends the carrot, and refuses a goal inside the wall.
+    #[test]
+    fn the_module_plans_in_the_providers_map_and_refuses_a_goal_in_a_wall() {
+        use hng_runtime::harness::Harness;
+        use std::time::Duration;
+        let mut h = Harness::new("planning").unwrap();
+        let map = h.slice_input::<GridInfo>("test/map", 6000).unwrap();
+        let blocked = h.slice_input::<GridInfo>("maps/map", 6000).unwrap();
+        let pose = h.input::<PoseWithCovariance>("test/pose").unwrap();
+        let goals = h.input::<Goal>("manager/goal").unwrap();
+        let mut waypoints = h.output::<Waypoint>("planning/waypoint").unwrap();
+        let mut status = h.output::<GoalStatus>("planning/status").unwrap();
+        h.provider(MAPPING_NEED, "test/map")
+            .provider(LOCALIZATION_NEED, "test/pose");
+        h.start::<PlanningModule>("").unwrap();
+        let g = room();
+        map.publish_copy(crate::maps::msg_from_grid(&g), g.data())
+            .unwrap();
+        let full = OccupancyGrid::new(100, 60, 0.1, [0.0, 0.0], OCCUPIED).unwrap();
+        blocked
+            .publish_copy(crate::maps::msg_from_grid(&full), full.data())
+            .unwrap();
+        goals.publish(goal(1, 8.0, 1.0)).unwrap();
+        let robot = PoseWithCovariance {
+            pose: at(2.0, 1.0),
+            ..Default::default()
+        };
+        // A pose, again until the module answers (the map and the goal may be read after it).
+        let mut answer = |h: &Harness, id: u32| {
+            (0..50).find_map(|_| {
+                pose.publish(robot).unwrap();
+                h.wait_for(&mut status, Duration::from_millis(100), |s| s.goal_id == id)
+                    .ok()
+            })
+        };
+        let st = answer(&h, 1).expect("a status for goal 1");
+        assert_eq!(st.goal_state(), GoalState::Active, "{st:?}");
+        assert!(st.distance_m > 8.0, "detour through the gap: {st:?}");
+        let w = h
+            .wait_for(&mut waypoints, Duration::from_secs(5), |w| w.goal_id == 1)
+            .unwrap();
+        let d = (w.pose.x - 2.0).hypot(w.pose.y - 1.0);
+        assert!((d - 0.6).abs() < 0.05, "carrot at the lookahead: {d}");
+
+        goals.publish(goal(2, 5.0, 2.0)).unwrap();
+        let st = answer(&h, 2).expect("a status for goal 2");
+        assert_eq!(st.goal_state(), GoalState::Refused, "{st:?}");
+        assert_eq!(st.refusal_reason(), Some(RefusalReason::InObstacle));
+        h.finish().unwrap();
     }
 
     #[test]

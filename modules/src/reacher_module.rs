@@ -21,7 +21,7 @@ use std::collections::VecDeque;
 
 use hng_runtime::channel::InputId;
 use hng_runtime::contract::{NeedSpec, ServiceOffer};
-use hng_runtime::control::{ProviderInfo, ProviderInput};
+use hng_runtime::control::{FollowProvider as _, ProviderInfo, ProviderInput, ProviderOutput};
 use hng_runtime::msg::{
     BeaconTrack, DESIGNATION_CHANNEL, Designation, Header, Odometry, Pose2D, TRACK_LOST,
     TRACK_SEEN, Twist,
@@ -32,7 +32,7 @@ use iceoryx2::prelude::ZeroCopySend;
 use serde::{Deserialize, Serialize};
 use smart_default::SmartDefault;
 
-use crate::common::{follow_output, positive};
+use crate::common::positive;
 use crate::reacher::{JudgeParams, ProgressJudge, Reach, ReachLaw, ReachParams};
 use crate::robot::ROBOT_CONTROL;
 use crate::tracker_module::TRACK_BEACON;
@@ -112,7 +112,7 @@ pub struct ReacherModule {
     designation: Subscriber<Designation>,
     odom: Subscriber<Odometry>,
     odom_log: VecDeque<(u64, Pose2D)>,
-    cmd_out: Option<Publisher<Twist>>,
+    cmd_out: ProviderOutput<Twist>,
     status: Publisher<ReachStatus>,
     target: Option<u32>,
     active: bool,
@@ -159,7 +159,7 @@ impl Module for ReacherModule {
             designation: ctx.subscribe(&cfg.designation, None)?,
             odom: ctx.subscribe(&cfg.odom, None)?,
             odom_log: VecDeque::new(),
-            cmd_out: None,
+            cmd_out: ProviderOutput::new(),
             status: ctx.publisher(&cfg.status_out)?,
             target: None,
             active: false,
@@ -235,7 +235,7 @@ impl Module for ReacherModule {
         provider: Option<&ProviderInfo>,
     ) -> ModuleResult {
         match need {
-            ROBOT_CONTROL_NEED => follow_output(ctx, &mut self.cmd_out, provider)?,
+            ROBOT_CONTROL_NEED => self.cmd_out.follow(ctx, provider)?,
             TRACK_NEED => {
                 self.track.follow(ctx, provider)?;
                 self.judge.reset();
@@ -315,7 +315,7 @@ impl ReacherModule {
         }
         match self.law.command(bearing, range, seen, unseen) {
             Reach::Drive(v, w) => {
-                if let Some(out) = &self.cmd_out {
+                if let Some(out) = self.cmd_out.publisher() {
                     out.publish(Twist {
                         linear_x: v,
                         angular_z: w,
@@ -406,7 +406,7 @@ impl ReacherModule {
     }
 
     fn halt(&self) -> ModuleResult {
-        if let Some(out) = &self.cmd_out {
+        if let Some(out) = self.cmd_out.publisher() {
             out.publish(Twist::default())?;
         }
         Ok(())

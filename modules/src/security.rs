@@ -35,13 +35,13 @@ use std::time::Duration;
 
 use hng_runtime::channel::{InputId, Sample};
 use hng_runtime::contract::{NeedSpec, ServiceOffer};
-use hng_runtime::control::ProviderInfo;
+use hng_runtime::control::{FollowProvider as _, ProviderInfo, ProviderInput};
 use hng_runtime::msg::{LaserScan, Twist};
 use hng_runtime::{Context, Module, ModuleResult, Publisher, Subscriber};
 use serde::{Deserialize, Serialize};
 use smart_default::SmartDefault;
 
-use crate::common::{ContractedInput, positive, seconds};
+use crate::common::{positive, seconds};
 use crate::robot::{ROBOT_CONTROL, supervised_channel};
 pub use crate::scan::ScanView;
 use crate::scan::scan_quality;
@@ -234,7 +234,7 @@ struct Link {
 /// The Security module.
 #[derive(Debug)]
 pub struct SecurityModule {
-    scan: ContractedInput<LaserScan>,
+    scan: ProviderInput<LaserScan>,
     /// `None` until the Robot is contracted (contract mode).
     link: Option<Link>,
     freshness: Duration,
@@ -298,11 +298,7 @@ impl Module for SecurityModule {
         positive("safety.robot_radius", s.robot_radius)?;
         positive("safety.max_decel", s.max_decel)?;
         positive("safety.reaction_time_s", s.reaction_time_s)?;
-        if !(s.safety_distance.is_finite() && s.safety_distance >= 0.0) {
-            return Err(
-                crate::common::field_error("safety.safety_distance", "must be >= 0").into(),
-            );
-        }
+        crate::common::non_negative("safety.safety_distance", s.safety_distance)?;
         let freshness = seconds("freshness_s", cfg.freshness_s)?;
         let scan_timeout = seconds("scan_timeout_s", cfg.scan_timeout_s)?;
         // Provides the Manager's objective "Robot integrity"; needs "Robot control" (1.1: the
@@ -321,7 +317,9 @@ impl Module for SecurityModule {
         };
         ctx.set_quality(false, -1.0);
         Ok(SecurityModule {
-            scan: ContractedInput::new(ctx, &cfg.scan, Some(scan_timeout))?,
+            scan: ProviderInput::new()
+                .with_deadline(Some(scan_timeout))
+                .with_fallback(ctx, &cfg.scan)?,
             link,
             freshness,
             desired: None,
@@ -450,6 +448,66 @@ mod tests {
             angular_z: w,
             ..Default::default()
         }
+    }
+
+    /// The `LaserScan` message of [`wall_scan`].
+    fn wall_msg(wall: f64) -> LaserScan {
+        let r = wall_scan(wall);
+        let mut m = LaserScan {
+            angle_min: -PI as f32,
+            angle_increment: (PI / 180.0) as f32,
+            range_min: 0.05,
+            range_max: 10.0,
+            count: r.len() as u32,
+            ..Default::default()
+        };
+        m.ranges[..r.len()].copy_from_slice(&r);
+        m
+    }
+
+    /// The module's own loop (in-process harness) under contracts served by the test: it
+    /// limits the Robot's elected command on the Robot's channel, and a silent lidar is one
+    /// deadline miss, a stop and inaptitude (the SDK's deadline, seen in the module's report).
+    #[test]
+    fn the_module_limits_the_elected_command_and_stops_when_the_lidar_goes_silent() {
+        use hng_runtime::harness::Harness;
+        let mut h = Harness::new("security").unwrap();
+        let scan = h.input::<LaserScan>("test/scan").unwrap();
+        let desired = h
+            .input::<Twist>(&crate::robot::supervised_channel("test/cmd_vel"))
+            .unwrap();
+        let mut out = h.output::<Twist>("test/cmd_vel").unwrap();
+        h.provider(LIDAR_NEED, "test/scan")
+            .provider(ROBOT_CONTROL_NEED, "test/cmd_vel");
+        h.start::<SecurityModule>("scan_timeout_s = 0.3").unwrap();
+        let wait = std::time::Duration::from_secs(5);
+
+        desired.publish(fwd(1.0, 0.0)).unwrap();
+        scan.publish(wall_msg(5.0)).unwrap();
+        let free = h.wait_for(&mut out, wait, |c| c.linear_x > 0.0).unwrap();
+        assert_eq!(free.linear_x, 1.0, "a far wall limits nothing: {free:?}");
+
+        desired.publish(fwd(0.5, 0.4)).unwrap();
+        scan.publish(wall_msg(0.32)).unwrap();
+        let held = h
+            .wait_for(&mut out, wait, |c| c.angular_z == 0.4 && c.linear_x == 0.0)
+            .unwrap();
+        assert_eq!(held.linear_x, 0.0, "held before the wall, turning allowed");
+
+        // No more scans: after scan_timeout_s, one miss, a stop, Q = -1.
+        let n = out.samples.len();
+        let report = h.wait_for_report(wait, |r| r.deadline_misses > 0).unwrap();
+        assert_eq!(report.deadline_misses, 1, "one silence, one miss");
+        assert_eq!((report.aptitude, report.quality), (0, -1.0));
+        h.collect(&mut out).unwrap();
+        let after: Vec<_> = out.samples[n..].iter().map(|c| c.msg).collect();
+        assert!(
+            after
+                .iter()
+                .any(|c| c.linear_x == 0.0 && c.angular_z == 0.0),
+            "a stop after the silence: {after:?}"
+        );
+        h.finish().unwrap();
     }
 
     #[test]

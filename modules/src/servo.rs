@@ -28,13 +28,13 @@ use std::time::Duration;
 
 use hng_runtime::channel::InputId;
 use hng_runtime::contract::{NeedSpec, ServiceOffer};
-use hng_runtime::control::{ProviderInfo, ProviderInput};
+use hng_runtime::control::{FollowProvider as _, ProviderInfo, ProviderInput, ProviderOutput};
 use hng_runtime::msg::{FrameId, Header, Pose2D, PoseWithCovariance, Twist, Waypoint};
 use hng_runtime::{Context, Module, ModuleResult, Publisher, Subscriber, TimerId};
 use serde::{Deserialize, Serialize};
 use smart_default::SmartDefault;
 
-use crate::common::{follow_output, positive, relative, seconds};
+use crate::common::{positive, relative, seconds};
 use crate::msgs::{GoalState, GoalStatus};
 
 /// Parameters of the controller.
@@ -206,12 +206,11 @@ pub const LOCALIZATION_NEED: u16 = 2;
 pub struct ServoModule {
     core: ServoCore,
     waypoint: Subscriber<Waypoint>,
-    /// The configured pose channel: used only until a "Localization" provider is known.
-    pose: Subscriber<PoseWithCovariance>,
-    /// The contracted "Localization" provider's pose (need rank [`LOCALIZATION_NEED`]).
+    /// The contracted "Localization" provider's pose (need rank [`LOCALIZATION_NEED`]); the
+    /// configured `pose` channel's until one is known.
     localization: ProviderInput<PoseWithCovariance>,
     /// Commands to the contracted Robot's channel (need rank [`ROBOT_CONTROL_NEED`]).
-    cmd_out: Option<Publisher<Twist>>,
+    cmd_out: ProviderOutput<Twist>,
     status_out: Publisher<GoalStatus>,
     last_wp: Option<(Waypoint, Duration)>,
     last_pose: Option<(Pose2D, Duration)>,
@@ -240,7 +239,7 @@ impl ServoModule {
             return Ok(());
         };
         let out = self.core.command(&pose, &wp);
-        if let (Some(cmd), Some(cmd_out)) = (out.cmd, &self.cmd_out) {
+        if let (Some(cmd), Some(cmd_out)) = (out.cmd, self.cmd_out.publisher()) {
             cmd_out.publish(cmd)?;
         }
         if out.reached {
@@ -293,9 +292,8 @@ impl Module for ServoModule {
         Ok(ServoModule {
             core: ServoCore::new(cfg.params),
             waypoint: ctx.subscribe(&cfg.waypoint, None)?,
-            pose: ctx.subscribe(&cfg.pose, None)?,
-            localization: ProviderInput::new(),
-            cmd_out: None,
+            localization: ProviderInput::new().with_fallback(ctx, &cfg.pose)?,
+            cmd_out: ProviderOutput::new(),
             status_out: ctx.publisher(&cfg.status_out)?,
             last_wp: None,
             last_pose: None,
@@ -327,14 +325,6 @@ impl Module for ServoModule {
                 }
             }
             self.act(ctx)
-        } else if input == self.pose.id() {
-            let fallback = self.localization.provider().is_none();
-            while let Some(p) = self.pose.receive()? {
-                if fallback {
-                    self.last_pose = Some((p.pose, now));
-                }
-            }
-            if fallback { self.act(ctx) } else { Ok(()) }
         } else if let Some(odom) = self.odom.as_ref().filter(|o| o.id() == input) {
             while let Some(o) = odom.receive()? {
                 self.rater.on_odom(o.pose);
@@ -367,7 +357,7 @@ impl Module for ServoModule {
             self.localization.follow(ctx, provider)?;
             self.rater.reset();
         } else if need == ROBOT_CONTROL_NEED {
-            follow_output(ctx, &mut self.cmd_out, provider)?;
+            self.cmd_out.follow(ctx, provider)?;
         }
         Ok(())
     }
@@ -409,6 +399,68 @@ mod tests {
         pose.x += vel.0 * pose.theta.cos() * dt;
         pose.y += vel.0 * pose.theta.sin() * dt;
         pose.theta = crate::common::wrap_angle(pose.theta + vel.1 * dt);
+    }
+
+    /// The module's own loop (in-process harness): with "Localization" and "Robot control"
+    /// served by the test, it steers to the waypoint from the provider's pose, ignores its
+    /// fallback pose channel, and reports the goal reached.
+    #[test]
+    fn the_module_steers_from_the_providers_pose_to_the_waypoint() {
+        use hng_runtime::harness::Harness;
+        use hng_runtime::msg::PoseWithCovariance;
+        use std::f64::consts::FRAC_PI_2;
+        let at = |x: f64, y: f64, theta: f64| PoseWithCovariance {
+            pose: Pose2D { x, y, theta },
+            ..Default::default()
+        };
+        let mut h = Harness::new("servo").unwrap();
+        let pose = h.input::<PoseWithCovariance>("test/pose").unwrap();
+        let fallback = h.input::<PoseWithCovariance>("slam/pose").unwrap();
+        let waypoint = h.input::<Waypoint>("planning/waypoint").unwrap();
+        let mut cmd = h.output::<Twist>("test/cmd_vel").unwrap();
+        let mut status = h.output::<GoalStatus>("servo/status").unwrap();
+        h.provider(LOCALIZATION_NEED, "test/pose")
+            .provider(ROBOT_CONTROL_NEED, "test/cmd_vel");
+        h.start::<ServoModule>("odom = \"\"").unwrap();
+
+        // A pose, again until the module answers (a waypoint and a pose that come together
+        // may be read in either order: the waypoint counts from the next pose on).
+        let mut steer = |h: &Harness, p: PoseWithCovariance, pred: &dyn Fn(&Twist) -> bool| {
+            for _ in 0..50 {
+                pose.publish(p).unwrap();
+                if let Ok(c) = h.wait_for(&mut cmd, Duration::from_millis(100), pred) {
+                    return c;
+                }
+            }
+            panic!("no command with {p:?}: {:?}", cmd.samples.last());
+        };
+        waypoint.publish(wp(2.0, 0.0, false)).unwrap();
+        let c = steer(&h, at(0.0, 0.0, 0.0), &|c| c.linear_x > 0.0);
+        assert!(c.angular_z.abs() < 1e-9, "straight on: {c:?}");
+
+        // The waypoint to the left: a left turn. A fallback pose facing it is not read.
+        fallback.publish(at(0.0, 0.0, FRAC_PI_2)).unwrap();
+        waypoint.publish(wp(0.0, 2.0, false)).unwrap();
+        let c = steer(&h, at(0.0, 0.0, 0.0), &|c| c.angular_z != 0.0);
+        assert!(
+            c.angular_z > 0.0,
+            "turns left, from the provider's heading: {c:?}"
+        );
+
+        // At the final waypoint: reached.
+        waypoint.publish(wp(0.0, 2.0, true)).unwrap();
+        let reached = GoalState::Reached as u8;
+        let s = (0..50)
+            .find_map(|_| {
+                pose.publish(at(0.0, 1.99, FRAC_PI_2)).unwrap();
+                h.wait_for(&mut status, Duration::from_millis(100), |s| {
+                    s.state == reached
+                })
+                .ok()
+            })
+            .expect("the goal reached");
+        assert_eq!(s.goal_id, 7);
+        h.finish().unwrap();
     }
 
     #[test]
@@ -511,19 +563,9 @@ mod tests {
     /// through a 0.9 m door in the wall x = 5: the robot's least gap to an obstacle, and the
     /// planned path's.
     fn through_a_door(params: PlanningParams, goal: (f64, f64)) -> (f64, f64) {
-        use crate::planning::{FREE, OCCUPIED, OccupancyGrid, path_clearance};
-        let mut grid = OccupancyGrid::new(100, 60, 0.1, [0.0, 0.0], FREE).unwrap();
-        for x in 0..100 {
-            grid.set(x, 0, OCCUPIED);
-            grid.set(x, 59, OCCUPIED);
-        }
-        for y in 0..60 {
-            grid.set(0, y, OCCUPIED);
-            grid.set(99, y, OCCUPIED);
-            if !(26..35).contains(&y) {
-                grid.set(50, y, OCCUPIED);
-            }
-        }
+        use crate::planning::path_clearance;
+        // The 0.9 m door: cells 26 to 34.
+        let grid = crate::planning_module::tests::walled_room(26..35);
         let mut planner = PlanningCore::new(params);
         planner.set_map(&grid);
         planner.set_goal(hng_runtime::msg::Goal {

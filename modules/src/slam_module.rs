@@ -32,6 +32,7 @@ use std::time::Duration;
 
 use hng_runtime::channel::InputId;
 use hng_runtime::contract::{NeedSpec, ServiceOffer};
+use hng_runtime::control::ProviderInput;
 use hng_runtime::msg::{
     FrameId, GridInfo, Header, LaserScan, Odometry, Pose2D, PoseWithCovariance,
 };
@@ -40,7 +41,7 @@ use nalgebra::{Isometry2, Vector2};
 use serde::{Deserialize, Serialize};
 use smart_default::SmartDefault;
 
-use crate::common::{ContractedInput, compose, relative, seconds};
+use crate::common::{compose, relative, seconds};
 use crate::maps::msg_from_grid;
 use crate::slam::{BackendConfig, EstimateSource, LaserConfig, Slam, SlamConfig};
 
@@ -263,8 +264,8 @@ pub const LIDAR_NEED: u16 = 2;
 #[derive(Debug)]
 pub struct SlamModule {
     tracker: SlamTracker,
-    scan: ContractedInput<LaserScan>,
-    odom: ContractedInput<Odometry>,
+    scan: ProviderInput<LaserScan>,
+    odom: ProviderInput<Odometry>,
     pose_out: Publisher<PoseWithCovariance>,
     map_out: Option<SlicePublisher<GridInfo>>,
     restored_scans: u64,
@@ -320,8 +321,12 @@ impl Module for SlamModule {
         ctx.set_quality(false, 0.0);
         Ok(SlamModule {
             tracker: SlamTracker::new(scfg, cfg.initial_pose),
-            scan: ContractedInput::new(ctx, &cfg.scan, Some(timeout))?,
-            odom: ContractedInput::new(ctx, &cfg.odom, Some(timeout))?,
+            scan: ProviderInput::new()
+                .with_deadline(Some(timeout))
+                .with_fallback(ctx, &cfg.scan)?,
+            odom: ProviderInput::new()
+                .with_deadline(Some(timeout))
+                .with_fallback(ctx, &cfg.odom)?,
             pose_out: ctx.publisher(&cfg.pose_out)?,
             map_out,
             restored_scans: 0,
@@ -374,7 +379,7 @@ impl Module for SlamModule {
         Ok(())
     }
 
-    crate::follow_needs!(ODOMETRY_NEED => odom, LIDAR_NEED => scan);
+    hng_runtime::follow_needs!(ODOMETRY_NEED => odom, LIDAR_NEED => scan);
 
     hng_runtime::checkpoint_with!(Self::save_state, Self::load_state);
 }

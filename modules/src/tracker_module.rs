@@ -42,7 +42,8 @@ use std::time::Duration;
 
 use hng_runtime::channel::InputId;
 use hng_runtime::contract::{NeedSpec, ServiceOffer};
-use hng_runtime::control::ProviderInfo;
+use hng_runtime::control::SliceProviderInput;
+use hng_runtime::msg::ImageInfo;
 use hng_runtime::msg::{
     BeaconTrack, DESIGNATION_CHANNEL, Designation, FrameId, Header, TRACK_LOST, TRACK_PREDICTED,
     TRACK_SEEN,
@@ -55,7 +56,7 @@ use crate::tracker::{
     BeaconTrack as Track, CameraModel, ColourTracker, ColourTrackerConfig, Detection, TrackState,
 };
 use crate::tracker_hist::{HistogramTracker, HistogramTrackerConfig};
-use crate::video::{VideoInput, check_rgb8, image_hfov};
+use crate::video::{check_rgb8, image_hfov};
 
 /// The service the trackers provide.
 pub const TRACK_BEACON: &str = "Track beacon";
@@ -157,7 +158,7 @@ struct TrackerState {
 /// A tracker module running detector `D`; see the module documentation.
 pub struct TrackerModule<D: Detector> {
     cfg: TrackerConfig<D::Params>,
-    video: VideoInput,
+    video: SliceProviderInput<ImageInfo>,
     designation: Subscriber<Designation>,
     out: Publisher<BeaconTrack>,
     /// The designated beacon, if any.
@@ -222,8 +223,10 @@ impl<D: Detector> Module for TrackerModule<D> {
         ctx.set_quality(false, -1.0);
         // The frame timeout: a timer looks at the age of the last image.
         ctx.add_timer(timeout.min(Duration::from_millis(250)));
-        let mut video = VideoInput::new();
-        video.follow_channel(ctx, &cfg.image)?;
+        // A left image channel is closed: the Camera works only while its images have readers.
+        let video = SliceProviderInput::new()
+            .keep_left(0)
+            .with_fallback(ctx, &cfg.image)?;
         if cfg.lie {
             tracing::warn!(
                 module = ctx.name(),
@@ -340,20 +343,7 @@ impl<D: Detector> Module for TrackerModule<D> {
         Ok(())
     }
 
-    fn on_provider_changed(
-        &mut self,
-        ctx: &mut Context,
-        need: u16,
-        provider: Option<&ProviderInfo>,
-    ) -> ModuleResult {
-        if need == VIDEO_NEED {
-            match provider {
-                Some(p) => self.video.follow(ctx, Some(p))?,
-                None => self.video.follow_channel(ctx, &self.cfg.image)?,
-            }
-        }
-        Ok(())
-    }
+    hng_runtime::follow_needs!(VIDEO_NEED => video);
 
     hng_runtime::checkpoint_field!(state);
 }

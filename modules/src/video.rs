@@ -1,17 +1,12 @@
-//! "Video" for its clients: the image message as the Camera publishes it, and
-//! [`VideoInput`], a client's input from whichever provider serves its "Video" need (the
-//! image counterpart of [`hng_runtime::control::ProviderInput`], which carries fixed-size
-//! messages only).
+//! "Video" for its clients: the image message as the Camera publishes it (a client reads it
+//! with a `hng_runtime::control::SliceProviderInput<ImageInfo>`).
 //!
 //! Images are `ImageInfo` + bytes (RGB8, row-major, top row first). [`check_rgb8`] is the one
 //! test of a frame's shape that every consumer applies: a payload whose length is not
 //! `width * height * 3`, or a header that does not say `rgb8` with `step = width * 3`, is
 //! dropped and counted by the caller.
 
-use hng_runtime::channel::{InputId, SliceSample};
-use hng_runtime::control::ProviderInfo;
 use hng_runtime::msg::ImageInfo;
-use hng_runtime::{Context, Error, SliceSubscriber};
 
 /// The "Video" offer's data type.
 pub const VIDEO_TYPE: &str = hng_runtime::msg::IMAGE_INFO_TYPE;
@@ -52,108 +47,6 @@ pub fn image_hfov(info: &ImageInfo) -> Result<f64, String> {
             "field of view hfov = {f} rad is not in (0.05, 3.1): columns cannot be turned into \
              bearings"
         ))
-    }
-}
-
-/// A client's input from its "Video" provider; see the module documentation.
-#[derive(Debug, Default)]
-pub struct VideoInput {
-    sub: Option<(String, SliceSubscriber<ImageInfo>)>,
-    provider: Option<ProviderInfo>,
-    foreign: u64,
-}
-
-impl crate::common::FollowProvider for VideoInput {
-    fn follow_provider(
-        &mut self,
-        ctx: &mut Context,
-        p: Option<&ProviderInfo>,
-    ) -> Result<(), Error> {
-        self.follow(ctx, p)
-    }
-}
-
-impl VideoInput {
-    /// An input following no provider yet.
-    #[must_use]
-    pub fn new() -> Self {
-        Self::default()
-    }
-
-    /// Follows `provider` (or none): (re)subscribes to its data channel when it changed.
-    ///
-    /// # Errors
-    /// The channel cannot be opened (e.g. it does not carry images).
-    pub fn follow(
-        &mut self,
-        ctx: &mut Context,
-        provider: Option<&ProviderInfo>,
-    ) -> Result<(), Error> {
-        let same = matches!((&self.sub, provider), (Some((c, _)), Some(p)) if *c == p.channel);
-        self.provider = provider.cloned();
-        if same {
-            return Ok(());
-        }
-        if let Some((_, old)) = self.sub.take() {
-            ctx.unsubscribe(old.id())?;
-        }
-        if let Some(p) = provider.filter(|p| !p.channel.is_empty()) {
-            let sub = ctx.subscribe_slice::<ImageInfo>(&p.channel, None)?;
-            self.sub = Some((p.channel.clone(), sub));
-        }
-        Ok(())
-    }
-
-    /// Follows a fixed channel (no contract: tools, benches, tests).
-    ///
-    /// # Errors
-    /// The channel cannot be opened.
-    pub fn follow_channel(&mut self, ctx: &mut Context, channel: &str) -> Result<(), Error> {
-        if let Some((_, old)) = self.sub.take() {
-            ctx.unsubscribe(old.id())?;
-        }
-        self.provider = None;
-        self.sub = Some((
-            channel.into(),
-            ctx.subscribe_slice::<ImageInfo>(channel, None)?,
-        ));
-        Ok(())
-    }
-
-    /// True when `input` is this input's subscriber.
-    #[must_use]
-    pub fn is(&self, input: InputId) -> bool {
-        self.sub.as_ref().is_some_and(|(_, s)| s.id() == input)
-    }
-
-    /// The provider followed.
-    #[must_use]
-    pub fn provider(&self) -> Option<&ProviderInfo> {
-        self.provider.as_ref()
-    }
-
-    /// The next frame from the selected provider (any publisher's on a fixed channel);
-    /// frames of other publishers are skipped and counted ([`VideoInput::foreign`]).
-    ///
-    /// # Errors
-    /// The channel failed.
-    pub fn receive(&mut self) -> Result<Option<SliceSample<ImageInfo>>, Error> {
-        let Some((_, sub)) = &self.sub else {
-            return Ok(None);
-        };
-        while let Some(s) = sub.receive()? {
-            match &self.provider {
-                Some(p) if s.header().header.source != p.module.0 => self.foreign += 1,
-                _ => return Ok(Some(s)),
-            }
-        }
-        Ok(None)
-    }
-
-    /// Frames skipped because another module published them.
-    #[must_use]
-    pub fn foreign(&self) -> u64 {
-        self.foreign
     }
 }
 

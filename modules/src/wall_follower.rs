@@ -16,9 +16,9 @@
 
 use hng_runtime::channel::InputId;
 use hng_runtime::contract::{NeedSpec, ServiceOffer};
-use hng_runtime::control::ProviderInput;
+use hng_runtime::control::{ProviderInput, ProviderOutput};
 use hng_runtime::msg::{FOLLOW_WALL_CHANNEL, FollowWallRequest, SIDE_LEFT, Twist, Walls};
-use hng_runtime::{Context, Module, ModuleResult, Publisher, Subscriber};
+use hng_runtime::{Context, Module, ModuleResult, Subscriber};
 use serde::{Deserialize, Serialize};
 
 use crate::robot::ROBOT_CONTROL;
@@ -58,7 +58,7 @@ pub struct WallFollowerModule {
     follower: WallFollower,
     walls: ProviderInput<Walls>,
     requests: Subscriber<FollowWallRequest>,
-    cmd_out: Option<Publisher<Twist>>,
+    cmd_out: ProviderOutput<Twist>,
     active: bool,
     last_step: Option<f64>,
     last_state: Option<FollowState>,
@@ -106,7 +106,7 @@ impl WallFollowerModule {
             FollowState::DeadEnd | FollowState::NoWall => 0.0,
         };
         ctx.set_quality(true, q);
-        if let Some(out) = &self.cmd_out {
+        if let Some(out) = self.cmd_out.publisher() {
             out.publish(Twist {
                 linear_x: cmd.linear_x,
                 angular_z: cmd.angular_z,
@@ -136,7 +136,7 @@ impl Module for WallFollowerModule {
             follower: WallFollower::new(cfg.follow),
             walls: ProviderInput::new(),
             requests: ctx.subscribe(&cfg.request_in, None)?,
-            cmd_out: None,
+            cmd_out: ProviderOutput::new(),
             active: false,
             last_step: None,
             last_state: None,
@@ -170,7 +170,7 @@ impl Module for WallFollowerModule {
         Ok(())
     }
 
-    crate::follow_needs!(ROBOT_CONTROL_NEED => cmd_out, DETECT_WALL_NEED => walls);
+    hng_runtime::follow_needs!(ROBOT_CONTROL_NEED => cmd_out, DETECT_WALL_NEED => walls);
 
     hng_runtime::checkpoint_field!(state);
 }

@@ -14,12 +14,13 @@
 
 use hng_runtime::channel::InputId;
 use hng_runtime::contract::{NeedSpec, ServiceOffer};
+use hng_runtime::control::ProviderInput;
 use hng_runtime::msg::{LaserScan, MAX_WALLS, WallSegment, Walls};
 use hng_runtime::{Context, Module, ModuleResult, Publisher};
 use serde::{Deserialize, Serialize};
 use smart_default::SmartDefault;
 
-use crate::common::{ContractedInput, positive, seconds};
+use crate::common::{positive, seconds};
 use crate::walls::{Side, Wall, WallDetector, WallDetectorConfig};
 
 /// The service this module provides.
@@ -144,7 +145,7 @@ struct WallsState {
 pub struct WallsModule {
     cfg: WallsConfig,
     detector: WallDetector,
-    scan: ContractedInput<LaserScan>,
+    scan: ProviderInput<LaserScan>,
     out: Publisher<Walls>,
     walls: Vec<Wall>,
     state: WallsState,
@@ -200,7 +201,9 @@ impl Module for WallsModule {
         ctx.set_quality(false, -1.0);
         Ok(WallsModule {
             detector: WallDetector::new(cfg.detector),
-            scan: ContractedInput::new(ctx, &cfg.scan, Some(timeout))?,
+            scan: ProviderInput::new()
+                .with_deadline(Some(timeout))
+                .with_fallback(ctx, &cfg.scan)?,
             out: ctx.publisher(&cfg.walls_out)?,
             walls: Vec::new(),
             state: WallsState::default(),
@@ -224,7 +227,7 @@ impl Module for WallsModule {
         Ok(())
     }
 
-    crate::follow_needs!(LIDAR_NEED => scan);
+    hng_runtime::follow_needs!(LIDAR_NEED => scan);
 
     hng_runtime::checkpoint_field!(state);
 }

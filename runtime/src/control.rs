@@ -43,9 +43,12 @@ use crate::system::{
 };
 use crate::wait::Waiter;
 
-mod provider_input;
+mod follow;
 
-pub use provider_input::{PROVIDER_INPUT_CACHE, ProviderInput};
+pub use follow::{
+    FollowProvider, PROVIDER_INPUT_CACHE, ProviderInput, ProviderOutput, ProviderReceiver,
+    SliceProviderInput,
+};
 
 /// Root of the control channels.
 pub const CONTROL_ROOT: &str = "hng/ctl";

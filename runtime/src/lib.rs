@@ -21,6 +21,7 @@ pub mod control;
 pub mod cpus;
 mod error;
 pub mod fatal;
+pub mod harness;
 pub mod map;
 pub mod module;
 pub mod msg;

@@ -25,7 +25,8 @@ use std::time::Duration;
 use serde::de::DeserializeOwned;
 
 use crate::channel::{
-    InputId, Node, NodeOptions, Publisher, SlicePublisher, SliceSubscriber, Subscriber,
+    InputId, Kind, Node, NodeOptions, Publisher, Receiver, SlicePublisher, SliceSubscriber,
+    Subscriber,
 };
 use crate::clock::{Clock, ClockMode, monotonic_ns};
 use crate::contract::{
@@ -33,6 +34,7 @@ use crate::contract::{
 };
 use crate::control::{ContractSpec, ControlPlane, PlaneEvent, ProviderInfo};
 use crate::error::Error;
+use crate::harness::Hooks;
 use crate::msg::{self, Message, ModuleReport, ModuleState, SliceMessage};
 use crate::wait::{WaitMode, Waiter, Wake};
 
@@ -247,10 +249,7 @@ impl Context {
         channel: &str,
         deadline: Option<Duration>,
     ) -> Result<Subscriber<T>, Error> {
-        let sub = self.node.subscriber::<T>(channel)?;
-        self.waiter.attach(&sub)?;
-        self.watch_deadline(sub.id(), deadline);
-        Ok(sub)
+        self.subscribe_kind(channel, deadline)
     }
 
     /// Subscribes to a variable-size channel.
@@ -259,17 +258,26 @@ impl Context {
         channel: &str,
         deadline: Option<Duration>,
     ) -> Result<SliceSubscriber<H>, Error> {
-        let sub = self.node.slice_subscriber::<H>(channel)?;
+        self.subscribe_kind(channel, deadline)
+    }
+
+    /// Subscribes to a channel of either kind (the provider inputs' one way in).
+    pub(crate) fn subscribe_kind<K: Kind>(
+        &mut self,
+        channel: &str,
+        deadline: Option<Duration>,
+    ) -> Result<Receiver<K>, Error> {
+        let sub = K::subscriber(&self.node, channel)?;
         self.waiter.attach(&sub)?;
         self.watch_deadline(sub.id(), deadline);
         Ok(sub)
     }
 
     /// Calls back again for a subscriber earlier passed to [`Context::unsubscribe`] and kept
-    /// (a cached [`crate::control::ProviderInput`] channel): no channel is opened.
-    pub(crate) fn resubscribe<T: Message>(
+    /// (a channel a [`crate::control::ProviderReceiver`] left): no channel is opened.
+    pub(crate) fn resubscribe<K: Kind>(
         &mut self,
-        sub: &Subscriber<T>,
+        sub: &Receiver<K>,
         deadline: Option<Duration>,
     ) -> Result<(), Error> {
         self.waiter.attach(sub)?;
@@ -598,7 +606,9 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
     }
     ctx.state = ModuleState::Running;
     module.start(&mut ctx).map_err(|e| module_err("start", e))?;
-    if ctx.contract_spec.declared() {
+    if let Some(h) = &opts.harness {
+        h.serve(&mut module, &mut ctx);
+    } else if ctx.contract_spec.declared() {
         let plane = ControlPlane::new(&ctx.node, &mut ctx.waiter, &ctx.contract_spec)
             .map_err(|e| module_err("contracts", Box::new(e)))?;
         let manager = plane.agent().config().manager;
@@ -622,7 +632,7 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
     );
     let mut next_checkpoint = monotonic_ns().saturating_add(checkpoint_ns);
     let clock_id = rounds.as_ref().map(|r| r.common.id());
-    while !ctx.stop_requested {
+    while !ctx.stop_requested && !opts.harness.as_ref().is_some_and(Hooks::stopped) {
         // Wall-clock wake-ups: report and checkpoint; clock-time ones: timers and deadlines
         // (in simulation they are checked at every clock sample instead).
         let wall_now = monotonic_ns();

@@ -502,8 +502,6 @@ pub enum ModuleState {
     Stopping = 3,
 }
 
-impl ModuleState {}
-
 /// Length of a module name in a report.
 pub const MODULE_NAME_LEN: usize = 32;
 

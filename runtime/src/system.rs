@@ -71,8 +71,6 @@ pub enum CommandOp {
     Shutdown = 6,
 }
 
-impl CommandOp {}
-
 /// A command to the supervisor.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
@@ -164,8 +162,6 @@ pub enum EventKind {
     /// The module was stopped on purpose.
     Stopped = 4,
 }
-
-impl EventKind {}
 
 /// A module life-cycle event from the supervisor.
 #[repr(C)]

@@ -2,34 +2,11 @@
 
 use std::path::PathBuf;
 
+use hng_runtime::map::MapFileError;
+
 /// Everything that can go wrong when loading a world or map, or building a simulator.
 #[derive(Debug, thiserror::Error)]
 pub enum SimError {
-    /// A file could not be read or written.
-    #[error("{}: {action}: {source}", path.display())]
-    Io {
-        /// The file.
-        path: PathBuf,
-        /// What was being done ("cannot read", "cannot write").
-        action: &'static str,
-        /// The operating-system error.
-        #[source]
-        source: std::io::Error,
-    },
-    /// A world file, map YAML or PGM image is malformed. Line and column are 1-based.
-    #[error("{}:{line}:{column}: field `{field}`: {message}", path.display())]
-    Parse {
-        /// The file.
-        path: PathBuf,
-        /// 1-based line of the offending text.
-        line: usize,
-        /// 1-based column of the offending text.
-        column: usize,
-        /// Dotted path of the offending field, e.g. `sensors.lidar.beams` or `walls[2].thickness`.
-        field: String,
-        /// What is wrong and, where possible, what is expected.
-        message: String,
-    },
     /// A velocity command was NaN or infinite; the robot was told to stop instead.
     #[error(
         "rejected velocity command linear_x={linear_x}, angular_z={angular_z}: not finite; stopping"
@@ -40,7 +17,9 @@ pub enum SimError {
         /// Commanded turn rate.
         angular_z: f64,
     },
-    /// A map_server map (YAML or PGM) could not be read or written.
+    /// A file could not be read or written, or a world file, map YAML or PGM image is
+    /// malformed (`Parse`: 1-based line and column, the dotted path of the offending field,
+    /// e.g. `sensors.lidar.beams` or `walls[2].thickness`). One error type for every file.
     #[error(transparent)]
     Map(#[from] hng_runtime::map::MapFileError),
     /// A world built in code (not parsed from a file) has an invalid value.
@@ -66,11 +45,26 @@ impl SimError {
         action: &'static str,
         source: std::io::Error,
     ) -> Self {
-        SimError::Io {
+        SimError::Map(MapFileError::Io {
             path: path.into(),
             action,
             source,
-        }
+        })
+    }
+
+    pub(crate) fn parse(
+        path: impl Into<PathBuf>,
+        (line, column): (usize, usize),
+        field: String,
+        message: String,
+    ) -> Self {
+        SimError::Map(MapFileError::Parse {
+            path: path.into(),
+            line,
+            column,
+            field,
+            message,
+        })
     }
 }
 

@@ -525,28 +525,14 @@ impl World {
             if let Some(missing) = backticked(&message, "missing field `") {
                 field = join_field(&field, missing);
             }
-            SimError::Parse {
-                path: path.to_path_buf(),
-                line,
-                column,
-                field: if field.is_empty() {
-                    "(top level)".to_owned()
-                } else {
-                    field
-                },
-                message,
+            if field.is_empty() {
+                field = "(top level)".to_owned();
             }
+            SimError::parse(path, (line, column), field, message)
         })?;
         world.validate().map_err(|e| match e {
             SimError::Invalid { field, message } => {
-                let (line, column) = locate_toml_field(src, &field);
-                SimError::Parse {
-                    path: path.to_path_buf(),
-                    line,
-                    column,
-                    field,
-                    message,
-                }
+                SimError::parse(path, locate_toml_field(src, &field), field, message)
             }
             other => other,
         })?;

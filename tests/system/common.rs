@@ -15,6 +15,35 @@ use hng_runtime::wait::{WaitMode, Waiter};
 use hng_runtime::{Node, NodeOptions, Publisher, Subscriber, shm};
 use hng_simulator::module::SimStatus;
 
+/// A launch file: its header (`system`, `clock = "sim"`, the `[defaults]` of supervision given
+/// as `heartbeat_timeout` and `start_timeout`), then one `[[module]]` entry per `(name, keys,
+/// config)`: built-in module `name` (`hng module NAME`), its extra keys (`manager = true`) and
+/// its `config` table (TOML lines; none when empty).
+pub(crate) fn launch_file(
+    system: &str,
+    heartbeat_timeout: &str,
+    start_timeout: &str,
+    modules: &[(&str, &str, &str)],
+) -> String {
+    let mut s = format!(
+        "system = {system:?}\nclock = \"sim\"\n\n[defaults]\nheartbeat_period = \"200ms\"\n\
+         heartbeat_timeout = {heartbeat_timeout:?}\nstart_timeout = {start_timeout:?}\n\
+         stop_timeout = \"2s\"\n"
+    );
+    for (name, keys, config) in modules {
+        s.push_str(&format!(
+            "\n[[module]]\nname = {name:?}\ncommand = [\"hng\", \"module\", {name:?}]\n"
+        ));
+        if !keys.is_empty() {
+            s.push_str(&format!("{keys}\n"));
+        }
+        if !config.is_empty() {
+            s.push_str(&format!("[module.config]\n{config}\n"));
+        }
+    }
+    s
+}
+
 /// Generous: a whole robot in accelerated simulation on two loaded cores.
 pub(crate) const TIMEOUT: Duration = Duration::from_secs(150);
 

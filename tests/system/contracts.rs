@@ -544,7 +544,7 @@ period_s = 0.01"#,
 #[test]
 fn contracts_provider_input_reuses_left_channels() {
     use hng_runtime::Context;
-    use hng_runtime::control::{ProviderInfo, ProviderInput};
+    use hng_runtime::control::{FollowProvider as _, ProviderInfo, ProviderInput};
     use hng_runtime::msg::{Odometry, Pose2D};
 
     let sys = TestSystem::new("ct_pinput");

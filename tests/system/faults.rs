@@ -14,6 +14,8 @@ use hng_runtime::wait::{WaitMode, Waiter};
 use hng_runtime::{Node, NodeOptions, SliceSubscriber, Subscriber, shm};
 use serde_json::Value;
 
+use crate::signals::{is_alive, processes_of};
+
 const HNG: &str = env!("CARGO_BIN_EXE_hng");
 const TESTMOD: &str = env!("CARGO_BIN_EXE_hng-testmod");
 const TIMEOUT: Duration = Duration::from_secs(20);
@@ -292,7 +294,7 @@ impl RunningSystem {
         assert!(left.is_empty(), "processes left behind: {left:?}");
         for p in &self.pids {
             assert!(
-                !is_alive(*p),
+                !is_alive(*p as i32),
                 "module pid {p} still alive after hng run stopped"
             );
         }
@@ -317,42 +319,6 @@ impl Drop for RunningSystem {
         }
         shm::remove_prefix_files(&self.prefix);
         let _ = std::fs::remove_dir_all(&self.dir);
-    }
-}
-
-/// Live processes whose environment has `HNG_PREFIX=<prefix>`: `hng run` and its modules.
-fn processes_of(prefix: &str) -> Vec<i32> {
-    let needle = format!("HNG_PREFIX={prefix}\0");
-    let me = std::process::id() as i32;
-    let mut out = Vec::new();
-    let Ok(entries) = std::fs::read_dir("/proc") else {
-        return out;
-    };
-    for e in entries.flatten() {
-        let Some(pid) = e.file_name().to_str().and_then(|s| s.parse::<i32>().ok()) else {
-            continue;
-        };
-        if pid == me || !is_alive(pid as u32) {
-            continue;
-        }
-        if let Ok(env) = std::fs::read(e.path().join("environ"))
-            && env
-                .split_inclusive(|&b| b == 0)
-                .any(|kv| kv == needle.as_bytes())
-        {
-            out.push(pid);
-        }
-    }
-    out
-}
-
-/// Alive and not a zombie.
-fn is_alive(pid: u32) -> bool {
-    match std::fs::read_to_string(format!("/proc/{pid}/stat")) {
-        Ok(stat) => stat
-            .rsplit_once(") ")
-            .is_some_and(|(_, rest)| !rest.starts_with('Z')),
-        Err(_) => false,
     }
 }
 
@@ -563,7 +529,7 @@ fn sigterm_stops_every_module_in_reverse_order_and_leaves_nothing() {
         matches!((a, b), (Some(a), Some(b)) if b < a),
         "second (started last) must stop first; log:\n{log}"
     );
-    assert!(pids.iter().all(|p| !is_alive(*p)));
+    assert!(pids.iter().all(|p| !is_alive(*p as i32)));
     assert!(!dir.exists(), "the test's folder is removed");
 }
 

@@ -9,7 +9,7 @@ use hng_runtime::msg::{Order, OrderKind, Twist};
 use hng_runtime::shm;
 use nix::sys::signal::Signal;
 
-use crate::common::{Watch, dist, goal};
+use crate::common::{Watch, dist, goal, launch_file};
 use crate::signals::Run;
 
 const HNG: &str = env!("CARGO_BIN_EXE_hng");
@@ -44,82 +44,24 @@ pub(crate) fn launch(
     let (x, y, t) = start;
     let start = format!("{{ x = {x:?}, y = {y:?}, theta = {t:?} }}");
     let world = world.map_or(String::new(), |w| format!("world = {w:?}\n"));
-    let mut s = format!(
-        r#"system = "orders"
-clock = "sim"
-
-[defaults]
-heartbeat_period = "200ms"
-heartbeat_timeout = "5s"
-start_timeout = "20s"
-stop_timeout = "2s"
-
-[[module]]
-name = "simulator"
-command = ["hng", "module", "simulator"]
-[module.config]
-{world}start = {start}
-speed = 4
-wait_for = [{list}]
-lockstep = [{list}]
-
-[[module]]
-name = "laser"
-command = ["hng", "module", "laser"]
-
-[[module]]
-name = "robot"
-command = ["hng", "module", "robot"]
-
-[[module]]
-name = "security"
-command = ["hng", "module", "security"]
-
-[[module]]
-name = "interface"
-command = ["hng", "module", "interface"]
-[module.config]
-video = false
-
-[[module]]
-name = "maps"
-command = ["hng", "module", "maps"]
-[module.config]
-map = {map:?}
-
-[[module]]
-name = "slam"
-command = ["hng", "module", "slam"]
-[module.config]
-initial_pose = {start}
-
-[[module]]
-name = "planning"
-command = ["hng", "module", "planning"]
-[module.config]
-goal = "interface/goal"
-
-[[module]]
-name = "servo"
-command = ["hng", "module", "servo"]
-
-[[module]]
-name = "manager"
-command = ["hng", "module", "manager"]
-manager = true
-[module.config]
-goals = []
-"#
-    );
-    for (name, config) in extra {
-        s.push_str(&format!(
-            "\n[[module]]\nname = {name:?}\ncommand = [\"hng\", \"module\", {name:?}]\n"
-        ));
-        if !config.is_empty() {
-            s.push_str(&format!("[module.config]\n{config}\n"));
-        }
-    }
-    s
+    let sim =
+        format!("{world}start = {start}\nspeed = 4\nwait_for = [{list}]\nlockstep = [{list}]");
+    let map = format!("map = {map:?}");
+    let slam = format!("initial_pose = {start}");
+    let mut modules = vec![
+        ("simulator", "", sim.as_str()),
+        ("laser", "", ""),
+        ("robot", "", ""),
+        ("security", "", ""),
+        ("interface", "", "video = false"),
+        ("maps", "", map.as_str()),
+        ("slam", "", slam.as_str()),
+        ("planning", "", "goal = \"interface/goal\""),
+        ("servo", "", ""),
+        ("manager", "manager = true", "goals = []"),
+    ];
+    modules.extend(extra.iter().map(|(name, config)| (*name, "", *config)));
+    launch_file("orders", "5s", "20s", &modules)
 }
 
 /// The map of `world` (default: built-in) for Maps, written into `dir`.

@@ -92,20 +92,7 @@ impl Run {
 
     /// Every log file of this test's runs, in order.
     pub fn log(&self) -> String {
-        let mut files: Vec<PathBuf> = std::fs::read_dir(&self.dir)
-            .into_iter()
-            .flatten()
-            .flatten()
-            .map(|e| e.path())
-            .filter(|p| p.extension().is_some_and(|e| e == "log"))
-            .collect();
-        files.sort();
-        let text = files
-            .iter()
-            .map(|f| std::fs::read_to_string(f).unwrap_or_default())
-            .collect::<Vec<_>>()
-            .join("\n");
-        strip_ansi(&text)
+        run_log(&self.dir)
     }
 
     /// Waits for a stdout line that satisfies `pred`.

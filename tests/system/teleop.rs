@@ -12,45 +12,24 @@ use crate::signals::Run;
 
 const HNG: &str = env!("CARGO_BIN_EXE_hng");
 
-const LAUNCH: &str = r#"system = "teleop"
-clock = "sim"
-
-[defaults]
-heartbeat_period = "200ms"
-heartbeat_timeout = "3s"
-start_timeout = "10s"
-stop_timeout = "2s"
-
-[[module]]
-name = "simulator"
-command = ["hng", "module", "simulator"]
-[module.config]
-speed = 2
-wait_for = ["laser", "robot", "security", "interface", "manager"]
-
-[[module]]
-name = "laser"
-command = ["hng", "module", "laser"]
-
-[[module]]
-name = "robot"
-command = ["hng", "module", "robot"]
-
-[[module]]
-name = "security"
-command = ["hng", "module", "security"]
-
-[[module]]
-name = "interface"
-command = ["hng", "module", "interface"]
-
-[[module]]
-name = "manager"
-command = ["hng", "module", "manager"]
-manager = true
-[module.config]
-goals = []
-"#;
+/// The Table 1 modules a teleoperated robot needs, the Manager with no goals.
+fn launch() -> String {
+    let sim =
+        "speed = 2\nwait_for = [\"laser\", \"robot\", \"security\", \"interface\", \"manager\"]";
+    crate::common::launch_file(
+        "teleop",
+        "3s",
+        "10s",
+        &[
+            ("simulator", "", sim),
+            ("laser", "", ""),
+            ("robot", "", ""),
+            ("security", "", ""),
+            ("interface", "", ""),
+            ("manager", "manager = true", "goals = []"),
+        ],
+    )
+}
 
 /// `hng topic pub hng/teleop JSON --rate 20`, running until it is stopped.
 fn teleop(prefix: &str, json: &str, count: Option<u64>) -> Child {
@@ -78,7 +57,7 @@ fn non_finite_teleop_commands_never_move_the_robot_and_are_counted() {
     let dir = crate::signals::test_dir(&prefix);
     std::fs::create_dir_all(&dir).expect("dir");
     let file = dir.join("teleop.toml");
-    std::fs::write(&file, LAUNCH).expect("launch file");
+    std::fs::write(&file, launch()).expect("launch file");
     let mut watch = Watch::new(&prefix);
     let mut run = Run::start_on(&prefix, &[file.to_str().expect("path")]);
     watch.until("simulated time running", |w| {

@@ -79,9 +79,7 @@ impl MapFeedbackParams {
             ("map_feedback.search_m", self.search_m),
             ("map_feedback.search_rad", self.search_rad),
         ] {
-            if !(v.is_finite() && v >= 0.0) {
-                return Err(field_error(f, "must be >= 0"));
-            }
+            crate::common::non_negative(f, v)?;
         }
         if !((0.0..self.agree).contains(&self.disagree) && self.agree <= 1.0) {
             return Err(field_error(

@@ -31,6 +31,11 @@ pub trait Kind: sealed::Sealed + 'static {
     /// borrowing one of the subscriber's few samples).
     #[doc(hidden)]
     fn copied(sample: Self::Sample) -> Self::Sample;
+    /// A subscriber of this kind on `channel`.
+    #[doc(hidden)]
+    fn subscriber(node: &Node, channel: &str) -> Result<Receiver<Self>, Error>
+    where
+        Self: Sized;
 }
 
 /// Fixed-size messages of type `T` (see [`Subscriber`]).
@@ -64,6 +69,9 @@ impl<T: Message> Kind for Fixed<T> {
     fn copied(sample: Sample<T>) -> Sample<T> {
         sample.copied()
     }
+    fn subscriber(node: &Node, channel: &str) -> Result<Subscriber<T>, Error> {
+        node.subscriber(channel)
+    }
 }
 
 impl<H: SliceMessage> Kind for Slice<H> {
@@ -87,6 +95,9 @@ impl<H: SliceMessage> Kind for Slice<H> {
     }
     fn copied(sample: SliceSample<H>) -> SliceSample<H> {
         sample.copied()
+    }
+    fn subscriber(node: &Node, channel: &str) -> Result<SliceSubscriber<H>, Error> {
+        node.slice_subscriber(channel)
     }
 }
 

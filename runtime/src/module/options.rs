@@ -36,6 +36,9 @@ pub struct RunOptions {
     pub wait: WaitMode,
     /// Turn SIGINT/SIGTERM/SIGHUP into a clean stop.
     pub catch_signals: bool,
+    /// Run by the in-process test harness ([`crate::harness`]): scripted providers instead of
+    /// the contract plane, and its stop flag. `None` in a module process.
+    pub harness: Option<crate::harness::Hooks>,
 }
 
 impl RunOptions {
@@ -52,6 +55,7 @@ impl RunOptions {
             clock: ClockMode::Wall,
             wait: WaitMode::default(),
             catch_signals: true,
+            harness: None,
         }
     }
 

@@ -29,72 +29,37 @@ impl World {
             wall([14.0, 0.0], [14.0, 4.0]),
             wall([14.0, 5.2], [14.0, 8.0]),
         ];
+        let pillar = |center: [f64; 2], size: [f64; 2], angle: f64| BoxObstacle {
+            center,
+            size,
+            angle,
+            color: None,
+        };
         w.boxes = vec![
             // Pillars in the yard.
-            BoxObstacle {
-                center: [4.0, 5.0],
-                size: [0.6, 0.6],
-                angle: 0.0,
-                color: None,
-            },
-            BoxObstacle {
-                center: [5.5, 10.0],
-                size: [1.0, 0.5],
-                angle: 0.5,
-                color: None,
-            },
-            BoxObstacle {
-                center: [2.5, 12.5],
-                size: [0.8, 0.8],
-                angle: PI / 4.0,
-                color: None,
-            },
+            pillar([4.0, 5.0], [0.6, 0.6], 0.0),
+            pillar([5.5, 10.0], [1.0, 0.5], 0.5),
+            pillar([2.5, 12.5], [0.8, 0.8], PI / 4.0),
             // A table in the north room and a shelf in the south-east room.
-            BoxObstacle {
-                center: [15.0, 11.5],
-                size: [2.0, 1.0],
-                angle: 0.0,
-                color: None,
-            },
-            BoxObstacle {
-                center: [17.5, 2.0],
-                size: [0.4, 2.0],
-                angle: 0.0,
-                color: None,
-            },
+            pillar([15.0, 11.5], [2.0, 1.0], 0.0),
+            pillar([17.5, 2.0], [0.4, 2.0], 0.0),
         ];
-        w.beacons = vec![
-            Beacon {
-                id: 1,
-                position: [7.9, 6.0],
-                radius: 0.1,
-            },
-            Beacon {
-                id: 2,
-                position: [0.1, 7.5],
-                radius: 0.1,
-            },
-            Beacon {
-                id: 3,
-                position: [4.0, 14.9],
-                radius: 0.1,
-            },
-            Beacon {
-                id: 4,
-                position: [19.9, 12.0],
-                radius: 0.1,
-            },
-            Beacon {
-                id: 5,
-                position: [11.0, 0.1],
-                radius: 0.1,
-            },
-            Beacon {
-                id: 6,
-                position: [19.9, 4.0],
-                radius: 0.1,
-            },
-        ];
+        w.beacons = [
+            [7.9, 6.0],
+            [0.1, 7.5],
+            [4.0, 14.9],
+            [19.9, 12.0],
+            [11.0, 0.1],
+            [19.9, 4.0],
+        ]
+        .into_iter()
+        .zip(1..)
+        .map(|(position, id)| Beacon {
+            id,
+            position,
+            radius: 0.1,
+        })
+        .collect();
         w.sensors.gps.zones = vec![
             GpsZone {
                 name: "building south".to_owned(),
