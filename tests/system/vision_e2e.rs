@@ -588,13 +588,9 @@ fn track_beacon_moves_to_the_histogram_tracker_in_the_dark_and_back_in_the_light
         "{seen:?}"
     );
     // The two switches at the times the test saw them.
-    let log = r.log();
-    let switches = log.iter().filter_map(|(when, to)| {
-        let when: f64 = when.trim_end_matches(" s").parse().expect("time");
-        (when >= 3.0).then_some((when, to))
-    });
-    for ((t, to), (when, logged)) in seen[settled + 1..].iter().zip(switches) {
-        assert_eq!(to, logged, "stream {seen:?}, test {log:?}");
+    let switches = r.switches.iter().filter(|(when, _)| *when >= 3.0);
+    for ((t, to), (when, id)) in seen[settled + 1..].iter().zip(switches) {
+        assert_eq!(*to, r.name(*id), "stream {seen:?}, test {:?}", r.log());
         assert!((t - when).abs() <= 0.5, "stream {t:.2} s, test {when:.2} s");
     }
     r.finish();
