@@ -99,6 +99,11 @@ pub fn min_interval(topic: &str) -> Duration {
     })
 }
 
+/// When the frame after one of `topic` sent at `now` may go, given when this one was allowed.
+fn next_allowed(allowed_from: Option<Instant>, now: Instant, topic: &str) -> Instant {
+    allowed_from.map_or(now, |a| (a + min_interval(topic)).max(now))
+}
+
 /// Most events kept for the timeline.
 const EVENTS_KEPT: usize = 200;
 
@@ -215,7 +220,13 @@ struct Sources {
 struct State {
     hub: Arc<Hub>,
     dirty: Vec<bool>,
-    last_put: Vec<Option<Instant>>,
+    /// Per topic, when its next frame may go (a generic cell rate algorithm with a burst of one
+    /// interval): each frame sent moves it to `max(it + interval, now)`, so the stream keeps to
+    /// one frame per [`min_interval`] in the long run, yet a source at or below that rate is
+    /// never held back by its jitter. With a plain "interval since the last frame" one late
+    /// frame delayed every later one (a backlog of up to 75 ms at 10 Hz, shrinking by 10 ms a
+    /// frame).
+    allowed_from: Vec<Option<Instant>>,
     tables: BTreeMap<u32, (Instant, ContractTable)>,
     /// (client, service) -> provider, to see switches.
     holders: BTreeMap<(String, String), String>,
@@ -309,7 +320,7 @@ pub fn run(opts: &BusOptions, hub: &Arc<Hub>, stop: &AtomicBool) -> Result<(), c
     let mut st = State {
         hub: Arc::clone(hub),
         dirty: vec![false; TOPICS.len()],
-        last_put: vec![None; TOPICS.len()],
+        allowed_from: vec![None; TOPICS.len()],
         tables: BTreeMap::new(),
         holders: BTreeMap::new(),
         events: VecDeque::new(),
@@ -333,7 +344,7 @@ pub fn run(opts: &BusOptions, hub: &Arc<Hub>, stop: &AtomicBool) -> Result<(), c
         if clients > had_clients {
             // A newcomer gets every topic held.
             st.dirty.iter_mut().for_each(|d| *d = true);
-            st.last_put.iter_mut().for_each(|t| *t = None);
+            st.allowed_from.iter_mut().for_each(|t| *t = None);
         }
         had_clients = clients;
         let now = Instant::now();
@@ -343,14 +354,20 @@ pub fn run(opts: &BusOptions, hub: &Arc<Hub>, stop: &AtomicBool) -> Result<(), c
                 if !st.dirty[i] {
                     continue;
                 }
-                let due = st.last_put[i].map_or(now, |t| t + min_interval(topic));
+                let due = st.allowed_from[i].unwrap_or(now);
                 if due <= now {
                     st.dirty[i] = false;
-                    st.last_put[i] = Some(now);
-                    if let Some((v, bytes, stamp)) = encode_bulk(topic, &src) {
+                    let put = if let Some((v, bytes, stamp)) = encode_bulk(topic, &src) {
                         hub.put_binary(topic, &v, &bytes, stamp);
+                        true
                     } else if let Some((v, stamp)) = encode(topic, &src, &st) {
                         hub.put_json(topic, &v, stamp);
+                        true
+                    } else {
+                        false
+                    };
+                    if put {
+                        st.allowed_from[i] = Some(next_allowed(st.allowed_from[i], now, topic));
                     }
                 } else {
                     next = Some(next.map_or(due, |n: Instant| n.min(due)));
@@ -743,5 +760,46 @@ fn encode(topic: &str, src: &Sources, st: &State) -> Option<(Value, u64)> {
         "contracts" => Some((contracts(st), 0)),
         "events" => Some((Value::Array(st.events.iter().cloned().collect()), 0)),
         _ => None,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The send times (ms) of a topic whose frames arrive at `arrivals` (ms, ascending), as
+    /// the bus loop sends them: the latest frame, once allowed, checked every millisecond.
+    fn sends(topic: &str, arrivals: &[u64]) -> Vec<u64> {
+        let t0 = Instant::now();
+        let mut allowed: Option<Instant> = None;
+        let mut dirty = false;
+        let mut next = arrivals.iter().peekable();
+        let mut out = Vec::new();
+        for ms in 0..=arrivals.last().copied().unwrap_or(0) + 200 {
+            let now = t0 + Duration::from_millis(ms);
+            while next.next_if(|&&a| a <= ms).is_some() {
+                dirty = true;
+            }
+            if dirty && allowed.is_none_or(|a| a <= now) {
+                dirty = false;
+                allowed = Some(next_allowed(allowed, now, topic));
+                out.push(ms);
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn a_ten_hertz_scan_with_jitter_is_never_held_back_and_a_fast_pose_is_thinned() {
+        // 10 Hz with one frame 40 ms late and one 5 ms early: each goes when it arrives.
+        let arrivals = [0, 100, 240, 300, 395, 500, 600];
+        assert_eq!(sends("scan", &arrivals), arrivals);
+        // 100 Hz for 2 s: after a first pair, frames 90 ms apart or more, about 11 a second.
+        let fast: Vec<u64> = (0..200).map(|k| k * 10).collect();
+        let sent = sends("pose", &fast);
+        assert!((22..=25).contains(&sent.len()), "{sent:?}");
+        for w in sent.windows(2).skip(2) {
+            assert!(w[1] - w[0] >= 90, "{sent:?}");
+        }
     }
 }
