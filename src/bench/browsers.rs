@@ -12,6 +12,7 @@ use std::time::Duration;
 
 use anyhow::{Context as _, Result, bail};
 use hng_gui::{Channels, Server};
+use nix::sched::CpuSet;
 use serde_json::Value;
 
 /// The folder of the browser drivers (the repository's tests/system/js).
@@ -63,18 +64,26 @@ pub enum BrowserPriority {
     Normal,
 }
 
-/// Starts `cmd` at `priority`, for it and every process it starts. Chromium raises its display
-/// threads to nice -8 when it may (as root, with CAP_SYS_NICE): the capability is dropped from
-/// the bounding set first, so nothing below the driver can raise its priority.
-fn at_priority(cmd: &mut Command, priority: BrowserPriority) {
+/// Starts `cmd` at `priority` and on `cpus` (all when `None`), for it and every process it
+/// starts. Chromium raises its display threads to nice -8 when it may (as root, with
+/// CAP_SYS_NICE): the capability is dropped from the bounding set first, so nothing below the
+/// driver can raise its priority.
+fn schedule(cmd: &mut Command, priority: BrowserPriority, cpus: Option<CpuSet>) {
     use std::os::unix::process::CommandExt as _;
-    if priority == BrowserPriority::Normal {
+    if priority == BrowserPriority::Normal && cpus.is_none() {
         return;
     }
-    // SAFETY: between fork and exec only async-signal-safe calls with plain integers and a
-    // stack value; the capability drop's failure (not root: nothing to drop) changes nothing.
+    // SAFETY: between fork and exec only async-signal-safe calls (system calls) with plain
+    // integers and stack values; the capability drop's failure (not root: nothing to drop)
+    // changes nothing.
     unsafe {
         cmd.pre_exec(move || {
+            if let Some(set) = &cpus {
+                nix::sched::sched_setaffinity(nix::unistd::Pid::from_raw(0), set)?;
+            }
+            if priority == BrowserPriority::Normal {
+                return Ok(());
+            }
             let _ = nix::libc::prctl(nix::libc::PR_CAPBSET_DROP, CAP_SYS_NICE, 0, 0, 0);
             let rc = match priority {
                 BrowserPriority::Idle => {
@@ -106,13 +115,14 @@ pub struct Watchers {
 
 impl Watchers {
     /// Serves the page for `prefix` (the scan shown read from `scan`) and opens it in
-    /// `browsers` headless Chromium instances scheduled at `priority`; returns
+    /// `browsers` headless Chromium instances scheduled at `priority` on `cpus`; returns
     /// once every page is connected to the live stream.
     pub fn start(
         prefix: &str,
         scan: &str,
         browsers: usize,
         priority: BrowserPriority,
+        cpus: Option<CpuSet>,
     ) -> Result<Watchers> {
         let server = super::gui::serve_page(
             prefix,
@@ -123,7 +133,7 @@ impl Watchers {
         )?;
         let url = format!("http://{}/", server.local_addr());
         let mut node = Command::new("node");
-        at_priority(&mut node, priority);
+        schedule(&mut node, priority, cpus);
         let mut driver = node
             .arg(js_dir().join("watch.mjs"))
             .arg(&url)

@@ -32,6 +32,8 @@ use hng_runtime::stats::{BenchRow, Percentiles};
 use hng_runtime::wait::{WaitMode, Waiter};
 use hng_runtime::{Node, NodeOptions};
 
+use super::affinity::CpuList;
+
 /// Arguments of `hng bench loop`.
 #[derive(Debug, Clone, Args)]
 pub struct LoopArgs {
@@ -67,6 +69,16 @@ pub struct LoopArgs {
     /// server's own view threads run at nice `hng_gui::VIEW_NICE` in every case.
     #[arg(long, value_enum, default_value_t = super::browsers::BrowserPriority::Idle)]
     pub browser_priority: super::browsers::BrowserPriority,
+    /// CPUs of the loop: this process (with the page server it runs for the browsers) and the
+    /// two modules, in both measurements (a list as `taskset -c` takes it: `0`, `0-1`).
+    /// Default: all.
+    #[arg(long, value_parser = CpuList::parse)]
+    pub loop_cpus: Option<CpuList>,
+    /// CPUs of the browsers and their driver, standing for the operator's own machine: with
+    /// `--loop-cpus 0 --browser-cpus 1` the browsers' rendering never shares a core with the
+    /// loop, and what is left of the page's cost on the loop is the server's. Default: all.
+    #[arg(long, value_parser = CpuList::parse)]
+    pub browser_cpus: Option<CpuList>,
 }
 
 const SCAN: &str = "bench/scan";
@@ -173,6 +185,10 @@ pub fn lidar_to_command(a: &LoopArgs) -> Result<Vec<BenchRow>> {
 /// The loop, while `browsers` browsers watch the operator page (0: none).
 fn lidar_to_command_watched(a: &LoopArgs, browsers: usize) -> Result<Vec<BenchRow>> {
     let mode = WaitMode::parse(&a.wait).context("--wait")?;
+    if let Some(cpus) = &a.loop_cpus {
+        // Before anything starts: the modules and the page server's threads inherit it.
+        cpus.apply_to_this_thread()?;
+    }
     let prefix = shm::unique_prefix("loop");
     let mut modules = Modules {
         children: Vec::new(),
@@ -251,6 +267,7 @@ fn lidar_to_command_watched(a: &LoopArgs, browsers: usize) -> Result<Vec<BenchRo
             SCAN,
             browsers,
             a.browser_priority,
+            a.browser_cpus.as_ref().map(CpuList::set),
         )?)
     } else {
         None
@@ -358,6 +375,14 @@ fn lidar_to_command_watched(a: &LoopArgs, browsers: usize) -> Result<Vec<BenchRo
                 serde_json::to_value(a.browser_priority).unwrap_or_default(),
             )
             .with("page_scan_frames", serde_json::Value::from(frames.clone()))
+            .with(
+                "loop_cpus",
+                a.loop_cpus.as_ref().map_or("all", CpuList::as_str),
+            )
+            .with(
+                "browser_cpus",
+                a.browser_cpus.as_ref().map_or("all", CpuList::as_str),
+            )
     };
     Ok(vec![
         row("lidar_to_command", &mut to_robot, 2),

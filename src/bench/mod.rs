@@ -7,6 +7,7 @@ use anyhow::Result;
 use clap::Subcommand;
 use hng_runtime::stats::{BenchRow, table};
 
+pub mod affinity;
 pub mod browsers;
 pub mod contracts;
 pub mod gui;
