@@ -153,6 +153,20 @@ impl OccupancyGrid {
     pub fn origin_yaw(&self) -> f64 {
         self.origin_yaw
     }
+    /// The header of this grid's message on a map channel (frame `map`, no stamp); the
+    /// cells are [`OccupancyGrid::data`].
+    pub fn info(&self) -> crate::msg::GridInfo {
+        crate::msg::GridInfo {
+            header: crate::msg::Header {
+                frame_id: crate::msg::FrameId::MAP,
+                ..crate::msg::Header::default()
+            },
+            resolution: self.resolution as f32,
+            width: self.width,
+            height: self.height,
+            origin: crate::msg::Pose2D::new(self.origin[0], self.origin[1], self.origin_yaw),
+        }
+    }
     /// The same grid with its x axis turned by `yaw` radians about `origin`.
     #[must_use]
     pub fn with_origin_yaw(mut self, yaw: f64) -> Self {
