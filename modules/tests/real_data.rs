@@ -22,15 +22,6 @@ fn carmen(name: &str) -> PathBuf {
     repo_data("carmen").join(name)
 }
 
-/// A scratch directory, removed when dropped.
-fn scratch(tag: &str) -> tempfile::TempDir {
-    let prefix = format!("hng-realdata-{tag}-");
-    tempfile::Builder::new()
-        .prefix(&prefix)
-        .tempdir()
-        .expect("scratch dir")
-}
-
 #[test]
 fn movingai_arena_every_optimal_length_exact() {
     let map = repo_data("movingai/arena.map");
@@ -113,7 +104,7 @@ fn slam_on_every_carmen_log_beats_odometry_and_holds_its_accuracy() {
 /// front end alone, run on the same log); the map is written.
 #[test]
 fn intel_loop_closure_halves_the_absolute_trajectory_error() {
-    let dir = scratch("intel");
+    let dir = tempfile::tempdir().expect("scratch dir");
     let out = dir.path().join("intel.yaml");
     let e = eval_within_bounds(
         &carmen("intel-corrected.log"),
@@ -141,7 +132,7 @@ fn intel_loop_closure_halves_the_absolute_trajectory_error() {
 /// the evaluation runs.
 #[test]
 fn bad_logs_give_clear_errors_or_counted_skips() {
-    let dir = scratch("bad");
+    let dir = tempfile::tempdir().expect("scratch dir");
     let text = std::fs::read_to_string(carmen("orebro-corrected.log")).expect("log");
     // Cut in the middle of the 40th FLASER line.
     let (cut_line, cut_at) = text

@@ -165,19 +165,26 @@ pub(crate) fn spawn_hng_run(
     args: &[&str],
 ) -> Child {
     let log = std::fs::File::create(dir.join("run.log")).expect("log file");
-    Command::new(env!("CARGO_BIN_EXE_hng"))
-        .arg("run")
+    hng_run(prefix, log)
         .args(args)
         .args(["--no-gui", "--status-period", "0.1", "--run-dir"])
         .arg(dir)
         .arg(file)
+        .stdout(Stdio::null())
+        .spawn()
+        .expect("spawn hng run")
+}
+
+/// `hng run` on `prefix`, no input, its log (INFO) to `log`; the caller adds its arguments and
+/// says where stdout goes.
+pub(crate) fn hng_run(prefix: &str, log: std::fs::File) -> Command {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_hng"));
+    cmd.arg("run")
         .env("HNG_PREFIX", prefix)
         .env("HNG_LOG", "info")
         .stdin(Stdio::null())
-        .stdout(Stdio::null())
-        .stderr(log)
-        .spawn()
-        .expect("spawn hng run")
+        .stderr(log);
+    cmd
 }
 
 /// Waits up to `timeout` for `child` to exit; `None` if it has not (or cannot be asked).

@@ -33,15 +33,6 @@ fn f(v: &serde_json::Value, k: &str) -> f64 {
         .unwrap_or_else(|| panic!("field {k} missing in {v}"))
 }
 
-/// A scratch directory, removed when dropped.
-fn scratch(tag: &str) -> tempfile::TempDir {
-    let prefix = format!("hng-eval-{tag}-");
-    tempfile::Builder::new()
-        .prefix(&prefix)
-        .tempdir()
-        .expect("scratch dir")
-}
-
 #[test]
 fn eval_planner_finds_every_optimal_length_on_arena() {
     let (map, scen) = (
@@ -65,7 +56,7 @@ fn eval_planner_finds_every_optimal_length_on_arena() {
 #[test]
 fn eval_planner_errors_name_file_line_and_field() {
     let map = repo_data("movingai/arena.map");
-    let dir = scratch("badscen");
+    let dir = tempfile::tempdir().expect("scratch dir");
     let scen = dir.path().join("bad.scen");
     std::fs::write(
         &scen,
@@ -96,7 +87,7 @@ fn eval_slam_errors_name_the_file_and_line() {
     let out = hng(&["eval", "slam", "/nonexistent/log.clf", "--json"]);
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("/nonexistent/log.clf"));
-    let dir = scratch("badlog");
+    let dir = tempfile::tempdir().expect("scratch dir");
     let log = dir.path().join("short.log");
     std::fs::write(
         &log,
@@ -110,7 +101,7 @@ fn eval_slam_errors_name_the_file_and_line() {
         err.contains("short.log:3: FLASER field `range[2]`: missing (line too short)"),
         "{err}"
     );
-    let empty = scratch("emptydir");
+    let empty = tempfile::tempdir().expect("scratch dir");
     let out = hng(&["eval", "slam", "--all", &empty.path().to_string_lossy()]);
     assert!(!out.status.success());
     assert!(
@@ -123,7 +114,7 @@ fn eval_slam_errors_name_the_file_and_line() {
 #[test]
 fn eval_slam_reports_relative_and_absolute_errors_and_writes_the_map() {
     let log = carmen("seattle-corrected.log");
-    let dir = scratch("slam");
+    let dir = tempfile::tempdir().expect("scratch dir");
     let yaml = dir.path().join("seattle.yaml");
     let v = json(&hng(&[
         "eval",
@@ -156,7 +147,7 @@ fn eval_slam_reports_relative_and_absolute_errors_and_writes_the_map() {
 
 #[test]
 fn eval_slam_all_evaluates_every_log_in_a_folder() {
-    let dir = scratch("all");
+    let dir = tempfile::tempdir().expect("scratch dir");
     // Two geometries (180 and 361 beams) from the two quickest logs: every log's accuracy is
     // real_data's subject; this test's is the folder form.
     for name in ["aces-corrected.log", "seattle-corrected.log"] {

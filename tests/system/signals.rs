@@ -60,17 +60,12 @@ impl Run {
         let log = std::fs::File::create(dir.join(format!("run{n}.log"))).expect("log file");
         // No operator page unless the test asks for one (`--gui ADDR`).
         let page = args.contains(&"--gui");
-        let mut child = Command::new(HNG)
-            .arg("run")
+        let mut child = crate::common::hng_run(prefix, log)
             .args(if page { None } else { Some("--no-gui") })
             .arg("--run-dir")
             .arg(dir.join("run"))
             .args(args)
-            .env("HNG_PREFIX", prefix)
-            .env("HNG_LOG", "info")
-            .stdin(Stdio::null())
             .stdout(Stdio::piped())
-            .stderr(log)
             .spawn()
             .expect("spawn hng run");
         let out = child.stdout.take().expect("stdout");
