@@ -79,14 +79,13 @@ impl OccupancyGrid {
                 value: fill,
             });
         }
-        Ok(Self {
+        Ok(Self::unchecked(
             width,
             height,
             resolution,
             origin,
-            origin_yaw: 0.0,
-            data: vec![fill; n],
-        })
+            vec![fill; n],
+        ))
     }
 
     /// A grid from existing row-major data (row 0 = lowest y).
@@ -111,14 +110,25 @@ impl OccupancyGrid {
         {
             return Err(GridError::BadCellValue { index, value });
         }
-        Ok(Self {
+        Ok(Self::unchecked(width, height, resolution, origin, data))
+    }
+
+    /// A grid of checked dimensions and cells, its x axis along the map's.
+    fn unchecked(
+        width: u32,
+        height: u32,
+        resolution: f64,
+        origin: [f64; 2],
+        data: Vec<i8>,
+    ) -> Self {
+        Self {
             width,
             height,
             resolution,
             origin,
             origin_yaw: 0.0,
             data,
-        })
+        }
     }
 
     fn check_dims(width: u32, height: u32, resolution: f64) -> Result<usize, GridError> {
