@@ -7,27 +7,10 @@ use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
 use std::time::Duration;
 
 use criterion::BatchSize;
+use hng::bench::contracts::proposals;
 use hng_runtime::contract::{
-    AgentConfig, ContractAgent, Envelope, Message, ModuleId, Proposal, Propose, select_best,
+    AgentConfig, ContractAgent, Envelope, Message, ModuleId, Propose, select_best,
 };
-
-/// Deterministic pseudo-random values in [-1, 2) (no RNG dependency).
-fn proposals(n: usize) -> Vec<Proposal> {
-    let mut x: u64 = 0x9E37_79B9_7F4A_7C15;
-    (0..n)
-        .map(|i| {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
-            let value = (x >> 11) as f64 / (1u64 << 53) as f64 * 3.0 - 1.0;
-            Proposal {
-                provider: ModuleId(i as u32),
-                value,
-                channel: format!("{i}/Localization"),
-            }
-        })
-        .collect()
-}
 
 fn decide(c: &mut Criterion) {
     let mut group = c.benchmark_group("decide_N");

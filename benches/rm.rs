@@ -3,24 +3,12 @@
 //! at 10 Hz; `hng bench rm --json` (`hng_rm::bench::sample_n`) measures the RM's own CPU
 //! at the real rate.
 
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::time::Instant;
 
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
+use hng_rm::bench::Sleepers;
 use hng_rm::sampler::{ModuleTarget, Sampler, SamplerConfig};
-
-struct Sleepers(Vec<Child>);
-
-impl Drop for Sleepers {
-    fn drop(&mut self) {
-        for c in &mut self.0 {
-            let _ = c.kill();
-        }
-        for c in &mut self.0 {
-            let _ = c.wait();
-        }
-    }
-}
 
 fn spawn_sleepers(n: usize) -> Result<Sleepers, String> {
     let mut s = Sleepers(Vec::with_capacity(n));

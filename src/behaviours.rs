@@ -76,9 +76,7 @@ pub fn run(prefix: &str, args: &BehavioursArgs) -> Result<()> {
     let sub = node
         .subscriber::<Behaviours>(BEHAVIOURS_CHANNEL)
         .context("subscribing to the behaviours")?;
-    let mut waiter = Waiter::new(WaitMode::Blocking {
-        max_spin: Duration::ZERO,
-    })?;
+    let mut waiter = Waiter::new(WaitMode::SLEEP)?;
     waiter.attach(&sub)?;
     let json = args.json || !std::io::stdout().is_terminal();
     let deadline = Instant::now() + Duration::from_secs_f64(args.timeout);

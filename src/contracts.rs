@@ -69,18 +69,6 @@ struct View {
     data: Vec<Flow>,
 }
 
-pub(crate) fn priority_text(parts: &[u16]) -> String {
-    if parts.is_empty() {
-        "root".to_string()
-    } else {
-        parts
-            .iter()
-            .map(u16::to_string)
-            .collect::<Vec<_>>()
-            .join(".")
-    }
-}
-
 /// A reader of the contract tables every module publishes: the node (keep it alive), its
 /// subscriber, and a waiter attached to it.
 pub(crate) fn table_reader(prefix: &str) -> Result<(Node, Subscriber<ContractTable>, Waiter)> {
@@ -91,9 +79,7 @@ pub(crate) fn table_reader(prefix: &str) -> Result<(Node, Subscriber<ContractTab
     let sub = node
         .subscriber::<ContractTable>(CONTRACTS)
         .context("cannot subscribe to the contract tables")?;
-    let mut waiter = Waiter::new(WaitMode::Blocking {
-        max_spin: Duration::ZERO,
-    })?;
+    let mut waiter = Waiter::new(WaitMode::SLEEP)?;
     waiter.attach(&sub)?;
     Ok((node, sub, waiter))
 }
@@ -130,7 +116,7 @@ fn view(tables: &BTreeMap<u32, ContractTable>) -> View {
             id: t.module_id,
             active: t.active != 0,
             priority: if t.active != 0 {
-                priority_text(t.priority())
+                hng_runtime::contract::dotted(t.priority())
             } else {
                 "-".into()
             },
@@ -155,7 +141,7 @@ fn view(tables: &BTreeMap<u32, ContractTable>) -> View {
                 provider: name(e.peer),
                 service: e.service().to_string(),
                 need: e.need,
-                priority: priority_text(e.priority()),
+                priority: hng_runtime::contract::dotted(e.priority()),
                 value: e.value,
                 channel: e.channel().to_string(),
             });
@@ -204,7 +190,7 @@ fn print_tree(
             "{:indent$}{} [{}] -> {} (V {:.2})",
             "",
             e.service(),
-            priority_text(e.priority()),
+            hng_runtime::contract::dotted(e.priority()),
             provider,
             e.value,
             indent = 2 * (depth + 1)

@@ -106,7 +106,7 @@ impl SwitchLog {
                 client: t.module().to_owned(),
                 service: e.service().to_owned(),
                 need: e.need,
-                priority: crate::contracts::priority_text(e.priority()),
+                priority: hng_runtime::contract::dotted(e.priority()),
                 from: before.map(|b| self.name(b)),
                 to: Some(self.name(e.peer)),
                 value: e.value.is_finite().then_some(e.value),

@@ -197,9 +197,7 @@ impl OrderLink {
         let orders = node
             .publisher::<Order>(ORDER_CHANNEL)
             .context("opening the order channel")?;
-        let mut waiter = Waiter::new(WaitMode::Blocking {
-            max_spin: Duration::ZERO,
-        })?;
+        let mut waiter = Waiter::new(WaitMode::SLEEP)?;
         waiter.attach(&status)?;
         // A start that two front ends rarely share (the Interface echoes it).
         let nanos = std::time::SystemTime::now()

@@ -257,10 +257,7 @@ pub fn replay(prefix: &str, args: &ReplayArgs) -> Result<()> {
     let _signals = std::thread::Builder::new()
         .name("hng-replay-signals".into())
         .spawn(move || {
-            if let Ok(mut w) =
-                hng_runtime::wait::Waiter::new(hng_runtime::wait::WaitMode::Blocking {
-                    max_spin: Duration::ZERO,
-                })
+            if let Ok(mut w) = hng_runtime::wait::Waiter::new(hng_runtime::wait::WaitMode::SLEEP)
                 && w.catch_termination_signals().is_ok()
             {
                 while !s2.load(Ordering::Acquire) {

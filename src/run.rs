@@ -137,15 +137,9 @@ pub fn run(prefix: &str, args: &RunArgs) -> ExitCode {
     for w in &plan.warnings {
         tracing::warn!("{}: {w}", plan.file.display());
     }
-    if args.check {
-        return print_plan(&plan);
-    }
-    let lock = match lock::lock_prefix(prefix) {
+    let lock = match check_or_lock(prefix, args, &plan) {
         Ok(l) => l,
-        Err(e) => {
-            eprintln!("hng: error: {:#}", anyhow::Error::from(e));
-            return ExitCode::FAILURE;
-        }
+        Err(code) => return code,
     };
     match supervise(prefix, args, plan, None, lock).0 {
         Ok(()) => ExitCode::SUCCESS,
@@ -187,15 +181,9 @@ fn run_mission(prefix: &str, args: &RunArgs) -> ExitCode {
             return ExitCode::from(EXIT_BAD_LAUNCH_FILE);
         }
     };
-    if args.check {
-        return print_plan(&plan);
-    }
-    let lock = match lock::lock_prefix(prefix) {
+    let lock = match check_or_lock(prefix, args, &plan) {
         Ok(l) => l,
-        Err(e) => {
-            eprintln!("hng: error: {:#}", anyhow::Error::from(e));
-            return ExitCode::FAILURE;
-        }
+        Err(code) => return code,
     };
     if let Err(e) = mission.prepare() {
         eprintln!("hng: error: {:#}", anyhow::Error::from(e));
@@ -243,6 +231,22 @@ fn run_mission(prefix: &str, args: &RunArgs) -> ExitCode {
         None => return ExitCode::FAILURE,
     };
     report(&outcome, args.summary.as_deref())
+}
+
+/// With `--check`, the plan printed and the exit code; otherwise the prefix's lock (or the
+/// failure to take it, said).
+fn check_or_lock(
+    prefix: &str,
+    args: &RunArgs,
+    plan: &LaunchPlan,
+) -> std::result::Result<SystemLock, ExitCode> {
+    if args.check {
+        return Err(print_plan(plan));
+    }
+    lock::lock_prefix(prefix).map_err(|e| {
+        eprintln!("hng: error: {:#}", anyhow::Error::from(e));
+        ExitCode::FAILURE
+    })
 }
 
 /// `--check`: the plan as JSON on stdout.

@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context as _, Result, bail};
 use clap::Subcommand;
-use hng_runtime::channel::{Kind, Node, NodeOptions, Receiver, Service, iceoryx_config};
+use hng_runtime::channel::{Kind, Node, NodeOptions, Receiver, iceoryx_config};
 use hng_runtime::msg::{self, Message, SliceMessage};
 use hng_runtime::system;
 use hng_runtime::wait::{WaitMode, Waiter, Wake};
@@ -69,40 +69,10 @@ pub enum TopicCommand {
     },
 }
 
-#[derive(Debug, Serialize)]
-pub(crate) struct ChannelInfo {
-    pub(crate) name: String,
-    pub(crate) r#type: String,
-    /// Processes (nodes) attached to the channel.
-    nodes: Option<usize>,
-    history: usize,
-    buffer: usize,
-}
+pub(crate) use hng_runtime::channel::ChannelListing as ChannelInfo;
 
 pub(crate) fn channels(prefix: &str) -> Result<Vec<ChannelInfo>> {
-    let config = iceoryx_config(prefix)?;
-    let mut out = Vec::new();
-    <Service as iceoryx2::service::Service>::list(&config, |d| {
-        if let iceoryx2::service::static_config::messaging_pattern::MessagingPattern::PublishSubscribe(ps) =
-            d.static_details.messaging_pattern()
-        {
-            let t = ps.message_type_details();
-            let payload = t.payload.type_name().to_string();
-            let header = t.user_header.type_name().to_string();
-            let nodes = d.dynamic_details.as_ref().map(|dy| dy.nodes.len());
-            out.push(ChannelInfo {
-                name: d.static_details.name().to_string(),
-                r#type: if header == "()" { payload } else { header },
-                nodes,
-                history: ps.history_size(),
-                buffer: ps.subscriber_max_buffer_size(),
-            });
-        }
-        CallbackProgression::Continue
-    })
-    .map_err(|e| anyhow::anyhow!("listing the channels of prefix {prefix:?}: {e:?}"))?;
-    out.sort_by(|a, b| a.name.cmp(&b.name));
-    Ok(out)
+    Ok(hng_runtime::channel::list_channels(prefix)?)
 }
 
 pub fn run(prefix: &str, cmd: TopicCommand) -> Result<()> {
@@ -120,7 +90,13 @@ pub fn run(prefix: &str, cmd: TopicCommand) -> Result<()> {
                 outln!("{:w$}  {:28}  nodes  history", "name", "type")?;
                 for c in &list {
                     let n = c.nodes.map_or("-".to_string(), |v| v.to_string());
-                    outln!("{:w$}  {:28}  {:>5}  {:>7}", c.name, c.r#type, n, c.history)?;
+                    outln!(
+                        "{:w$}  {:28}  {:>5}  {:>7}",
+                        c.name,
+                        c.type_name,
+                        n,
+                        c.history
+                    )?;
                 }
             }
             Ok(())
@@ -201,14 +177,14 @@ fn dispatch(prefix: &str, name: &str, mode: Mode) -> Result<()> {
         Node::new(NodeOptions::new(&format!("hng-topic-{}", std::process::id())).prefix(prefix))?;
     macro_rules! fixed {
         ($($t:ty),*) => {$(
-            if info.r#type == type_name::<$t>() {
+            if info.type_name == type_name::<$t>() {
                 return watch_fixed::<$t>(&node, name, mode);
             }
         )*};
     }
     macro_rules! slice {
         ($($t:ty),*) => {$(
-            if info.r#type == type_name::<$t>() {
+            if info.type_name == type_name::<$t>() {
                 return watch_slice::<$t>(&node, name, mode);
             }
         )*};
@@ -243,7 +219,7 @@ fn dispatch(prefix: &str, name: &str, mode: Mode) -> Result<()> {
     );
     // A path's poses are printed too (an image's or a grid's bytes are not: only their
     // header and length).
-    if info.r#type == type_name::<msg::PathInfo>() {
+    if info.type_name == type_name::<msg::PathInfo>() {
         return watch_path(&node, name, mode);
     }
     slice!(
@@ -254,7 +230,7 @@ fn dispatch(prefix: &str, name: &str, mode: Mode) -> Result<()> {
     );
     bail!(
         "channel {name:?} carries {}, which this hng does not know how to print",
-        info.r#type
+        info.type_name
     )
 }
 

@@ -170,16 +170,16 @@ pub fn run(
     let node = Node::new(
         NodeOptions::new(&format!("hng-topic-pub-{}", std::process::id())).prefix(prefix),
     )?;
-    if info.r#type == type_name::<Twist>() {
+    if info.type_name == type_name::<Twist>() {
         let msg = twist(obj)?;
         publish(&node, name, msg, rate, count)
-    } else if info.r#type == type_name::<Goal>() {
+    } else if info.type_name == type_name::<Goal>() {
         let msg = goal(obj)?;
         publish(&node, name, msg, rate, count)
     } else {
         bail!(
             "channel {name:?} carries {}; `hng topic pub` writes hng/Twist/v1 and hng/Goal/v1",
-            info.r#type
+            info.type_name
         )
     }
 }
@@ -197,9 +197,7 @@ fn publish<T: Message>(
     publisher.update_connections();
     let count = count.unwrap_or(if rate.is_some() { u64::MAX } else { 1 });
     let period = rate.map(|r| Duration::from_secs_f64(1.0 / r));
-    let mut waiter = Waiter::new(WaitMode::Blocking {
-        max_spin: Duration::ZERO,
-    })?;
+    let mut waiter = Waiter::new(WaitMode::SLEEP)?;
     waiter.catch_termination_signals()?;
     let mut next = Instant::now();
     let mut sent = 0u64;

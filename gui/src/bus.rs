@@ -275,9 +275,7 @@ pub fn run(opts: &BusOptions, hub: &Arc<Hub>, stop: &AtomicBool) -> Result<(), c
     let node = Node::new(
         NodeOptions::new(&format!("hng-gui-{}", std::process::id())).prefix(&opts.prefix),
     )?;
-    let mut w = Waiter::new(WaitMode::Blocking {
-        max_spin: Duration::ZERO,
-    })?;
+    let mut w = Waiter::new(WaitMode::SLEEP)?;
     let c = &opts.channels;
     let mut src = Sources {
         clock: fixed(&node, &mut w, CLOCK_CHANNEL),
@@ -530,18 +528,6 @@ fn contract_switches(st: &mut State) {
     }
 }
 
-fn priority_text(parts: &[u16]) -> String {
-    if parts.is_empty() {
-        "root".into()
-    } else {
-        parts
-            .iter()
-            .map(u16::to_string)
-            .collect::<Vec<_>>()
-            .join(".")
-    }
-}
-
 /// A status document as the page gets it: the supervisor's (`topic` 0) through its typed
 /// schema ([`hng_runtime::system::status::StatusDoc`]: a document of another shape is
 /// dropped), the resource manager's (1) as it is.
@@ -627,7 +613,7 @@ fn contracts(st: &State) -> Value {
             json!({
                 "name": t.module(),
                 "active": t.active != 0,
-                "priority": if t.active != 0 { priority_text(t.priority()) } else { "-".into() },
+                "priority": if t.active != 0 { hng_runtime::contract::dotted(t.priority()) } else { "-".into() },
                 "value": t.value.is_finite().then_some(t.value),
                 "root": t.active != 0 && t.priority().is_empty(),
             })
@@ -644,7 +630,7 @@ fn contracts(st: &State) -> Value {
                 "client": t.module(),
                 "provider": name(e.peer),
                 "service": e.service(),
-                "priority": priority_text(e.priority()),
+                "priority": hng_runtime::contract::dotted(e.priority()),
                 "value": e.value,
                 "channel": e.channel(),
             }));

@@ -99,9 +99,7 @@ pub fn control(
     )?;
     let commands = node.publisher::<SupervisorCommand>(SUPERVISOR_COMMAND)?;
     let status = node.slice_subscriber::<JsonInfo>(SUPERVISOR_STATUS)?;
-    let mut waiter = Waiter::new(WaitMode::Blocking {
-        max_spin: Duration::ZERO,
-    })?;
+    let mut waiter = Waiter::new(WaitMode::SLEEP)?;
     waiter.attach(&status)?;
     // The supervisor's status, typed (the schema `hng ps` and the resource manager read).
     let mut last: Option<StatusDoc> = None;

@@ -73,25 +73,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         if verbose {
             println!("{e:#?}");
         }
-        println!(
-            "{:<28} rel {:5.2} cm {:.3} deg | front end {:5.2} cm {:.3} deg | odometry {:5.2} cm \
-             {:.3} deg | ATE {:.3} / {:.3} / {:.3} m | {} closures | {:.0} / {:.0} scans/s",
-            log.file_name()
-                .map(|n| n.to_string_lossy().into_owned())
-                .unwrap_or_default(),
-            e.trans_err_mean_m * 100.0,
-            e.rot_err_mean_deg,
-            e.front_end_trans_err_mean_m * 100.0,
-            e.front_end_rot_err_mean_deg,
-            e.odom_trans_err_mean_m * 100.0,
-            e.odom_rot_err_mean_deg,
-            e.ate_rmse_m,
-            e.ate_front_end_rmse_m,
-            e.odom_ate_rmse_m,
-            e.loop_closures,
-            e.scans_per_s,
-            e.front_end_scans_per_s,
-        );
+        let name = log.file_name().unwrap_or_default().to_string_lossy();
+        println!("{name:<28} {}", e.summary());
     }
     Ok(())
 }

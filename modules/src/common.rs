@@ -64,6 +64,25 @@ pub fn positive(field: &str, v: f64) -> Result<f64, ConfigError> {
     }
 }
 
+/// Checks each named field of a config struct with `check` ([`positive`], [`non_negative`]),
+/// the error naming the field with its path: `check_fields!(positive, cfg.params, "params";
+/// speed, comfort_m)` checks `params.speed` and `params.comfort_m`;
+/// `check_fields!(positive, cfg; speed)` checks `speed`. An expression of type
+/// `Result<(), ConfigError>`.
+macro_rules! check_fields {
+    ($check:path, $s:expr, $prefix:literal; $($f:ident),+ $(,)?) => {
+        [$((concat!($prefix, ".", stringify!($f)), $s.$f)),+]
+            .into_iter()
+            .try_for_each(|(field, v)| $check(field, v).map(drop))
+    };
+    ($check:path, $s:expr; $($f:ident),+ $(,)?) => {
+        [$((stringify!($f), $s.$f)),+]
+            .into_iter()
+            .try_for_each(|(field, v)| $check(field, v).map(drop))
+    };
+}
+pub(crate) use check_fields;
+
 /// Checks that `v` is finite and >= 0.
 pub fn non_negative(field: &str, v: f64) -> Result<f64, ConfigError> {
     if v.is_finite() && v >= 0.0 {
@@ -174,22 +193,22 @@ pub fn wrap_angle(a: f64) -> f64 {
 /// `a ⊕ b`: `b` (expressed in `a`'s frame) composed onto `a`.
 pub fn compose(a: &Pose2D, b: &Pose2D) -> Pose2D {
     let (s, c) = a.theta.sin_cos();
-    Pose2D {
-        x: a.x + c * b.x - s * b.y,
-        y: a.y + s * b.x + c * b.y,
-        theta: wrap_angle(a.theta + b.theta),
-    }
+    Pose2D::new(
+        a.x + c * b.x - s * b.y,
+        a.y + s * b.x + c * b.y,
+        wrap_angle(a.theta + b.theta),
+    )
 }
 
 /// `a⁻¹ ⊕ b`: `b` expressed in `a`'s frame.
 pub fn relative(a: &Pose2D, b: &Pose2D) -> Pose2D {
     let (s, c) = a.theta.sin_cos();
     let (dx, dy) = (b.x - a.x, b.y - a.y);
-    Pose2D {
-        x: c * dx + s * dy,
-        y: -s * dx + c * dy,
-        theta: wrap_angle(b.theta - a.theta),
-    }
+    Pose2D::new(
+        c * dx + s * dy,
+        -s * dx + c * dy,
+        wrap_angle(b.theta - a.theta),
+    )
 }
 
 #[cfg(test)]
@@ -243,16 +262,8 @@ mod tests {
 
     #[test]
     fn poses_compose_and_invert() {
-        let a = Pose2D {
-            x: 1.0,
-            y: 2.0,
-            theta: 0.5,
-        };
-        let b = Pose2D {
-            x: -0.3,
-            y: 0.7,
-            theta: -1.2,
-        };
+        let a = Pose2D::new(1.0, 2.0, 0.5);
+        let b = Pose2D::new(-0.3, 0.7, -1.2);
         let r = relative(&a, &compose(&a, &b));
         assert!((r.x - b.x).abs() < 1e-12 && (r.y - b.y).abs() < 1e-12);
         assert!((r.theta - b.theta).abs() < 1e-12);

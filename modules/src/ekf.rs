@@ -209,11 +209,7 @@ impl Ekf {
 
     /// The mean pose (`None` before the first fix).
     pub fn pose(&self) -> Option<Pose2D> {
-        self.x.map(|x| Pose2D {
-            x: x[0],
-            y: x[1],
-            theta: x[2],
-        })
+        self.x.map(|x| Pose2D::new(x[0], x[1], x[2]))
     }
 
     /// Row-major covariance of (x, y, θ).
@@ -250,16 +246,8 @@ impl Ekf {
         let (s, c) = x[2].sin_cos();
         let k = x[3];
         let next = compose(
-            &Pose2D {
-                x: x[0],
-                y: x[1],
-                theta: x[2],
-            },
-            &Pose2D {
-                x: k * u.x,
-                y: k * u.y,
-                theta: u.theta,
-            },
+            &Pose2D::new(x[0], x[1], x[2]),
+            &Pose2D::new(k * u.x, k * u.y, u.theta),
         );
         *x = Vector4::new(next.x, next.y, next.theta, k);
         // Jacobian of the motion in (x, y, θ, k).
@@ -378,11 +366,7 @@ mod tests {
         let mut noise =
             Gauss(0x9E37_79B9_7F4A_7C15 ^ (seed + 1).wrapping_mul(0xBF58_476D_1CE4_E5B9));
         let mut ekf = Ekf::new(params);
-        let mut truth = Pose2D {
-            x: 2.0,
-            y: 2.0,
-            theta: 0.3,
-        };
+        let mut truth = Pose2D::new(2.0, 2.0, 0.3);
         let mut odom = Pose2D::default();
         let dt = 0.02;
         ekf.predict(odom, dt);
@@ -392,31 +376,17 @@ mod tests {
         for k in 0..steps {
             let turn = if (k / 250) % 2 == 0 { 0.0 } else { 0.4 };
             let (d, dth) = (0.5 * dt, turn * dt);
-            truth = compose(
-                &truth,
-                &Pose2D {
-                    x: d,
-                    y: 0.0,
-                    theta: dth,
-                },
-            );
+            truth = compose(&truth, &Pose2D::new(d, 0.0, dth));
             let dm = d * 1.01 + 0.02 * d * noise.sample();
             let dthm = dth * 1.02 + 0.005 * d + 0.02 * dth.abs() * noise.sample();
-            odom = compose(
-                &odom,
-                &Pose2D {
-                    x: dm,
-                    y: 0.0,
-                    theta: dthm,
-                },
-            );
+            odom = compose(&odom, &Pose2D::new(dm, 0.0, dthm));
             ekf.predict(odom, dt);
             if fixes && k % 10 == 0 {
-                let z = Pose2D {
-                    x: truth.x + SIGMA * noise.sample(),
-                    y: truth.y + SIGMA * noise.sample(),
-                    theta: truth.theta + 0.03 * noise.sample(),
-                };
+                let z = Pose2D::new(
+                    truth.x + SIGMA * noise.sample(),
+                    truth.y + SIGMA * noise.sample(),
+                    truth.theta + 0.03 * noise.sample(),
+                );
                 ekf.update(z, &gps_cov(SIGMA));
             }
             if k > steps / 2 {
@@ -478,11 +448,7 @@ mod tests {
     #[test]
     fn an_outlier_fix_is_rejected_and_does_not_move_the_estimate() {
         let mut ekf = Ekf::new(EkfParams::default());
-        let start = Pose2D {
-            x: 1.0,
-            y: 1.0,
-            theta: 0.0,
-        };
+        let start = Pose2D::new(1.0, 1.0, 0.0);
         ekf.predict(Pose2D::default(), 0.0);
         assert_eq!(ekf.update(start, &gps_cov(SIGMA)), FixOutcome::Initialised);
         for _ in 0..20 {
@@ -536,14 +502,7 @@ mod tests {
         let det = |e: &Ekf| e.p.determinant();
         let mut last = det(&ekf);
         for k in 0..3000 {
-            odom = compose(
-                &odom,
-                &Pose2D {
-                    x: 0.01,
-                    y: 0.0,
-                    theta: 0.002,
-                },
-            );
+            odom = compose(&odom, &Pose2D::new(0.01, 0.0, 0.002));
             ekf.predict(odom, 0.02);
             let d = det(&ekf);
             assert!(d >= last, "step {k}: {d} < {last}");

@@ -55,7 +55,7 @@ use smart_default::SmartDefault;
 
 pub use self::orders::{Mode, OrderLimits, validate};
 use crate::attention::{Attention, AttentionConfig, Providers, same_offer};
-use crate::common::{field_error, positive};
+use crate::common::{check_fields, field_error, positive};
 use crate::msgs::{GoalState, GoalStatus};
 use crate::robot::ROBOT_CONTROL;
 
@@ -499,17 +499,8 @@ impl Module for InterfaceModule {
                 return Err(field_error(field, "is empty").into());
             }
         }
-        for (field, v) in [
-            ("deadman_s", cfg.deadman_s),
-            ("period_s", cfg.period_s),
-            ("provider_timeout_s", cfg.provider_timeout_s),
-            ("max_coordinate_m", cfg.max_coordinate_m),
-            ("goal_tolerance_m", cfg.goal_tolerance_m),
-            ("wall_range_m", cfg.wall_range_m),
-            ("fresh_s", cfg.fresh_s),
-        ] {
-            positive(field, v)?;
-        }
+        check_fields!(positive, cfg; deadman_s, period_s, provider_timeout_s, max_coordinate_m,
+            goal_tolerance_m, wall_range_m, fresh_s)?;
         ctx.provide(ServiceOffer::new("Human control", ""))
             .need(NeedSpec::required(ROBOT_CONTROL, ROBOT_CONTROL_NEED));
         if cfg.reach_goal {

@@ -330,11 +330,7 @@ pub fn mission_goals(goals: &[GoalConfig]) -> Result<Vec<MissionGoal>, crate::co
         .enumerate()
         .map(|(i, g)| {
             let goal = MissionGoal {
-                pose: hng_runtime::msg::Pose2D {
-                    x: g.x,
-                    y: g.y,
-                    theta: g.theta.unwrap_or(0.0),
-                },
+                pose: hng_runtime::msg::Pose2D::new(g.x, g.y, g.theta.unwrap_or(0.0)),
                 tolerance_m: g.tolerance.unwrap_or(0.2),
                 use_theta: u8::from(g.theta.is_some()),
             };
@@ -586,11 +582,7 @@ mod tests {
         assert_eq!(p.goals[1].reason.as_deref(), Some("skipped"));
         assert_eq!(p.goals[2].reason, None);
         let far = MissionGoal {
-            pose: Pose2D {
-                x: 1e300,
-                y: 1e300,
-                theta: 0.0,
-            },
+            pose: Pose2D::new(1e300, 1e300, 0.0),
             ..g(0.0)
         };
         assert_eq!(goal_problem(&far), Some(GoalProblem::Range));

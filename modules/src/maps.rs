@@ -13,7 +13,7 @@
 use std::path::PathBuf;
 use std::time::Duration;
 
-use hng_runtime::msg::{FrameId, GridInfo, Header, Pose2D};
+use hng_runtime::msg::GridInfo;
 use hng_runtime::{Context, Module, ModuleResult, SlicePublisher, TimerId};
 use serde::{Deserialize, Serialize};
 use smart_default::SmartDefault;
@@ -49,25 +49,6 @@ pub fn grid_from_msg(info: &GridInfo, data: &[i8]) -> Result<OccupancyGrid, Grid
     )
 }
 
-/// The message header of a planning grid.
-pub fn msg_from_grid(grid: &OccupancyGrid) -> GridInfo {
-    let o = grid.origin();
-    GridInfo {
-        header: Header {
-            frame_id: FrameId::MAP,
-            ..Header::default()
-        },
-        resolution: grid.resolution() as f32,
-        width: grid.width(),
-        height: grid.height(),
-        origin: Pose2D {
-            x: o[0],
-            y: o[1],
-            theta: 0.0,
-        },
-    }
-}
-
 /// Loads a map_server map as a planning grid.
 pub fn load_map(path: &std::path::Path) -> ModuleResult<OccupancyGrid> {
     let m = OccupancyGrid::load(path)?;
@@ -98,8 +79,7 @@ pub struct MapsModule {
 
 impl MapsModule {
     fn publish(&mut self) -> ModuleResult {
-        self.out
-            .publish_copy(msg_from_grid(&self.grid), self.grid.data())?;
+        self.out.publish_copy(self.grid.info(), self.grid.data())?;
         self.state.published += 1;
         Ok(())
     }
@@ -176,7 +156,7 @@ mod tests {
         let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
             .join("../simulator/worlds/example_map.yaml");
         let g = load_map(&path).unwrap();
-        let info = msg_from_grid(&g);
+        let info = g.info();
         let back = grid_from_msg(&info, g.data()).unwrap();
         assert_eq!(back, g);
         let err = load_map(std::path::Path::new("/nonexistent/map.yaml")).unwrap_err();

@@ -28,7 +28,7 @@ use hng_runtime::msg::{Goal, GridInfo, Pose2D, PoseWithCovariance, Waypoint};
 use hng_runtime::{Context, Module, ModuleResult, Publisher, Subscriber};
 use serde::{Deserialize, Serialize};
 
-use crate::common::{non_negative, positive};
+use crate::common::{check_fields, non_negative, positive};
 use crate::heartbeat::BusyHeartbeat;
 use crate::maps::grid_from_msg;
 use crate::msgs::GoalStatus;
@@ -174,20 +174,9 @@ impl Module for PlanningModule {
 
     fn configure(ctx: &mut Context, cfg: PlanningModuleConfig) -> ModuleResult<Self> {
         let p = &cfg.params;
-        positive("params.robot_radius", p.robot_radius)?;
-        positive("params.lookahead_m", p.lookahead_m)?;
-        positive("params.min_lookahead_m", p.min_lookahead_m)?;
-        positive("params.comfort_m", p.comfort_m)?;
-        positive("params.deviation_m", p.deviation_m)?;
-        positive("params.speed", p.speed)?;
-        for (field, v) in [
-            ("params.inflation_m", p.inflation_m),
-            ("params.cost_weight", p.cost_weight),
-            ("params.cost_decay", p.cost_decay),
-            ("params.clearance", p.clearance),
-        ] {
-            non_negative(field, v)?;
-        }
+        check_fields!(positive, p, "params"; robot_radius, lookahead_m, min_lookahead_m,
+            comfort_m, deviation_m, speed)?;
+        check_fields!(non_negative, p, "params"; inflation_m, cost_weight, cost_decay, clearance)?;
         // Provides "Reach goal" (needed by the Interface, under Human control) and needs
         // "Reach waypoint" (Servo; the waypoints go on `waypoint_out`), "Mapping" and
         // "Localization": the map and the pose come from the contracted providers, from `map`
@@ -281,14 +270,10 @@ impl Module for PlanningModule {
         Ok(())
     }
 
-    hng_runtime::checkpoint_with!(Self::save_state, Self::load_state);
+    hng_runtime::checkpoint_field!(state, Self::load_state);
 }
 
 impl PlanningModule {
-    fn save_state(&self) -> PlanningState {
-        self.state
-    }
-
     fn load_state(&mut self, s: PlanningState) -> ModuleResult {
         if s.goal_id != 0 {
             self.core.set_goal(Goal {
@@ -364,12 +349,9 @@ pub(crate) mod tests {
             .provider(LOCALIZATION_NEED, "test/pose");
         h.start::<PlanningModule>("").unwrap();
         let g = room();
-        map.publish_copy(crate::maps::msg_from_grid(&g), g.data())
-            .unwrap();
+        map.publish_copy(g.info(), g.data()).unwrap();
         let full = OccupancyGrid::new(100, 60, 0.1, [0.0, 0.0], OCCUPIED).unwrap();
-        blocked
-            .publish_copy(crate::maps::msg_from_grid(&full), full.data())
-            .unwrap();
+        blocked.publish_copy(full.info(), full.data()).unwrap();
         goals.publish(goal(1, 8.0, 1.0)).unwrap();
         let robot = PoseWithCovariance {
             pose: at(2.0, 1.0),
@@ -551,11 +533,7 @@ mod progress_tests {
         p.set_map(&room());
         p.set_goal(Goal {
             id: 7,
-            pose: Pose2D {
-                x: 8.0,
-                y: 1.0,
-                theta: 0.0,
-            },
+            pose: Pose2D::new(8.0, 1.0, 0.0),
             tolerance_m: 0.2,
             ..Default::default()
         });
@@ -567,11 +545,11 @@ mod progress_tests {
         for i in 0..2000 {
             let t = f64::from(i) * 0.05;
             // The robot stays put but turns (as the servo would while rotating).
-            let pose = Pose2D {
-                x: 2.0,
-                y: 1.0,
-                theta: (t * 1.5).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI,
-            };
+            let pose = Pose2D::new(
+                2.0,
+                1.0,
+                (t * 1.5).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI,
+            );
             let s = p.update_at(Some(t), &pose);
             events.extend(s.progress.iter().map(|m| m.event));
             if let Some(w) = s.waypoint {

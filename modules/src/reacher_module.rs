@@ -298,15 +298,8 @@ impl ReacherModule {
         match self.current.state {
             REACH_REACHED => return self.halt(),
             REACH_LOST if !seen => return self.halt(),
-            REACH_LOST => {
-                tracing::info!(
-                    module = ctx.name(),
-                    beacon = t.beacon_id,
-                    range = t.range,
-                    "beacon seen again: approaching"
-                );
-                self.set_state(ctx, REACH_APPROACHING)?;
-            }
+            // Seen again: approaching.
+            REACH_LOST => self.set_state(ctx, REACH_APPROACHING)?,
             _ => {}
         }
         if t.state == TRACK_LOST && unseen <= self.cfg.law.lost_timeout_s {
@@ -326,12 +319,6 @@ impl ReacherModule {
             }
             Reach::Reached => {
                 self.state.reached += 1;
-                tracing::info!(
-                    module = ctx.name(),
-                    beacon = t.beacon_id,
-                    range = t.range,
-                    "beacon reached"
-                );
                 self.set_state(ctx, REACH_REACHED)?;
                 self.halt()?;
             }
@@ -339,7 +326,6 @@ impl ReacherModule {
                 self.state.lost += 1;
                 tracing::warn!(
                     module = ctx.name(),
-                    beacon = t.beacon_id,
                     unseen_s = unseen,
                     "beacon lost: stopped"
                 );
@@ -383,6 +369,7 @@ impl ReacherModule {
             tracing::info!(
                 module = ctx.name(),
                 beacon = self.current.beacon_id,
+                range = self.current.range,
                 from = name(self.current.state),
                 to = name(state),
                 "reach state"

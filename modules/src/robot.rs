@@ -32,7 +32,7 @@ use hng_runtime::{Context, Module, ModuleResult, Publisher, Subscriber, TimerId}
 use serde::{Deserialize, Serialize};
 use smart_default::SmartDefault;
 
-use crate::common::{CommandMux, CommandSource, MuxAction, positive, seconds};
+use crate::common::{CommandMux, CommandSource, MuxAction, check_fields, positive, seconds};
 
 /// Configuration of `hng module robot`.
 #[derive(Debug, Clone, Deserialize, SmartDefault)]
@@ -163,8 +163,7 @@ impl Module for RobotModule {
     fn configure(ctx: &mut Context, cfg: RobotConfig) -> ModuleResult<Self> {
         let freshness = seconds("freshness_s", cfg.freshness_s)?;
         let odom_timeout = seconds("odom_timeout_s", cfg.odom_timeout_s)?;
-        positive("max_linear_speed", cfg.max_linear_speed)?;
-        positive("max_angular_speed", cfg.max_angular_speed)?;
+        check_fields!(positive, cfg; max_linear_speed, max_angular_speed)?;
         if cfg.cmd_in.is_empty() {
             return Err(crate::common::field_error("cmd_in", "is empty").into());
         }

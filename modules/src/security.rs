@@ -41,7 +41,7 @@ use hng_runtime::{Context, Module, ModuleResult, Publisher, Subscriber};
 use serde::{Deserialize, Serialize};
 use smart_default::SmartDefault;
 
-use crate::common::{positive, seconds};
+use crate::common::{check_fields, positive, seconds};
 use crate::robot::{ROBOT_CONTROL, supervised_channel};
 pub use crate::scan::ScanView;
 use crate::scan::scan_quality;
@@ -294,11 +294,8 @@ impl Module for SecurityModule {
     type Config = SecurityModuleConfig;
 
     fn configure(ctx: &mut Context, cfg: SecurityModuleConfig) -> ModuleResult<Self> {
-        let s = &cfg.safety;
-        positive("safety.robot_radius", s.robot_radius)?;
-        positive("safety.max_decel", s.max_decel)?;
-        positive("safety.reaction_time_s", s.reaction_time_s)?;
-        crate::common::non_negative("safety.safety_distance", s.safety_distance)?;
+        check_fields!(positive, cfg.safety, "safety"; robot_radius, max_decel, reaction_time_s)?;
+        crate::common::non_negative("safety.safety_distance", cfg.safety.safety_distance)?;
         let freshness = seconds("freshness_s", cfg.freshness_s)?;
         let scan_timeout = seconds("scan_timeout_s", cfg.scan_timeout_s)?;
         // Provides the Manager's objective "Robot integrity"; needs "Robot control" (1.1: the
@@ -452,17 +449,7 @@ mod tests {
 
     /// The `LaserScan` message of [`wall_scan`].
     fn wall_msg(wall: f64) -> LaserScan {
-        let r = wall_scan(wall);
-        let mut m = LaserScan {
-            angle_min: -PI as f32,
-            angle_increment: (PI / 180.0) as f32,
-            range_min: 0.05,
-            range_max: 10.0,
-            count: r.len() as u32,
-            ..Default::default()
-        };
-        m.ranges[..r.len()].copy_from_slice(&r);
-        m
+        LaserScan::full_circle(&wall_scan(wall), 0.05, 10.0)
     }
 
     /// The module's own loop (in-process harness) under contracts served by the test: it

@@ -34,7 +34,7 @@ use hng_runtime::{Context, Module, ModuleResult, Publisher, Subscriber, TimerId}
 use serde::{Deserialize, Serialize};
 use smart_default::SmartDefault;
 
-use crate::common::{positive, relative, seconds};
+use crate::common::{check_fields, positive, relative, seconds};
 use crate::msgs::{GoalState, GoalStatus};
 
 /// Parameters of the controller.
@@ -269,13 +269,8 @@ impl Module for ServoModule {
     type Config = ServoModuleConfig;
 
     fn configure(ctx: &mut Context, cfg: ServoModuleConfig) -> ModuleResult<Self> {
-        let p = &cfg.params;
-        positive("params.max_speed", p.max_speed)?;
-        positive("params.max_angular", p.max_angular)?;
-        positive("params.goal_tolerance_m", p.goal_tolerance_m)?;
-        positive("params.slow_radius_m", p.slow_radius_m)?;
-        positive("params.rotate_in_place_rad", p.rotate_in_place_rad)?;
-        positive("params.heading_gain", p.heading_gain)?;
+        check_fields!(positive, cfg.params, "params"; max_speed, max_angular, goal_tolerance_m,
+            slow_radius_m, rotate_in_place_rad, heading_gain)?;
         let wp_timeout = seconds("waypoint_timeout_s", cfg.waypoint_timeout_s)?;
         let pose_timeout = seconds("pose_timeout_s", cfg.pose_timeout_s)?;
         // Provides "Reach waypoint" (needed by Planning); needs "Robot control" (its commands
@@ -362,14 +357,10 @@ impl Module for ServoModule {
         Ok(())
     }
 
-    hng_runtime::checkpoint_with!(Self::save_state, Self::load_state);
+    hng_runtime::checkpoint_field!(state, Self::load_state);
 }
 
 impl ServoModule {
-    fn save_state(&self) -> ServoState {
-        self.state
-    }
-
     fn load_state(&mut self, s: ServoState) -> ModuleResult {
         self.state = s;
         self.core.reached = s.reached_goal;
@@ -516,20 +507,12 @@ mod tests {
         planner.set_map(&grid);
         planner.set_goal(hng_runtime::msg::Goal {
             id: 1,
-            pose: Pose2D {
-                x: 8.0,
-                y: 1.0,
-                theta: 0.0,
-            },
+            pose: Pose2D::new(8.0, 1.0, 0.0),
             tolerance_m: 0.2,
             ..Default::default()
         });
         let mut servo = ServoCore::new(ServoParams::default());
-        let mut pose = Pose2D {
-            x: 2.0,
-            y: 1.0,
-            theta: 0.0,
-        };
+        let mut pose = Pose2D::new(2.0, 1.0, 0.0);
         let mut vel = (0.0, 0.0);
         let mut min_clear = f64::INFINITY;
         let mut reached = false;

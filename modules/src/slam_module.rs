@@ -42,7 +42,6 @@ use serde::{Deserialize, Serialize};
 use smart_default::SmartDefault;
 
 use crate::common::{compose, relative, seconds};
-use crate::maps::msg_from_grid;
 use crate::slam::{BackendConfig, EstimateSource, LaserConfig, Slam, SlamConfig};
 
 /// SLAM's contract Q is its smoothed match quality times this: at most 0.4, below the Q of a
@@ -55,11 +54,7 @@ fn iso(p: &Pose2D) -> Isometry2<f64> {
 }
 
 fn pose(i: &Isometry2<f64>) -> Pose2D {
-    Pose2D {
-        x: i.translation.x,
-        y: i.translation.y,
-        theta: i.rotation.angle(),
-    }
+    Pose2D::new(i.translation.x, i.translation.y, i.rotation.angle())
 }
 
 /// The SLAM logic, without I/O.
@@ -363,7 +358,7 @@ impl Module for SlamModule {
 
     fn on_tick(&mut self, _ctx: &mut Context, _timer: TimerId) -> ModuleResult {
         if let (Some(out), Some(grid)) = (&self.map_out, self.tracker.map()) {
-            out.publish_copy(msg_from_grid(&grid), grid.data())?;
+            out.publish_copy(grid.info(), grid.data())?;
         }
         Ok(())
     }
@@ -437,22 +432,14 @@ mod tests {
 
     #[test]
     fn tracker_follows_a_robot_with_biased_odometry() {
-        let start = Pose2D {
-            x: 2.0,
-            y: 2.0,
-            theta: 0.0,
-        };
+        let start = Pose2D::new(2.0, 2.0, 0.0);
         let mut t = SlamTracker::new(SlamConfig::default(), start);
         let mut truth = start;
         let mut odom = Pose2D::default();
         t.on_odometry(odom);
         for k in 0..40 {
             // Truth: 5 cm forward and a slow turn per scan; odometry says 10 % more.
-            let step = Pose2D {
-                x: 0.05,
-                y: 0.0,
-                theta: 0.01,
-            };
+            let step = Pose2D::new(0.05, 0.0, 0.01);
             truth = compose(&truth, &step);
             odom = compose(&odom, &Pose2D { x: 0.055, ..step });
             t.on_odometry(odom);
@@ -476,21 +463,13 @@ mod tests {
     /// circles would be mirrored and rotated and fail to match.
     #[test]
     fn tracker_reads_each_scan_with_its_own_geometry() {
-        let start = Pose2D {
-            x: 3.0,
-            y: 2.0,
-            theta: 0.3,
-        };
+        let start = Pose2D::new(3.0, 2.0, 0.3);
         let mut t = SlamTracker::new(SlamConfig::default(), start);
         let mut truth = start;
         let mut odom = Pose2D::default();
         t.on_odometry(odom);
         for k in 0..20 {
-            let step = Pose2D {
-                x: 0.05,
-                y: 0.0,
-                theta: 0.02,
-            };
+            let step = Pose2D::new(0.05, 0.0, 0.02);
             truth = compose(&truth, &step);
             odom = compose(&odom, &step);
             t.on_odometry(odom);
@@ -513,28 +492,16 @@ mod tests {
 
     #[test]
     fn a_resumed_tracker_sees_the_motion_since_its_checkpoint() {
-        let start = Pose2D {
-            x: 2.0,
-            y: 2.0,
-            theta: 0.0,
-        };
+        let start = Pose2D::new(2.0, 2.0, 0.0);
         // Odometry has its own frame: it reads (10, -3, 1) when the robot is at the start.
-        let odom0 = Pose2D {
-            x: 10.0,
-            y: -3.0,
-            theta: 1.0,
-        };
+        let odom0 = Pose2D::new(10.0, -3.0, 1.0);
         let mut t = SlamTracker::new(SlamConfig::default(), start);
         t.on_odometry(odom0);
         t.on_scan(&box_scan(&start)).expect("odometry is known");
         let (pose, odom) = t.anchor();
         assert_eq!(odom, Some(odom0));
         // The process dies; the robot drives 1 m forward and turns a little meanwhile.
-        let moved = Pose2D {
-            x: 1.0,
-            y: 0.0,
-            theta: 0.3,
-        };
+        let moved = Pose2D::new(1.0, 0.0, 0.3);
         let truth = compose(&start, &moved);
         let mut r = SlamTracker::resume(SlamConfig::default(), pose, odom);
         r.on_odometry(compose(&odom0, &moved));

@@ -45,6 +45,14 @@ impl CameraModel {
     pub fn focal_px(&self) -> f64 {
         f64::from(self.width) / 2.0 / (self.fov / 2.0).tan()
     }
+
+    /// Width and height of `image` (RGB8, `width * height * 3` bytes) if it is one of this
+    /// camera's images.
+    #[must_use]
+    pub fn image_size(&self, image: &[u8]) -> Option<(usize, usize)> {
+        let (w, h) = (self.width as usize, self.height as usize);
+        (image.len() == w * h * 3).then_some((w, h))
+    }
 }
 
 /// A beacon found in one image.
@@ -116,10 +124,7 @@ impl ColourTracker {
     /// Finds beacon `id` in `image` (RGB8, row-major, top row first, `width * height * 3`
     /// bytes); `None` if it is not seen or the image has the wrong size.
     pub fn detect(&mut self, image: &[u8], id: u32) -> Option<Detection> {
-        let (w, h) = (self.camera.width as usize, self.camera.height as usize);
-        if image.len() != w * h * 3 {
-            return None;
-        }
+        let (w, _) = self.camera.image_size(image)?;
         let (top_rgb, bottom_rgb) = hng_runtime::msg::beacon_colors(id);
         let (top, bottom) = (chroma(top_rgb)?, chroma(bottom_rgb)?);
         let tol2 = self.cfg.tolerance * self.cfg.tolerance;
@@ -282,30 +287,52 @@ impl BeaconTrack {
     }
 }
 
+/// The trackers' test scene: a grey 320 x 240 image with the marker of beacon `id` painted at
+/// columns `u0..u1`, rows `v0..v1`, all at brightness `light`; `noisy` adds a sky above row
+/// 100 and a little deterministic noise (+-2).
+#[cfg(test)]
+pub(crate) fn test_scene(
+    id: u32,
+    (u0, u1): (usize, usize),
+    (v0, v1): (usize, usize),
+    light: f64,
+    noisy: bool,
+) -> Vec<u8> {
+    let (w, h) = (320, 240);
+    let mut img = vec![0u8; w * h * 3];
+    let (top, bottom) = hng_runtime::msg::beacon_colors(id);
+    let mut state = 12345u32;
+    for v in 0..h {
+        for u in 0..w {
+            let c = if (u0..u1).contains(&u) && (v0..v1).contains(&v) {
+                if v < (v0 + v1) / 2 { top } else { bottom }
+            } else if noisy && v < 100 {
+                [190, 215, 245]
+            } else {
+                [120, 120, 115]
+            };
+            let i = (v * w + u) * 3;
+            for k in 0..3 {
+                let n = if noisy {
+                    state = state.wrapping_mul(1_103_515_245).wrapping_add(12345);
+                    f64::from((state >> 16) % 5) - 2.0
+                } else {
+                    0.0
+                };
+                img[i + k] = (f64::from(c[k]) * light + n).clamp(0.0, 255.0) as u8;
+            }
+        }
+    }
+    img
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
-    /// A grey image with the marker of beacon `id` painted at columns `u0..u1`, rows
-    /// `v0..v1`, at brightness `light`.
+    /// [`test_scene`] without noise.
     fn painted(id: u32, u0: usize, u1: usize, v0: usize, v1: usize, light: f64) -> Vec<u8> {
-        let (w, h) = (320, 240);
-        let mut img = vec![0u8; w * h * 3];
-        let (top, bottom) = hng_runtime::msg::beacon_colors(id);
-        for v in 0..h {
-            for u in 0..w {
-                let c = if (u0..u1).contains(&u) && (v0..v1).contains(&v) {
-                    if v < (v0 + v1) / 2 { top } else { bottom }
-                } else {
-                    [120, 120, 115]
-                };
-                let i = (v * w + u) * 3;
-                for k in 0..3 {
-                    img[i + k] = (f64::from(c[k]) * light) as u8;
-                }
-            }
-        }
-        img
+        test_scene(id, (u0, u1), (v0, v1), light, false)
     }
 
     #[test]

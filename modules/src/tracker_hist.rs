@@ -100,10 +100,7 @@ impl HistogramTracker {
     /// Finds beacon `id` in `image` (RGB8, `width * height * 3` bytes); `None` if it is not
     /// seen or the image has the wrong size.
     pub fn detect(&mut self, image: &[u8], id: u32) -> Option<Detection> {
-        let (w, h) = (self.camera.width as usize, self.camera.height as usize);
-        if image.len() != w * h * 3 {
-            return None;
-        }
+        let (w, h) = self.camera.image_size(image)?;
         let bins = self.cfg.bins as usize;
         let scale = bins as f64;
         self.hist.fill(0);
@@ -238,31 +235,9 @@ mod tests {
     use super::*;
     use crate::tracker::{ColourTracker, ColourTrackerConfig};
 
-    /// A grey scene with beacon `id`'s marker at columns `u0..u1`, rows `v0..v1`, all at
-    /// brightness `light`, with a little deterministic noise.
+    /// The trackers' test scene with a sky and noise.
     fn painted(id: u32, u0: usize, u1: usize, v0: usize, v1: usize, light: f64) -> Vec<u8> {
-        let (w, h) = (320, 240);
-        let mut img = vec![0u8; w * h * 3];
-        let (top, bottom) = hng_runtime::msg::beacon_colors(id);
-        let mut state = 12345u32;
-        for v in 0..h {
-            for u in 0..w {
-                let c = if (u0..u1).contains(&u) && (v0..v1).contains(&v) {
-                    if v < (v0 + v1) / 2 { top } else { bottom }
-                } else if v < 100 {
-                    [190, 215, 245]
-                } else {
-                    [120, 120, 115]
-                };
-                let i = (v * w + u) * 3;
-                for k in 0..3 {
-                    state = state.wrapping_mul(1_103_515_245).wrapping_add(12345);
-                    let n = f64::from((state >> 16) % 5) - 2.0;
-                    img[i + k] = (f64::from(c[k]) * light + n).clamp(0.0, 255.0) as u8;
-                }
-            }
-        }
-        img
+        crate::tracker::test_scene(id, (u0, u1), (v0, v1), light, true)
     }
 
     #[test]

@@ -20,7 +20,7 @@ use hng_runtime::{Context, Module, ModuleResult, Publisher};
 use serde::{Deserialize, Serialize};
 use smart_default::SmartDefault;
 
-use crate::common::{positive, seconds};
+use crate::common::{check_fields, positive, seconds};
 use crate::walls::{Side, Wall, WallDetector, WallDetectorConfig};
 
 /// The service this module provides.
@@ -179,18 +179,10 @@ impl Module for WallsModule {
     type Config = WallsConfig;
 
     fn configure(ctx: &mut Context, cfg: WallsConfig) -> ModuleResult<Self> {
-        positive("min_wall_length_m", cfg.min_wall_length_m)?;
-        positive("max_wall_distance_m", cfg.max_wall_distance_m)?;
+        check_fields!(positive, cfg; min_wall_length_m, max_wall_distance_m)?;
         let timeout = seconds("scan_timeout_s", cfg.scan_timeout_s)?;
-        let d = &cfg.detector;
-        for (field, v) in [
-            ("detector.split_tolerance", d.split_tolerance),
-            ("detector.range_sigma", d.range_sigma),
-            ("detector.min_length", d.min_length),
-            ("detector.max_range", d.max_range),
-        ] {
-            positive(field, v)?;
-        }
+        check_fields!(positive, cfg.detector, "detector"; split_tolerance, range_sigma,
+            min_length, max_range)?;
         if cfg.walls_out.is_empty() || cfg.scan.is_empty() {
             return Err(crate::common::field_error("walls_out", "is empty").into());
         }
@@ -237,16 +229,7 @@ mod tests {
     use super::*;
 
     fn scan_of(ranges: &[f32]) -> LaserScan {
-        let mut s = LaserScan {
-            angle_min: -std::f32::consts::PI,
-            angle_increment: 2.0 * std::f32::consts::PI / ranges.len() as f32,
-            range_min: 0.05,
-            range_max: 10.0,
-            ..Default::default()
-        };
-        s.count = ranges.len() as u32;
-        s.ranges[..ranges.len()].copy_from_slice(ranges);
-        s
+        LaserScan::full_circle(ranges, 0.05, 10.0)
     }
 
     #[test]

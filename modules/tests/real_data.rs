@@ -22,23 +22,6 @@ fn carmen(name: &str) -> PathBuf {
     repo_data("carmen").join(name)
 }
 
-/// A scratch directory removed on drop.
-struct Scratch(PathBuf);
-
-impl Scratch {
-    fn new(tag: &str) -> Scratch {
-        let d = std::env::temp_dir().join(format!("hng-realdata-{tag}-{}", std::process::id()));
-        std::fs::create_dir_all(&d).expect("scratch dir");
-        Scratch(d)
-    }
-}
-
-impl Drop for Scratch {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
-
 #[test]
 fn movingai_arena_every_optimal_length_exact() {
     let map = repo_data("movingai/arena.map");
@@ -76,20 +59,11 @@ fn eval_within_bounds(log: &Path, opts: &EvalOptions) -> Result<SlamEval, String
         .ok_or_else(|| format!("{name}: no bounds"))?;
     let e = eval_slam_with(log, opts).map_err(|e| e.to_string())?;
     println!(
-        "{}: {} beams, {} scans: {:.2} cm {:.3} deg (odometry {:.2} cm {:.3} deg), \
-         ATE {:.3} m (front end alone {:.3} m, odometry {:.3} m), {} closures, {:.0} scans/s",
+        "{}: {} beams, {} scans: {}",
         log.display(),
         e.beams,
         e.scans,
-        e.trans_err_mean_m * 100.0,
-        e.rot_err_mean_deg,
-        e.odom_trans_err_mean_m * 100.0,
-        e.odom_rot_err_mean_deg,
-        e.ate_rmse_m,
-        e.ate_front_end_rmse_m,
-        e.odom_ate_rmse_m,
-        e.loop_closures,
-        e.scans_per_s
+        e.summary()
     );
     let ok = e.trans_err_mean_m <= max_t
         && e.rot_err_mean_deg <= max_r
@@ -130,8 +104,8 @@ fn slam_on_every_carmen_log_beats_odometry_and_holds_its_accuracy() {
 /// front end alone, run on the same log); the map is written.
 #[test]
 fn intel_loop_closure_halves_the_absolute_trajectory_error() {
-    let dir = Scratch::new("intel");
-    let out = dir.0.join("intel.yaml");
+    let dir = tempfile::tempdir().expect("scratch dir");
+    let out = dir.path().join("intel.yaml");
     let e = eval_within_bounds(
         &carmen("intel-corrected.log"),
         &EvalOptions {
@@ -158,7 +132,7 @@ fn intel_loop_closure_halves_the_absolute_trajectory_error() {
 /// the evaluation runs.
 #[test]
 fn bad_logs_give_clear_errors_or_counted_skips() {
-    let dir = Scratch::new("bad");
+    let dir = tempfile::tempdir().expect("scratch dir");
     let text = std::fs::read_to_string(carmen("orebro-corrected.log")).expect("log");
     // Cut in the middle of the 40th FLASER line.
     let (cut_line, cut_at) = text
@@ -166,7 +140,7 @@ fn bad_logs_give_clear_errors_or_counted_skips() {
         .nth(39)
         .map(|(i, _)| (text[..i].lines().count() + 1, i + 200))
         .expect("40 scans");
-    let cut = dir.0.join("cut.log");
+    let cut = dir.path().join("cut.log");
     std::fs::write(&cut, &text[..cut_at]).expect("write");
     let e = eval_slam_with(&cut, &EvalOptions::default()).expect_err("cut short");
     let msg = e.to_string();
@@ -175,7 +149,7 @@ fn bad_logs_give_clear_errors_or_counted_skips() {
         "{msg}"
     );
 
-    let none = dir.0.join("none.log");
+    let none = dir.path().join("none.log");
     std::fs::write(&none, "# nothing\nODOM 0 0 0 0 0 0 1 h 1\nPARAM x 1 h 0\n").expect("write");
     let e = eval_slam_with(&none, &EvalOptions::default()).expect_err("no scans");
     assert!(matches!(e, SlamEvalError::TooFewScans { scans: 0, .. }));
@@ -208,7 +182,7 @@ fn bad_logs_give_clear_errors_or_counted_skips() {
         }
         bad.push('\n');
     }
-    let badp = dir.0.join("bad.log");
+    let badp = dir.path().join("bad.log");
     std::fs::write(&badp, bad).expect("write");
     let e = eval_slam_with(
         &badp,

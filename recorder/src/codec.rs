@@ -610,11 +610,7 @@ mod tests {
             resolution: 0.05,
             width: 3,
             height: 2,
-            origin: Pose2D {
-                x: -1.0,
-                y: 2.0,
-                theta: 0.0,
-            },
+            origin: Pose2D::new(-1.0, 2.0, 0.0),
             ..Default::default()
         };
         let cells = [0i8, 100, -1, 50, 0, 0];
@@ -634,18 +630,7 @@ mod tests {
         };
         h.header.frame_id = FrameId::MAP;
         h.header.stamp_ns = 7_000_000_123;
-        let poses = [
-            Pose2D {
-                x: 0.1,
-                y: -0.2,
-                theta: 0.3,
-            },
-            Pose2D {
-                x: 1.0,
-                y: 2.0,
-                theta: -3.1,
-            },
-        ];
+        let poses = [Pose2D::new(0.1, -0.2, 0.3), Pose2D::new(1.0, 2.0, -3.1)];
         let mut buf = Vec::new();
         h.encode(&poses, &mut buf).unwrap();
         let fgp = fg::PosesInFrame::decode(buf.as_slice()).unwrap();

@@ -124,8 +124,13 @@ pub(crate) fn level_of(line: &str) -> fg::log::Level {
     Level::Unknown
 }
 
+/// The module whose log file `path` is (`<module>.log`), `None` for any other file.
+pub fn log_module(path: &Path) -> Option<&str> {
+    path.file_name()?.to_str()?.strip_suffix(".log")
+}
+
 /// `line` without terminal colour codes (ESC [ ... letter).
-pub(crate) fn strip_ansi(line: &str) -> String {
+pub fn strip_ansi(line: &str) -> String {
     let mut out = String::with_capacity(line.len());
     let mut chars = line.chars();
     while let Some(c) = chars.next() {
@@ -196,11 +201,7 @@ impl Internal {
         };
         for e in entries.flatten() {
             let path = e.path();
-            let Some(module) = path
-                .file_name()
-                .and_then(|n| n.to_str())
-                .and_then(|n| n.strip_suffix(".log"))
-            else {
+            let Some(module) = log_module(&path) else {
                 continue;
             };
             if self.tails.contains_key(module) {

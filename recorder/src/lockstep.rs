@@ -44,9 +44,7 @@ impl Participant {
         let node = Node::new(NodeOptions::new(name).prefix(prefix).clock(Clock::sim()))?;
         let clock = node.subscriber::<msg::Clock>(CLOCK_CHANNEL)?;
         let acker = Acker::new(&node)?;
-        let mut waiter = Waiter::new(WaitMode::Blocking {
-            max_spin: Duration::ZERO,
-        })?;
+        let mut waiter = Waiter::new(WaitMode::SLEEP)?;
         waiter.attach(&clock)?;
         Ok(Participant {
             node,

@@ -14,9 +14,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
-use hng_runtime::channel::{Node, NodeOptions, Service, iceoryx_config};
+use hng_runtime::channel::{Node, NodeOptions};
 use hng_runtime::wait::{WaitMode, Waiter, Wake};
-use iceoryx2::prelude::*;
 use serde::Serialize;
 
 use crate::Error;
@@ -236,27 +235,6 @@ impl Progress {
     }
 }
 
-/// A channel of the bus: its name and iceoryx2 type name (a slice channel's header type).
-pub fn list_channels(prefix: &str) -> Result<Vec<(String, String)>, Error> {
-    let config = iceoryx_config(prefix)?;
-    let mut out = Vec::new();
-    <Service as iceoryx2::service::Service>::list(&config, |d| {
-        if let iceoryx2::service::static_config::messaging_pattern::MessagingPattern::PublishSubscribe(ps) =
-            d.static_details.messaging_pattern()
-        {
-            let t = ps.message_type_details();
-            let payload = t.payload.type_name().to_string();
-            let header = t.user_header.type_name().to_string();
-            let ty = if header == "()" { payload } else { header };
-            out.push((d.static_details.name().to_string(), ty));
-        }
-        CallbackProgression::Continue
-    })
-    .map_err(|e| Error::Other(format!("listing the channels of prefix {prefix:?}: {e:?}")))?;
-    out.sort();
-    Ok(out)
-}
-
 fn wanted(filters: &[String], channel: &str) -> bool {
     filters.is_empty()
         || filters.iter().any(|f| match f.strip_suffix('*') {
@@ -315,9 +293,7 @@ fn record_impl(
     // Signals first: the writer's and the live view's threads inherit the blocked mask, so
     // SIGTERM reaches the signalfd and not a thread that would die of it.
     let mut waiter = if opts.catch_signals {
-        let mut w = Waiter::new(WaitMode::Blocking {
-            max_spin: Duration::ZERO,
-        })?;
+        let mut w = Waiter::new(WaitMode::SLEEP)?;
         w.catch_termination_signals()?;
         Some(w)
     } else {
@@ -542,7 +518,12 @@ fn discover(
     live: &Option<Live>,
     progress: &Progress,
 ) -> Result<(), Error> {
-    for (name, ty) in list_channels(&opts.prefix)? {
+    for hng_runtime::channel::ChannelListing {
+        name,
+        type_name: ty,
+        ..
+    } in hng_runtime::channel::list_channels(&opts.prefix)?
+    {
         if !wanted(&opts.channels, &name)
             || chans.iter().any(|c| c.name == name)
             || skipped.contains_key(&name)

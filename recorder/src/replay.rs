@@ -391,9 +391,7 @@ fn wait_up(
     name: &str,
     child: Option<&mut Child>,
 ) -> Result<(), Error> {
-    let mut waiter = hng_runtime::wait::Waiter::new(hng_runtime::wait::WaitMode::Blocking {
-        max_spin: Duration::ZERO,
-    })?;
+    let mut waiter = hng_runtime::wait::Waiter::new(hng_runtime::wait::WaitMode::SLEEP)?;
     waiter.attach(reports)?;
     let t0 = Instant::now();
     let mut child = child;

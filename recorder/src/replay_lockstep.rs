@@ -39,9 +39,7 @@ impl Driver {
         timeout: Duration,
     ) -> Result<Driver, Error> {
         let acks = node.subscriber::<ClockAck>(ACK_CHANNEL)?;
-        let mut waiter = Waiter::new(WaitMode::Blocking {
-            max_spin: Duration::ZERO,
-        })?;
+        let mut waiter = Waiter::new(WaitMode::SLEEP)?;
         waiter.attach(&acks)?;
         Ok(Driver {
             clock: node.publisher::<msg::Clock>(CLOCK_CHANNEL)?,

@@ -37,7 +37,8 @@ pub struct SampleBench {
     pub pass_latency_p99_ns: u64,
 }
 
-struct Sleepers(Vec<Child>);
+/// Child processes killed and reaped when dropped (the benchmarks' `sleep` processes).
+pub struct Sleepers(pub Vec<Child>);
 
 impl Drop for Sleepers {
     fn drop(&mut self) {

@@ -47,11 +47,13 @@ use crate::wait::Waiter;
 use crate::wake::WakeFlag;
 
 mod hanging;
+mod list;
 mod outlet;
 mod publish;
 mod receive;
 mod slice;
 mod writes;
+pub use list::{ChannelListing, list_channels};
 use outlet::Outlet;
 use publish::Received;
 pub use publish::{Loan, Publisher, Sample};
@@ -519,17 +521,7 @@ impl Node {
         tap: bool,
     ) -> Result<Subscriber<T>, Error> {
         let (service, name) = self.fixed_service::<T>(channel)?;
-        let buffer = buffer_for(
-            T::KIND.qos_of(channel),
-            service.static_config().subscriber_max_buffer_size(),
-            tap,
-        );
-        let port = service
-            .subscriber_builder()
-            .buffer_size(buffer)
-            .create()
-            .map_err(|e| self.port_error(channel, &name, T::KIND, "create subscriber", e))?;
-        self.receiver(channel, &name, T::KIND, port)
+        self.open_receiver(channel, &name, T::KIND, &service, tap)
     }
 
     /// Opens (or creates) a variable-size channel and returns a publisher whose samples may
@@ -581,8 +573,26 @@ impl Node {
         tap: bool,
     ) -> Result<SliceSubscriber<H>, Error> {
         let (service, name) = self.slice_service::<H>(channel)?;
+        self.open_receiver(channel, &name, H::KIND, &service, tap)
+    }
+
+    /// A subscriber port on `service` holding the channel kind's buffer (a recorder's with
+    /// `tap`), with its listener: both subscriber kinds.
+    fn open_receiver<K, P, U>(
+        &self,
+        channel: &str,
+        name: &ServiceName,
+        kind: ChannelKind,
+        service: &PsFactory<Service, P, U>,
+        tap: bool,
+    ) -> Result<Receiver<K>, Error>
+    where
+        K: Kind<Port = IoxSubscriber<Service, P, U>>,
+        P: fmt::Debug + IceoryxSend + ?Sized + 'static,
+        U: fmt::Debug + ZeroCopySend + 'static,
+    {
         let buffer = buffer_for(
-            H::KIND.qos_of(channel),
+            kind.qos_of(channel),
             service.static_config().subscriber_max_buffer_size(),
             tap,
         );
@@ -590,8 +600,8 @@ impl Node {
             .subscriber_builder()
             .buffer_size(buffer)
             .create()
-            .map_err(|e| self.port_error(channel, &name, H::KIND, "create subscriber", e))?;
-        self.receiver(channel, &name, H::KIND, port)
+            .map_err(|e| self.port_error(channel, name, kind, "create subscriber", e))?;
+        self.receiver(channel, name, kind, port)
     }
 
     /// The sending side shared by both publisher kinds: notifier, wake flag, header stamping.

@@ -242,9 +242,7 @@ impl Harness {
         opts.prefix = self.prefix.clone();
         opts.config_toml = config_toml.to_string();
         opts.catch_signals = false;
-        opts.wait = WaitMode::Blocking {
-            max_spin: Duration::ZERO,
-        };
+        opts.wait = WaitMode::SLEEP;
         opts.report_period = LOOP_PERIOD;
         opts.idle_report_period = LOOP_PERIOD;
         opts.harness = Some(self.hooks.clone());

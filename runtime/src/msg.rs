@@ -333,6 +333,22 @@ impl LaserScan {
     pub fn angle(&self, i: usize) -> f32 {
         self.angle_min + self.angle_increment * i as f32
     }
+
+    /// A scan of `ranges` (the first [`MAX_BEAMS`]) spread evenly over the full circle
+    /// counter-clockwise from -π, valid from `range_min` to `range_max` metres.
+    pub fn full_circle(ranges: &[f32], range_min: f32, range_max: f32) -> LaserScan {
+        let n = ranges.len().min(MAX_BEAMS);
+        let mut s = LaserScan {
+            angle_min: -std::f32::consts::PI,
+            angle_increment: std::f32::consts::TAU / n.max(1) as f32,
+            range_min,
+            range_max,
+            count: n as u32,
+            ..LaserScan::default()
+        };
+        s.ranges[..n].copy_from_slice(&ranges[..n]);
+        s
+    }
 }
 
 impl Default for LaserScan {

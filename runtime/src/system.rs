@@ -245,9 +245,23 @@ pub struct ResourceCosts {
 impl ResourceCosts {
     /// The minimum priority's components, if degraded mode sets one.
     pub fn min_priority(&self) -> Option<&[u16]> {
-        let n = usize::from(self.min_priority_len).min(MAX_PRIORITY_DEPTH);
-        (n > 0).then(|| &self.min_priority[..n])
+        let p = priority_parts(self.min_priority_len, &self.min_priority);
+        (!p.is_empty()).then_some(p)
     }
+}
+
+/// The first `len` components of a priority as the wire tables hold it.
+fn priority_parts(len: u8, parts: &[u16; MAX_PRIORITY_DEPTH]) -> &[u16] {
+    &parts[..usize::from(len).min(MAX_PRIORITY_DEPTH)]
+}
+
+/// Stores `parts` (cut to [`MAX_PRIORITY_DEPTH`] components, the rest zeroed) in a wire
+/// table's priority; returns its length.
+fn store_priority(dst: &mut [u16; MAX_PRIORITY_DEPTH], parts: &[u16]) -> u8 {
+    let n = parts.len().min(MAX_PRIORITY_DEPTH);
+    *dst = [0; MAX_PRIORITY_DEPTH];
+    dst[..n].copy_from_slice(&parts[..n]);
+    n as u8
 }
 
 crate::impl_message!(ResourceCosts, ChannelKind::State);
@@ -380,15 +394,12 @@ impl ContractEntry {
 
     /// The priority's components.
     pub fn priority(&self) -> &[u16] {
-        &self.priority[..usize::from(self.priority_len).min(MAX_PRIORITY_DEPTH)]
+        priority_parts(self.priority_len, &self.priority)
     }
 
     /// Sets the priority (cut to [`MAX_PRIORITY_DEPTH`] components).
     pub fn set_priority(&mut self, parts: &[u16]) {
-        let n = parts.len().min(MAX_PRIORITY_DEPTH);
-        self.priority = [0; MAX_PRIORITY_DEPTH];
-        self.priority[..n].copy_from_slice(&parts[..n]);
-        self.priority_len = n as u8;
+        self.priority_len = store_priority(&mut self.priority, parts);
     }
 
     /// The data channel.
@@ -492,15 +503,19 @@ impl ContractTable {
 
     /// The module's priority components.
     pub fn priority(&self) -> &[u16] {
-        &self.priority[..usize::from(self.priority_len).min(MAX_PRIORITY_DEPTH)]
+        priority_parts(self.priority_len, &self.priority)
     }
 
     /// Sets the module's priority (cut to [`MAX_PRIORITY_DEPTH`] components).
     pub fn set_priority(&mut self, parts: &[u16]) {
-        let n = parts.len().min(MAX_PRIORITY_DEPTH);
-        self.priority = [0; MAX_PRIORITY_DEPTH];
-        self.priority[..n].copy_from_slice(&parts[..n]);
-        self.priority_len = n as u8;
+        self.priority_len = store_priority(&mut self.priority, parts);
+    }
+
+    /// The module's contract as the client of `service`, if it holds one.
+    pub fn client_entry(&self, service: &str) -> Option<&ContractEntry> {
+        self.entries()
+            .iter()
+            .find(|e| e.role() == Some(ContractRole::Client) && e.service() == service)
     }
 
     /// Appends an entry; false when the table is full.

@@ -55,6 +55,12 @@ impl Default for WaitMode {
 }
 
 impl WaitMode {
+    /// Sleep until notified, without spinning: for processes whose waits are not on a hot path
+    /// (tools, tests, the supervisor), which should spend no CPU on them.
+    pub const SLEEP: WaitMode = WaitMode::Blocking {
+        max_spin: Duration::ZERO,
+    };
+
     /// Parses `blocking`, `blocking:<µs>` or `spin`.
     pub fn parse(s: &str) -> Result<WaitMode, Error> {
         match s.split_once(':') {

@@ -96,6 +96,21 @@ pub fn wander(scan: &LidarScan) -> (f64, f64) {
     }
 }
 
+/// Steps `sim` until its clock reaches `end_ns`, driving with [`wander`] on every scan.
+fn wander_until(sim: &mut Simulator, out: &mut Vec<SensorOutput>, end_ns: u64) -> Result<()> {
+    while sim.now_ns() < end_ns {
+        out.clear();
+        sim.step_into(out);
+        for o in out.iter() {
+            if let SensorOutput::Lidar(scan) = o {
+                let (v, w) = wander(scan);
+                sim.set_cmd_vel(v, w)?;
+            }
+        }
+    }
+    Ok(())
+}
+
 /// Like [`headless_10hz`], but returns one sample per simulated second: the wall time it took,
 /// in nanoseconds (the realtime factor of a sample is 1e9 / sample).
 pub fn headless_10hz_samples(sim_seconds: u32) -> Result<Vec<u64>> {
@@ -105,16 +120,7 @@ pub fn headless_10hz_samples(sim_seconds: u32) -> Result<Vec<u64>> {
     for second in 1..=u64::from(sim_seconds) {
         let end = second * 1_000_000_000;
         let start = Instant::now();
-        while sim.now_ns() < end {
-            out.clear();
-            sim.step_into(&mut out);
-            for o in &out {
-                if let SensorOutput::Lidar(scan) = o {
-                    let (v, w) = wander(scan);
-                    sim.set_cmd_vel(v, w)?;
-                }
-            }
-        }
+        wander_until(&mut sim, &mut out, end)?;
         samples.push(u64::try_from(start.elapsed().as_nanos()).unwrap_or(u64::MAX));
     }
     Ok(samples)
@@ -128,16 +134,7 @@ pub fn headless_10hz(sim_seconds: f64) -> Result<f64> {
     let end = secs_to_ns(sim_seconds);
     let mut out = Vec::new();
     let start = Instant::now();
-    while sim.now_ns() < end {
-        out.clear();
-        sim.step_into(&mut out);
-        for o in &out {
-            if let SensorOutput::Lidar(scan) = o {
-                let (v, w) = wander(scan);
-                sim.set_cmd_vel(v, w)?;
-            }
-        }
-    }
+    wander_until(&mut sim, &mut out, end)?;
     let wall = start.elapsed().as_secs_f64();
     Ok(if wall > 0.0 {
         sim.now_ns() as f64 * 1e-9 / wall

@@ -35,7 +35,7 @@ pub use module::{SimModuleConfig, SimStatus, SimulatorModule};
 pub use pacing::{Pacer, Speed};
 pub use sensors::{
     BeaconDetection, CameraFrame, CollisionEvent, GpsReading, GpsStatus, GroundTruth, LidarScan,
-    Odometry, SensorKind, SensorOutput, SimStats,
+    Odometry, PoseTwist, SensorKind, SensorOutput, SimStats,
 };
 pub use sim::{CONTACT_MARGIN, Simulator, secs_to_ns, wrap_angle};
 pub use snapshot::SimSnapshot;

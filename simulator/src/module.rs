@@ -35,18 +35,15 @@ use std::time::{Duration, Instant};
 use hng_runtime::channel::InputId;
 use hng_runtime::clock::{CLOCK_CHANNEL, Clock, ClockMode};
 use hng_runtime::module::REPORT_CHANNEL;
-use hng_runtime::msg::{
-    self, Beacon as MsgBeacon, BeaconObservation, FrameId, GridInfo, Header, LaserScan,
-    MAX_BEACONS, MAX_BEAMS, ModuleReport, PoseWithCovariance, Twist, Velocity2D,
-};
+use hng_runtime::msg::{self, ModuleReport, Twist};
 use hng_runtime::{
-    Context, Module, ModuleResult, Node, NodeOptions, Publisher, RunOptions, SlicePublisher,
-    Subscriber, TimerId, run_module_with,
+    Context, Module, ModuleResult, Node, NodeOptions, Publisher, RunOptions, Subscriber, TimerId,
+    run_module_with,
 };
 
 use crate::map::{OccupancyGrid, grid_from_world};
 use crate::pacing::{Pacer, Speed};
-use crate::sensors::{GpsStatus, SensorKind, SensorOutput};
+use crate::sensors::SensorOutput;
 use crate::sim::{Simulator, secs_to_ns};
 use crate::snapshot::SimSnapshot;
 
@@ -54,13 +51,14 @@ mod camera;
 mod config;
 mod lockstep;
 mod messages;
+mod outputs;
 
-use camera::ImageCamera;
 pub use camera::SimLighting;
 use config::config_error;
 pub use config::{Channels, SensorSwitches, SimModuleConfig};
 use lockstep::Lockstep;
 pub use messages::{SimCollision, SimStatus};
+use outputs::Outputs;
 
 /// Longest a tick keeps stepping before it returns to the executor.
 const TICK_BUDGET: Duration = Duration::from_millis(2);
@@ -68,21 +66,6 @@ const TICK_BUDGET: Duration = Duration::from_millis(2);
 const RESTART_WAIT: Duration = Duration::from_secs(2);
 /// Period of [`SimStatus`] messages, wall clock.
 const STATUS_PERIOD: Duration = Duration::from_millis(100);
-
-/// The sensor publishers; `None` for a sensor switched off.
-struct Outputs {
-    scan: Option<Publisher<LaserScan>>,
-    odom: Option<Publisher<msg::Odometry>>,
-    gps: Option<Publisher<PoseWithCovariance>>,
-    camera: Option<Publisher<BeaconObservation>>,
-    ground_truth: Option<Publisher<PoseWithCovariance>>,
-    collisions: Publisher<SimCollision>,
-    status: Publisher<SimStatus>,
-    map: Option<SlicePublisher<GridInfo>>,
-    /// Camera images, and the lighting input.
-    image: Option<ImageCamera>,
-    lighting: Option<Subscriber<SimLighting>>,
-}
 
 /// The simulator module. See the [module documentation](self).
 pub struct SimulatorModule {
@@ -172,36 +155,7 @@ impl Module for SimulatorModule {
                 .clock(sim_clock.clone()),
         )?;
         let ch = &cfg.channels;
-        let on = |k| sim.sensor_enabled(k);
-        let outputs = Outputs {
-            scan: on(SensorKind::Lidar)
-                .then(|| node.publisher(&ch.scan))
-                .transpose()?,
-            odom: on(SensorKind::Odometry)
-                .then(|| node.publisher(&ch.odom))
-                .transpose()?,
-            gps: on(SensorKind::Gps)
-                .then(|| node.publisher(&ch.gps))
-                .transpose()?,
-            camera: on(SensorKind::Camera)
-                .then(|| node.publisher(&ch.camera))
-                .transpose()?,
-            ground_truth: on(SensorKind::GroundTruth)
-                .then(|| node.publisher(&ch.ground_truth))
-                .transpose()?,
-            collisions: node.publisher(&ch.collisions)?,
-            status: node.publisher(&ch.status)?,
-            map: map_grid
-                .as_ref()
-                .map(|g| node.slice_publisher::<GridInfo>(&ch.map, g.data().len()))
-                .transpose()?,
-            image: ImageCamera::new(&node, sim.world(), &ch.camera_image)?,
-            lighting: None,
-        };
-        let mut outputs = outputs;
-        if outputs.image.is_some() {
-            outputs.lighting = Some(ctx.subscribe::<SimLighting>(&ch.lighting, None)?);
-        }
+        let outputs = Outputs::open(ctx, &node, &sim, ch, map_grid.as_ref())?;
         let cmd = ctx.subscribe::<Twist>(&ch.cmd_vel, None)?;
         let lockstep = if cfg.lockstep.is_empty() {
             None
@@ -289,21 +243,7 @@ impl Module for SimulatorModule {
             self.publish_clock()?;
         }
         if let (Some(grid), Some(publisher)) = (self.map_grid.take(), &self.outputs.map) {
-            let info = GridInfo {
-                header: Header {
-                    frame_id: FrameId::MAP,
-                    ..Header::default()
-                },
-                resolution: grid.resolution() as f32,
-                width: grid.width(),
-                height: grid.height(),
-                origin: msg::Pose2D {
-                    x: grid.origin()[0],
-                    y: grid.origin()[1],
-                    theta: grid.origin_yaw(),
-                },
-            };
-            publisher.publish_copy(info, grid.data())?;
+            publisher.publish_copy(grid.info(), grid.data())?;
         }
         self.publish_status(ctx)?;
         tracing::info!(
@@ -448,10 +388,6 @@ pub fn main() -> ExitCode {
             ExitCode::from(1)
         }
     }
-}
-
-fn diag(a: f64, b: f64, c: f64) -> [f64; 9] {
-    [a, 0.0, 0.0, 0.0, b, 0.0, 0.0, 0.0, c]
 }
 
 impl SimulatorModule {
@@ -601,195 +537,6 @@ impl SimulatorModule {
         self.out = out;
         result
     }
-
-    /// A camera image, when one is due (seen from the true pose).
-    fn publish_image(&mut self) -> ModuleResult {
-        let gt = self.sim.ground_truth();
-        let light = self.sim.lighting();
-        match &mut self.outputs.image {
-            Some(cam) => cam.step(
-                gt.stamp_ns,
-                crate::Pose2D::new(gt.x, gt.y, gt.theta),
-                light,
-                self.sim.script_boxes().map(|(_, b)| b),
-            ),
-            None => Ok(()),
-        }
-    }
-
-    fn publish(&mut self, output: &SensorOutput) -> ModuleResult {
-        let o = &self.outputs;
-        match output {
-            SensorOutput::Lidar(scan) => {
-                if let Some(p) = &o.scan {
-                    let mut m = p.loan()?;
-                    let n = scan.ranges.len().min(MAX_BEAMS);
-                    m.header.frame_id = FrameId::LASER;
-                    m.angle_min = scan.angle_min;
-                    m.angle_increment = scan.angle_increment;
-                    m.time_increment = 0.0;
-                    m.scan_time = self.scan_time;
-                    m.range_min = scan.range_min;
-                    m.range_max = scan.range_max;
-                    m.count = n as u32;
-                    m.ranges[..n].copy_from_slice(&scan.ranges[..n]);
-                    m.publish()?;
-                }
-            }
-            SensorOutput::Odometry(od) => {
-                if let Some((px, py)) = self.last_odom {
-                    self.odom_distance += (od.x - px).hypot(od.y - py);
-                }
-                self.last_odom = Some((od.x, od.y));
-                if let Some(p) = &o.odom {
-                    let c = &self.sim.world().sensors.odometry;
-                    // Indicative 1-sigma growth with the distance driven (see docs/simulator.md).
-                    let d = self.odom_distance;
-                    let sxy = (c.linear_scale_error.abs() + c.linear_noise) * d;
-                    let sth = (c.heading_drift.abs() + c.angular_noise_per_metre) * d;
-                    let sv = c.linear_noise * od.linear_x.abs();
-                    let sw = c.angular_noise * od.angular_z.abs();
-                    p.publish(msg::Odometry {
-                        header: Header {
-                            frame_id: FrameId::ODOM,
-                            ..Header::default()
-                        },
-                        child_frame_id: FrameId::BASE_LINK,
-                        pose: msg::Pose2D {
-                            x: od.x,
-                            y: od.y,
-                            theta: od.theta,
-                        },
-                        twist: Velocity2D {
-                            vx: od.linear_x,
-                            vy: 0.0,
-                            wz: od.angular_z,
-                        },
-                        pose_covariance: diag(sxy * sxy, sxy * sxy, sth * sth),
-                        twist_covariance: diag(sv * sv, 0.0, sw * sw),
-                    })?;
-                }
-            }
-            SensorOutput::Gps(g) => {
-                if g.status == GpsStatus::NoFix {
-                    self.gps_no_fix += 1;
-                } else if let Some(p) = &o.gps {
-                    let (ps, ys) = (g.position_sigma, g.yaw_sigma);
-                    p.publish(PoseWithCovariance {
-                        header: Header {
-                            frame_id: FrameId::MAP,
-                            ..Header::default()
-                        },
-                        pose: msg::Pose2D {
-                            x: g.x,
-                            y: g.y,
-                            theta: g.yaw,
-                        },
-                        covariance: diag(ps * ps, ps * ps, ys * ys),
-                    })?;
-                }
-            }
-            SensorOutput::Camera(frame) => {
-                if let Some(p) = &o.camera {
-                    let mut m = BeaconObservation {
-                        header: Header {
-                            frame_id: FrameId::CAMERA,
-                            ..Header::default()
-                        },
-                        ..Default::default()
-                    };
-                    for (slot, d) in m.beacons.iter_mut().zip(&frame.detections) {
-                        *slot = MsgBeacon {
-                            id: d.id,
-                            bearing: d.bearing,
-                            range: d.distance,
-                        };
-                    }
-                    m.count = frame.detections.len().min(MAX_BEACONS) as u32;
-                    p.publish(m)?;
-                }
-            }
-            SensorOutput::GroundTruth(gt) => {
-                if let Some(p) = &o.ground_truth {
-                    p.publish(PoseWithCovariance {
-                        header: Header {
-                            frame_id: FrameId::MAP,
-                            ..Header::default()
-                        },
-                        pose: msg::Pose2D {
-                            x: gt.x,
-                            y: gt.y,
-                            theta: gt.theta,
-                        },
-                        covariance: [0.0; 9],
-                    })?;
-                }
-            }
-            SensorOutput::Collision(c) => {
-                o.collisions.publish(SimCollision {
-                    header: Header {
-                        frame_id: FrameId::MAP,
-                        ..Header::default()
-                    },
-                    x: c.x,
-                    y: c.y,
-                    clearance: c.clearance,
-                    count: self.sim.stats().collisions,
-                })?;
-            }
-        }
-        Ok(())
-    }
-
-    fn publish_status(&mut self, ctx: &mut Context) -> ModuleResult {
-        if self.restored && self.waiting.is_some() {
-            // Restarted, not yet at the system's time: no status that would go back.
-            return Ok(());
-        }
-        let now = self.sim.now_ns();
-        let wall = self.last_status.elapsed().as_secs_f64();
-        let factor = if wall > 0.0 {
-            now.saturating_sub(self.last_status_sim_ns) as f64 * 1e-9 / wall
-        } else {
-            0.0
-        };
-        self.last_status = Instant::now();
-        self.last_status_sim_ns = now;
-        let target = match self.speed {
-            Speed::Unlimited => 0.0,
-            Speed::RealTime => 1.0,
-            Speed::Factor(f) => f,
-        };
-        // Quality: how well the asked-for speed is kept (1 at `max`).
-        let quality = if target > 0.0 && wall > 0.05 {
-            (factor / target).min(1.0) as f32
-        } else {
-            1.0
-        };
-        ctx.set_quality(true, quality);
-        let s = self.sim.stats();
-        self.outputs.status.publish(SimStatus {
-            header: Header {
-                frame_id: FrameId::MAP,
-                ..Header::default()
-            },
-            sim_time_ns: now,
-            steps: s.steps,
-            collisions: s.collisions,
-            rejected_commands: s.rejected_commands,
-            accepted_commands: self.accepted,
-            command_timeouts: s.command_timeouts,
-            gps_no_fix: self.gps_no_fix,
-            min_clearance: s.min_clearance,
-            realtime_factor: factor,
-            target_factor: target,
-            path_length_m: self.true_path_m,
-            lockstep_rounds: self.lockstep.as_ref().map_or(0, |l| l.rounds),
-            lockstep_extra_rounds: self.lockstep.as_ref().map_or(0, |l| l.extra_rounds),
-            lockstep_calls: self.lockstep.as_ref().map_or(0, |l| l.members),
-        })?;
-        Ok(())
-    }
 }
 
 #[cfg(test)]
@@ -822,35 +569,28 @@ mod tests {
 
     #[test]
     fn bad_configs_name_the_field() {
-        let e = parse("sped = 1")
-            .err()
-            .map(|e| e.to_string())
-            .unwrap_or_default();
+        fn error<T, E: std::fmt::Display>(r: Result<T, E>) -> String {
+            r.err().map(|e| e.to_string()).unwrap_or_default()
+        }
+        let e = error(parse("sped = 1"));
         assert!(e.contains("sped"), "{e}");
-        let e = parse("[sensors]\nlidar = 1")
-            .err()
-            .map(|e| e.to_string())
-            .unwrap_or_default();
+        let e = error(parse("[sensors]\nlidar = 1"));
         assert!(e.contains("lidar"), "{e}");
-        let c = SimModuleConfig {
-            world: Some("map.yaml".into()),
-            ..Default::default()
-        };
-        let e = c
-            .build_world()
-            .err()
-            .map(|e| e.to_string())
-            .unwrap_or_default();
+        let e = error(
+            SimModuleConfig {
+                world: Some("map.yaml".into()),
+                ..Default::default()
+            }
+            .build_world(),
+        );
         assert!(e.contains("`start`"), "{e}");
-        let c = SimModuleConfig {
-            duration: Some(f64::NAN),
-            ..Default::default()
-        };
-        let e = c
-            .build_world()
-            .err()
-            .map(|e| e.to_string())
-            .unwrap_or_default();
+        let e = error(
+            SimModuleConfig {
+                duration: Some(f64::NAN),
+                ..Default::default()
+            }
+            .build_world(),
+        );
         assert!(e.contains("`duration`"), "{e}");
     }
 }

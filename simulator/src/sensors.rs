@@ -40,22 +40,26 @@ pub struct LidarScan {
     pub ranges: Vec<f32>,
 }
 
-/// Odometry: pose of `base_link` in `odom` and the measured twist in `base_link`.
+/// A pose of `base_link` and its twist in `base_link` at a simulated time: [`Odometry`]
+/// (in `odom`, as measured) and [`GroundTruth`] (in `map`, true).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct Odometry {
+pub struct PoseTwist {
     /// Simulated time, ns.
     pub stamp_ns: u64,
-    /// x in the odom frame, metres.
+    /// x in the frame, metres.
     pub x: f64,
-    /// y in the odom frame, metres.
+    /// y in the frame, metres.
     pub y: f64,
-    /// Heading in the odom frame, radians in (-π, π].
+    /// Heading in the frame, radians in (-π, π].
     pub theta: f64,
     /// Forward speed, m/s (over the last physics step).
     pub linear_x: f64,
     /// Turn rate, rad/s (over the last physics step).
     pub angular_z: f64,
 }
+
+/// Odometry: pose of `base_link` in `odom` and the measured twist in `base_link`.
+pub type Odometry = PoseTwist;
 
 /// Quality of a GPS fix.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -108,21 +112,7 @@ pub struct CameraFrame {
 }
 
 /// True pose and twist of the robot in `map` (evaluation only).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct GroundTruth {
-    /// Simulated time, ns.
-    pub stamp_ns: u64,
-    /// x in the map frame, metres.
-    pub x: f64,
-    /// y in the map frame, metres.
-    pub y: f64,
-    /// Heading in the map frame, radians in (-π, π].
-    pub theta: f64,
-    /// True forward speed, m/s.
-    pub linear_x: f64,
-    /// True turn rate, rad/s.
-    pub angular_z: f64,
-}
+pub type GroundTruth = PoseTwist;
 
 /// The robot touched an obstacle (emitted when a contact begins).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]

@@ -33,9 +33,7 @@ use hng_runtime::contract::{
 };
 use hng_runtime::msg::{Odometry, Twist, module_id};
 use hng_runtime::stats::{BenchRow, Percentiles};
-use hng_runtime::system::{
-    CONTRACTS, ContractRole, ContractTable, EventKind, ModuleEvent, SUPERVISOR_EVENTS,
-};
+use hng_runtime::system::{CONTRACTS, ContractTable, EventKind, ModuleEvent, SUPERVISOR_EVENTS};
 use hng_runtime::wait::{WaitMode, Waiter};
 use hng_runtime::{Node, NodeOptions, Subscriber, shm};
 
@@ -222,9 +220,7 @@ struct Tables {
 impl Tables {
     fn new(node: &Node) -> Result<Tables> {
         let sub = node.subscriber::<ContractTable>(CONTRACTS)?;
-        let mut waiter = Waiter::new(WaitMode::Blocking {
-            max_spin: Duration::ZERO,
-        })?;
+        let mut waiter = Waiter::new(WaitMode::SLEEP)?;
         waiter.attach(&sub)?;
         Ok(Tables {
             sub,
@@ -257,11 +253,7 @@ impl Tables {
 }
 
 fn provider_of(t: &BTreeMap<String, ContractTable>, client: &str, service: &str) -> Option<u32> {
-    t.get(client)?
-        .entries()
-        .iter()
-        .find(|e| e.role() == Some(ContractRole::Client) && e.service() == service)
-        .map(|e| e.peer)
+    Some(t.get(client)?.client_entry(service)?.peer)
 }
 
 fn data_channel(module: &str, service: &str) -> String {
@@ -433,7 +425,9 @@ fn switch_after_kill(samples: usize) -> Result<BenchRow> {
         .with("detection", "supervisor Died event"))
 }
 
-fn proposals(n: usize) -> Vec<Proposal> {
+/// `n` proposals with deterministic pseudo-random values in [-1, 2) (xorshift, no RNG
+/// dependency), providers 1..=n.
+pub fn proposals(n: usize) -> Vec<Proposal> {
     let mut x: u64 = 0x9E37_79B9_7F4A_7C15;
     (0..n)
         .map(|i| {

@@ -101,14 +101,7 @@ fn case(prefix: &str, clients: usize, scans: u32) -> Result<BenchRow> {
         std::thread::sleep(Duration::from_millis(10));
     }
     server.hub().measure_latency();
-    let mut scan = LaserScan {
-        angle_min: -std::f32::consts::PI,
-        angle_increment: std::f32::consts::TAU / 360.0,
-        range_min: 0.1,
-        range_max: 10.0,
-        count: 360,
-        ..Default::default()
-    };
+    let mut scan = LaserScan::full_circle(&[0.0; 360], 0.1, 10.0);
     scan.header.frame_id = FrameId::LASER;
     let start = Instant::now();
     for k in 0..scans {

@@ -155,9 +155,7 @@ const PONG: &str = "bench/pong";
 fn wait_mode(mode: Mode) -> WaitMode {
     match mode {
         Mode::Blocking => WaitMode::default(),
-        Mode::Sleep => WaitMode::Blocking {
-            max_spin: Duration::ZERO,
-        },
+        Mode::Sleep => WaitMode::SLEEP,
         Mode::Spin => WaitMode::Spin,
     }
 }

@@ -20,7 +20,7 @@
 //! Scans alternate between a wall far ahead (command passed through) and a wall close ahead
 //! (command slowed), and every answer is checked to be the one for its scan.
 
-use std::process::{Child, Command, Stdio};
+use std::process::Child;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context as _, Result, bail};
@@ -89,15 +89,8 @@ const DESIRED_V: f64 = 1.0;
 
 /// A 360-beam scan of a wall perpendicular to the heading at `wall` metres.
 fn wall_scan(wall: f64) -> LaserScan {
-    let mut s = LaserScan {
-        angle_min: -std::f32::consts::PI,
-        angle_increment: std::f32::consts::PI / 180.0,
-        range_min: 0.05,
-        range_max: 10.0,
-        scan_time: 0.1,
-        count: 360,
-        ..Default::default()
-    };
+    let mut s = LaserScan::full_circle(&[f32::INFINITY; 360], 0.05, 10.0);
+    s.scan_time = 0.1;
     for (i, r) in s.ranges.iter_mut().take(360).enumerate() {
         let a = -std::f64::consts::PI + i as f64 * std::f64::consts::PI / 180.0;
         *r = if a.cos() > 1e-6 && wall / a.cos() < 10.0 {
@@ -118,7 +111,7 @@ struct Modules {
 impl Modules {
     fn spawn(&mut self, name: &str, config: &str, wait: &str) -> Result<()> {
         let exe = std::env::current_exe().context("locating the hng executable")?;
-        let child = Command::new(exe)
+        let child = super::quiet_hng(&exe)
             .args(["module", name])
             .env("HNG_PREFIX", &self.prefix)
             .env("HNG_MODULE_NAME", format!("bench-{name}"))
@@ -126,12 +119,6 @@ impl Modules {
             .env("HNG_WAIT", wait)
             .env("HNG_CLOCK", "wall")
             .env_remove("HNG_CHECKPOINT_DIR")
-            .env(
-                "HNG_LOG",
-                std::env::var("HNG_LOG").unwrap_or_else(|_| "warn".into()),
-            )
-            .stdin(Stdio::null())
-            .stdout(Stdio::null())
             .spawn()
             .with_context(|| format!("starting `hng module {name}`"))?;
         self.children.push(child);

@@ -47,6 +47,19 @@ pub enum BenchCommand {
     Gui(gui::GuiBenchArgs),
 }
 
+/// The hng executable `exe` as a bench starts it: no input, no output, its log at `HNG_LOG`'s
+/// level (`warn` when unset).
+pub(crate) fn quiet_hng(exe: &std::path::Path) -> std::process::Command {
+    let mut cmd = std::process::Command::new(exe);
+    cmd.env(
+        "HNG_LOG",
+        std::env::var("HNG_LOG").unwrap_or_else(|_| "warn".into()),
+    )
+    .stdin(std::process::Stdio::null())
+    .stdout(std::process::Stdio::null());
+    cmd
+}
+
 /// Prints rows as JSON lines or as a table.
 pub fn print_rows(rows: &[BenchRow], json: bool) {
     if json {

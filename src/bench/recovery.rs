@@ -16,7 +16,7 @@
 //!   SIGKILL, reap), with `heartbeat_period_ms` and `timeout_ms` in the row.
 
 use std::path::PathBuf;
-use std::process::{Child, Command, Stdio};
+use std::process::Child;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context as _, Result, bail};
@@ -87,22 +87,14 @@ config = {{ output = "bench/probe", period_s = 0.01 }}
         let node = Node::new(NodeOptions::new("bench-recovery").prefix(&prefix))?;
         let events = node.subscriber::<ModuleEvent>(SUPERVISOR_EVENTS)?;
         let count = node.subscriber::<Goal>("bench/probe")?;
-        let mut waiter = Waiter::new(WaitMode::Blocking {
-            max_spin: Duration::ZERO,
-        })?;
+        let mut waiter = Waiter::new(WaitMode::SLEEP)?;
         waiter.attach(&events)?;
         waiter.attach(&count)?;
-        let child = Command::new(exe)
+        let child = super::quiet_hng(exe)
             .args(["run", "--no-rm", "--no-gui", "--run-dir"])
             .arg(&dir)
             .arg(&file)
             .env("HNG_PREFIX", &prefix)
-            .env(
-                "HNG_LOG",
-                std::env::var("HNG_LOG").unwrap_or_else(|_| "warn".into()),
-            )
-            .stdin(Stdio::null())
-            .stdout(Stdio::null())
             .spawn()
             .context("starting hng run")?;
         let mut b = Bench {

@@ -20,6 +20,17 @@ use std::time::{Duration, Instant};
 
 use super::ipc::{Mode, Transport, run_mode};
 
+/// What a tracker knows of the simulator's camera rendering with `params`.
+pub fn camera_model(params: &ImageParams) -> CameraModel {
+    CameraModel {
+        width: params.width,
+        height: params.height,
+        fov: params.fov,
+        beacon_height: params.beacon_height,
+        ..CameraModel::default()
+    }
+}
+
 /// Arguments of `hng bench vision`.
 #[derive(Debug, Clone, Args)]
 pub struct VisionArgs {
@@ -96,13 +107,7 @@ pub fn run(a: &VisionArgs) -> Result<()> {
             im
         })
         .collect();
-    let camera = CameraModel {
-        width: params.width,
-        height: params.height,
-        fov: params.fov,
-        beacon_height: params.beacon_height,
-        ..CameraModel::default()
-    };
+    let camera = camera_model(&params);
     let mut colour = ColourTracker::new(ColourTrackerConfig::default(), camera);
     let mut hist = HistogramTracker::new(HistogramTrackerConfig::default(), camera);
     let (mut found_c, mut found_h) = (0u64, 0u64);

@@ -8,7 +8,7 @@ use anyhow::{Context as _, Result, bail};
 use hng_modules::footprint::ROBOT_RADIUS_M;
 use hng_modules::planning::movingai::{read_map, read_scen};
 use hng_modules::planning::{
-    Costmap, CostmapConfig, GridPlanner, OccupancyGrid, PlannerConfig, path_clearance,
+    Costmap, CostmapConfig, GridPlanner, NEIGHBOURS, OccupancyGrid, PlannerConfig, path_clearance,
 };
 use hng_modules::planning_module::{PlanningCore, PlanningParams};
 use hng_runtime::msg::{Goal, Pose2D};
@@ -115,16 +115,7 @@ pub fn available_clearance(c: &Costmap, s: (i64, i64), g: (i64, i64)) -> Option<
             return (v > 0.0).then_some(v - ROBOT_RADIUS_M);
         }
         let (x, y) = (i as i64 % w, i as i64 / w);
-        for (dx, dy) in [
-            (1, 0),
-            (-1, 0),
-            (0, 1),
-            (0, -1),
-            (1, 1),
-            (1, -1),
-            (-1, 1),
-            (-1, -1),
-        ] {
+        for (dx, dy) in NEIGHBOURS {
             let Some(j) = grid.index(x + dx, y + dy) else {
                 continue;
             };

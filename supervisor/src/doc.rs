@@ -50,9 +50,7 @@ impl<T: DeserializeOwned> DocReader<T> {
         let sub = node
             .slice_subscriber::<JsonInfo>(channel)
             .with_context(|| format!("subscribing to {what} ({channel})"))?;
-        let mut waiter = Waiter::new(WaitMode::Blocking {
-            max_spin: Duration::ZERO,
-        })?;
+        let mut waiter = Waiter::new(WaitMode::SLEEP)?;
         waiter.attach(&sub)?;
         Ok(DocReader {
             sub,

@@ -255,9 +255,7 @@ impl State {
         let tables = node.tap_subscriber::<ContractTable>(CONTRACTS)?;
         let command = node.publisher::<SupervisorCommand>(SUPERVISOR_COMMAND)?;
         let progress = node.subscriber::<NavProgress>(PROGRESS_CHANNEL)?;
-        let mut waiter = Waiter::new(WaitMode::Blocking {
-            max_spin: Duration::ZERO,
-        })?;
+        let mut waiter = Waiter::new(WaitMode::SLEEP)?;
         waiter.attach(&mission)?;
         waiter.attach(&sim)?;
         waiter.attach(&events)?;

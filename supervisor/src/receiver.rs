@@ -71,9 +71,7 @@ fn receive_loop(
     let commands = node.subscriber::<SupervisorCommand>(SUPERVISOR_COMMAND)?;
     // Sleep at once: the supervisor is not latency-critical to the microsecond, and it must
     // not steal CPU from the modules.
-    let mut waiter = Waiter::new(WaitMode::Blocking {
-        max_spin: Duration::ZERO,
-    })?;
+    let mut waiter = Waiter::new(WaitMode::SLEEP)?;
     waiter.attach(&reports)?;
     waiter.attach(&commands)?;
     waiter.catch_termination_signals()?;

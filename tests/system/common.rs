@@ -136,24 +136,10 @@ impl TestSystem {
     pub fn stop_all(&mut self) -> Vec<std::process::ExitStatus> {
         let mut out = Vec::new();
         for mut c in self.children.drain(..) {
-            let _ = nix::sys::signal::kill(
-                nix::unistd::Pid::from_raw(c.id() as i32),
-                nix::sys::signal::Signal::SIGTERM,
-            );
-            let deadline = Instant::now() + Duration::from_secs(10);
-            let status = loop {
-                match c.try_wait() {
-                    Ok(Some(s)) => break s,
-                    Ok(None) if Instant::now() < deadline => {
-                        // Waiting for a process to exit: poll its status at 1 ms intervals.
-                        std::thread::sleep(Duration::from_millis(1));
-                    }
-                    _ => {
-                        let _ = c.kill();
-                        break c.wait().expect("wait child");
-                    }
-                }
-            };
+            let status = terminate(&mut c, Duration::from_secs(10)).unwrap_or_else(|| {
+                let _ = c.kill();
+                c.wait().expect("wait child")
+            });
             out.push(status);
         }
         out
@@ -168,6 +154,60 @@ impl Drop for TestSystem {
         }
         shm::remove_prefix_files(&self.prefix);
     }
+}
+
+/// Starts `hng run ARGS --no-gui --status-period 0.1 --run-dir DIR FILE` on `prefix`: stdout
+/// discarded, its log (INFO) in `DIR/run.log`.
+pub(crate) fn spawn_hng_run(
+    prefix: &str,
+    dir: &std::path::Path,
+    file: &std::path::Path,
+    args: &[&str],
+) -> Child {
+    let log = std::fs::File::create(dir.join("run.log")).expect("log file");
+    hng_run(prefix, log)
+        .args(args)
+        .args(["--no-gui", "--status-period", "0.1", "--run-dir"])
+        .arg(dir)
+        .arg(file)
+        .stdout(Stdio::null())
+        .spawn()
+        .expect("spawn hng run")
+}
+
+/// `hng run` on `prefix`, no input, its log (INFO) to `log`; the caller adds its arguments and
+/// says where stdout goes.
+pub(crate) fn hng_run(prefix: &str, log: std::fs::File) -> Command {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_hng"));
+    cmd.arg("run")
+        .env("HNG_PREFIX", prefix)
+        .env("HNG_LOG", "info")
+        .stdin(Stdio::null())
+        .stderr(log);
+    cmd
+}
+
+/// Waits up to `timeout` for `child` to exit; `None` if it has not (or cannot be asked).
+pub(crate) fn wait_exit(child: &mut Child, timeout: Duration) -> Option<std::process::ExitStatus> {
+    let deadline = Instant::now() + timeout;
+    loop {
+        match child.try_wait() {
+            Ok(Some(s)) => return Some(s),
+            Ok(None) if Instant::now() < deadline => {}
+            _ => return None,
+        }
+        // Waiting for a process to exit: poll its status at 5 ms intervals.
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}
+
+/// Sends SIGTERM to `child` and waits up to `timeout` for it to exit ([`wait_exit`]).
+pub(crate) fn terminate(child: &mut Child, timeout: Duration) -> Option<std::process::ExitStatus> {
+    let _ = nix::sys::signal::kill(
+        nix::unistd::Pid::from_raw(child.id() as i32),
+        nix::sys::signal::Signal::SIGTERM,
+    );
+    wait_exit(child, timeout)
 }
 
 /// Tests that load the machine (a whole robot in accelerated simulation, CPU-share
@@ -244,10 +284,7 @@ impl Watch {
         let tables = node.subscriber(CONTRACTS).expect("contracts");
         let orders = node.publisher(ORDER_CHANNEL).expect("orders");
         let teleop = node.publisher("hng/teleop").expect("teleop");
-        let mut waiter = Waiter::new(WaitMode::Blocking {
-            max_spin: Duration::ZERO,
-        })
-        .expect("waiter");
+        let mut waiter = Waiter::new(WaitMode::SLEEP).expect("waiter");
         waiter.attach(&truth).expect("attach");
         waiter.attach(&status).expect("attach");
         waiter.attach(&orders_status).expect("attach");

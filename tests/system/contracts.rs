@@ -8,9 +8,7 @@ use std::time::{Duration, Instant};
 use hng_runtime::contract::{Envelope, Message, ModuleId, ServiceOffer, ValueReport, encode};
 use hng_runtime::control::{ControlInfo, inbox_channel, service_channel};
 use hng_runtime::msg::{Twist, module_id};
-use hng_runtime::system::{
-    CONTRACTS, ContractRole, ContractTable, EventKind, ModuleEvent, SUPERVISOR_EVENTS,
-};
+use hng_runtime::system::{CONTRACTS, ContractTable, EventKind, ModuleEvent, SUPERVISOR_EVENTS};
 use hng_runtime::wait::{WaitMode, Waiter};
 use hng_runtime::{Node, NodeOptions, Subscriber};
 
@@ -79,21 +77,13 @@ impl Tables {
 
 /// The provider serving `client`'s need for `service`, by module id.
 fn provider_of(t: &BTreeMap<String, ContractTable>, client: &str, service: &str) -> Option<u32> {
-    t.get(client)?
-        .entries()
-        .iter()
-        .find(|e| e.role() == Some(ContractRole::Client) && e.service() == service)
-        .map(|e| e.peer)
+    Some(t.get(client)?.client_entry(service)?.peer)
 }
 
 fn priority_of(t: &BTreeMap<String, ContractTable>, client: &str, service: &str) -> Vec<u16> {
     t.get(client)
-        .and_then(|t| {
-            t.entries()
-                .iter()
-                .find(|e| e.role() == Some(ContractRole::Client) && e.service() == service)
-                .map(|e| e.priority().to_vec())
-        })
+        .and_then(|t| t.client_entry(service))
+        .map(|e| e.priority().to_vec())
         .unwrap_or_default()
 }
 

@@ -33,23 +33,6 @@ fn f(v: &serde_json::Value, k: &str) -> f64 {
         .unwrap_or_else(|| panic!("field {k} missing in {v}"))
 }
 
-/// A scratch directory removed on drop.
-struct Scratch(PathBuf);
-
-impl Scratch {
-    fn new(tag: &str) -> Scratch {
-        let d = std::env::temp_dir().join(format!("hng-eval-{tag}-{}", std::process::id()));
-        std::fs::create_dir_all(&d).expect("scratch dir");
-        Scratch(d)
-    }
-}
-
-impl Drop for Scratch {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
-
 #[test]
 fn eval_planner_finds_every_optimal_length_on_arena() {
     let (map, scen) = (
@@ -73,8 +56,8 @@ fn eval_planner_finds_every_optimal_length_on_arena() {
 #[test]
 fn eval_planner_errors_name_file_line_and_field() {
     let map = repo_data("movingai/arena.map");
-    let dir = Scratch::new("badscen");
-    let scen = dir.0.join("bad.scen");
+    let dir = tempfile::tempdir().expect("scratch dir");
+    let scen = dir.path().join("bad.scen");
     std::fs::write(
         &scen,
         "version 1\n0\tarena.map\t49\t49\t1\t11\t1\t12\t1\n0\tarena.map\t49\t49\t1\tx\t1\t12\t1\n",
@@ -104,8 +87,8 @@ fn eval_slam_errors_name_the_file_and_line() {
     let out = hng(&["eval", "slam", "/nonexistent/log.clf", "--json"]);
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("/nonexistent/log.clf"));
-    let dir = Scratch::new("badlog");
-    let log = dir.0.join("short.log");
+    let dir = tempfile::tempdir().expect("scratch dir");
+    let log = dir.path().join("short.log");
     std::fs::write(
         &log,
         "ODOM 0 0 0 0 0 0 1 h 1\nFLASER 3 1.0 2.0 3.0 0 0 0 0 0 0 2 h 2\nFLASER 3 1.0 2.0\n",
@@ -118,8 +101,8 @@ fn eval_slam_errors_name_the_file_and_line() {
         err.contains("short.log:3: FLASER field `range[2]`: missing (line too short)"),
         "{err}"
     );
-    let empty = Scratch::new("emptydir");
-    let out = hng(&["eval", "slam", "--all", &empty.0.to_string_lossy()]);
+    let empty = tempfile::tempdir().expect("scratch dir");
+    let out = hng(&["eval", "slam", "--all", &empty.path().to_string_lossy()]);
     assert!(!out.status.success());
     assert!(
         String::from_utf8_lossy(&out.stderr).contains("no .log or .clf files"),
@@ -131,8 +114,8 @@ fn eval_slam_errors_name_the_file_and_line() {
 #[test]
 fn eval_slam_reports_relative_and_absolute_errors_and_writes_the_map() {
     let log = carmen("seattle-corrected.log");
-    let dir = Scratch::new("slam");
-    let yaml = dir.0.join("seattle.yaml");
+    let dir = tempfile::tempdir().expect("scratch dir");
+    let yaml = dir.path().join("seattle.yaml");
     let v = json(&hng(&[
         "eval",
         "slam",
@@ -158,24 +141,24 @@ fn eval_slam_reports_relative_and_absolute_errors_and_writes_the_map() {
         y.contains("image: seattle.pgm") && y.contains("resolution"),
         "{y}"
     );
-    let pgm = std::fs::read(dir.0.join("seattle.pgm")).expect("map pgm written");
+    let pgm = std::fs::read(dir.path().join("seattle.pgm")).expect("map pgm written");
     assert!(pgm.starts_with(b"P5"));
 }
 
 #[test]
 fn eval_slam_all_evaluates_every_log_in_a_folder() {
-    let dir = Scratch::new("all");
+    let dir = tempfile::tempdir().expect("scratch dir");
     // Two geometries (180 and 361 beams) from the two quickest logs: every log's accuracy is
     // real_data's subject; this test's is the folder form.
     for name in ["aces-corrected.log", "seattle-corrected.log"] {
-        std::fs::copy(carmen(name), dir.0.join(name)).expect("copy log");
+        std::fs::copy(carmen(name), dir.path().join(name)).expect("copy log");
     }
-    std::fs::write(dir.0.join("notes.txt"), "not a log").expect("write");
+    std::fs::write(dir.path().join("notes.txt"), "not a log").expect("write");
     let out = hng(&[
         "eval",
         "slam",
         "--all",
-        &dir.0.to_string_lossy(),
+        &dir.path().to_string_lossy(),
         "--json",
         "--no-loop-closure",
     ]);
@@ -202,7 +185,7 @@ fn eval_slam_all_evaluates_every_log_in_a_folder() {
         "eval",
         "slam",
         "--all",
-        &dir.0.to_string_lossy(),
+        &dir.path().to_string_lossy(),
         "--no-loop-closure",
     ]);
     let text = String::from_utf8_lossy(&table.stdout);

@@ -66,10 +66,7 @@ impl Observer {
         let node = Node::new(NodeOptions::new("matrix-test").prefix(prefix)).expect("node");
         let events = node.subscriber(SUPERVISOR_EVENTS).expect("events");
         let status = node.slice_subscriber(SUPERVISOR_STATUS).expect("status");
-        let mut waiter = Waiter::new(WaitMode::Blocking {
-            max_spin: Duration::ZERO,
-        })
-        .expect("waiter");
+        let mut waiter = Waiter::new(WaitMode::SLEEP).expect("waiter");
         waiter.attach(&events).expect("attach");
         waiter.attach(&status).expect("attach");
         Observer {

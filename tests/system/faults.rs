@@ -5,7 +5,7 @@
 //! knows exactly which state must come back).
 
 use std::path::PathBuf;
-use std::process::{Child, Command, Output, Stdio};
+use std::process::{Child, Command, Output};
 use std::time::{Duration, Instant};
 
 use hng_runtime::msg::Goal;
@@ -78,32 +78,11 @@ impl RunningSystem {
             .slice_subscriber::<JsonInfo>(SUPERVISOR_STATUS)
             .expect("status");
         let count = node.subscriber::<Goal>("test/count").expect("count");
-        let mut waiter = Waiter::new(WaitMode::Blocking {
-            max_spin: Duration::ZERO,
-        })
-        .expect("waiter");
+        let mut waiter = Waiter::new(WaitMode::SLEEP).expect("waiter");
         waiter.attach(&events).expect("attach");
         waiter.attach(&status).expect("attach");
         waiter.attach(&count).expect("attach");
-        let log = std::fs::File::create(dir.join("run.log")).expect("log file");
-        let child = Command::new(HNG)
-            .args([
-                "run",
-                "--no-rm",
-                "--no-gui",
-                "--status-period",
-                "0.1",
-                "--run-dir",
-            ])
-            .arg(&dir)
-            .arg(&file)
-            .env("HNG_PREFIX", &prefix)
-            .env("HNG_LOG", "info")
-            .stdin(Stdio::null())
-            .stdout(Stdio::null())
-            .stderr(log)
-            .spawn()
-            .expect("spawn hng run");
+        let child = crate::common::spawn_hng_run(&prefix, &dir, &file, &["--no-rm"]);
         RunningSystem {
             prefix,
             dir,
@@ -273,18 +252,8 @@ impl RunningSystem {
         let mut child = self.child.take().expect("child");
         let pid = nix::unistd::Pid::from_raw(child.id() as i32);
         nix::sys::signal::kill(pid, nix::sys::signal::Signal::SIGTERM).expect("SIGTERM");
-        let deadline = Instant::now() + TIMEOUT;
-        let status = loop {
-            if let Some(s) = child.try_wait().expect("try_wait") {
-                break s;
-            }
-            assert!(
-                Instant::now() < deadline,
-                "hng run did not stop within {TIMEOUT:?}"
-            );
-            // Waiting for a process to exit: poll its status at 1 ms intervals.
-            std::thread::sleep(Duration::from_millis(1));
-        };
+        let status = crate::common::wait_exit(&mut child, TIMEOUT)
+            .unwrap_or_else(|| panic!("hng run did not stop within {TIMEOUT:?}"));
         assert!(
             status.success(),
             "hng run exit: {status:?}; log:\n{}",

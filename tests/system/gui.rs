@@ -30,43 +30,57 @@ struct GuiRun {
     lines: mpsc::Receiver<String>,
 }
 
+/// `hng --prefix PREFIX run --run-dir DIR/run ARGS`, its stdout read line by line.
+fn spawn_run(prefix: &str, dir: &Path, args: &[&str]) -> (Child, mpsc::Receiver<String>) {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_hng"))
+        .env("HNG_LOG", "warn")
+        .args(["--prefix", prefix, "run", "--run-dir"])
+        .arg(dir.join("run"))
+        .args(args)
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .spawn()
+        .expect("hng run");
+    let lines = crate::common::stdout_lines(child.stdout.take().expect("stdout"));
+    (child, lines)
+}
+
+/// Waits for the first line that starts with `start`: that line, and the lines before it.
+fn wait_line(
+    lines: &mpsc::Receiver<String>,
+    start: &str,
+    timeout: Duration,
+) -> (String, Vec<String>) {
+    let mut seen = Vec::new();
+    loop {
+        match lines.recv_timeout(timeout) {
+            Ok(l) if l.starts_with(start) => return (l, seen),
+            Ok(l) => seen.push(l),
+            Err(e) => panic!("no line {start:?} ({e}); output: {seen:?}"),
+        }
+    }
+}
+
 impl GuiRun {
     fn start(tag: &str, speed: &str, extra: &[&str]) -> GuiRun {
         let prefix = shm::unique_prefix(tag);
         let dir = std::env::temp_dir().join(format!("hng-test-{}", prefix.trim_end_matches('_')));
         std::fs::create_dir_all(&dir).expect("test dir");
-        let mut child = Command::new(env!("CARGO_BIN_EXE_hng"))
-            .env("HNG_LOG", "warn")
-            .arg("--prefix")
-            .arg(&prefix)
-            .arg("run")
-            .arg("--run-dir")
-            .arg(dir.join("run"))
-            .args([
+        let args = [
+            &[
                 "--speed",
                 speed,
                 "--duration",
                 "900",
                 "--gui",
                 "127.0.0.1:0",
-            ])
-            .args(extra)
-            .stdin(Stdio::null())
-            .stdout(Stdio::piped())
-            .spawn()
-            .expect("hng run");
-        let stdout = child.stdout.take().expect("stdout");
-        let lines = crate::common::stdout_lines(stdout);
-        let mut seen = Vec::new();
-        let url = loop {
-            let l = lines
-                .recv_timeout(Duration::from_secs(60))
-                .unwrap_or_else(|e| panic!("no operator page address ({e}); output: {seen:?}"));
-            if let Some(u) = l.strip_prefix("operator page: ") {
-                break u.trim().to_owned();
-            }
-            seen.push(l);
-        };
+            ],
+            extra,
+        ]
+        .concat();
+        let (child, lines) = spawn_run(&prefix, &dir, &args);
+        let (said, seen) = wait_line(&lines, "operator page: ", Duration::from_secs(60));
+        let url = said["operator page: ".len()..].trim().to_owned();
         assert!(
             seen.len() <= 3,
             "the address is among the first lines: {seen:?}"
@@ -144,16 +158,8 @@ impl GuiRun {
 
 impl Drop for GuiRun {
     fn drop(&mut self) {
-        let pid = nix::unistd::Pid::from_raw(self.child.id() as i32);
-        let _ = nix::sys::signal::kill(pid, nix::sys::signal::Signal::SIGTERM);
-        let deadline = Instant::now() + Duration::from_secs(20);
-        while Instant::now() < deadline {
-            if let Ok(Some(_)) = self.child.try_wait() {
-                break;
-            }
-            // Waiting for the supervisor's orderly stop: its exit status, polled.
-            std::thread::sleep(Duration::from_millis(10));
-        }
+        // The supervisor's orderly stop first.
+        let _ = crate::common::terminate(&mut self.child, Duration::from_secs(20));
         let _ = self.child.kill();
         let _ = self.child.wait();
         while self.lines.try_recv().is_ok() {}
@@ -664,28 +670,10 @@ fn a_busy_page_address_is_reported_and_the_run_goes_on_without_the_page() {
         "system = \"busy\"\n[[module]]\nname = \"probe\"\ncommand = [\"hng\", \"module\", \"heartbeat-probe\"]\n",
     )
     .expect("launch file");
-    let mut child = Command::new(env!("CARGO_BIN_EXE_hng"))
-        .env("HNG_LOG", "warn")
-        .args(["--prefix", &prefix, "run", "--no-rm"])
-        .arg("--run-dir")
-        .arg(dir.join("run"))
-        .arg("--gui")
-        .arg(addr.to_string())
-        .arg(&file)
-        .stdin(Stdio::null())
-        .stdout(Stdio::piped())
-        .spawn()
-        .expect("hng run");
-    let stdout = child.stdout.take().expect("stdout");
-    let lines = crate::common::stdout_lines(stdout);
-    let mut seen = Vec::new();
-    let said = loop {
-        match lines.recv_timeout(Duration::from_secs(30)) {
-            Ok(l) if l.starts_with("operator page:") => break l,
-            Ok(l) => seen.push(l),
-            Err(e) => panic!("no word of the operator page ({e}): {seen:?}"),
-        }
-    };
+    let addr = addr.to_string();
+    let file = file.to_str().expect("path");
+    let (mut child, lines) = spawn_run(&prefix, &dir, &["--no-rm", "--gui", &addr, file]);
+    let (said, seen) = wait_line(&lines, "operator page:", Duration::from_secs(30));
     // The run goes on: its module runs (the supervisor's status, as `hng ps --json` reads it).
     let deadline = Instant::now() + Duration::from_secs(30);
     let running = loop {

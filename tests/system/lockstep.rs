@@ -134,10 +134,7 @@ fn a_corrupted_simulator_checkpoint_never_makes_simulated_time_go_back() {
     let node = Node::new(NodeOptions::new("ckpt-watch").prefix(&r.prefix)).expect("node");
     let clock = node.subscriber::<msg::Clock>(CLOCK_CHANNEL).expect("clock");
     let status = node.subscriber::<SimStatus>("sim/status").expect("status");
-    let mut waiter = Waiter::new(WaitMode::Blocking {
-        max_spin: Duration::ZERO,
-    })
-    .expect("waiter");
+    let mut waiter = Waiter::new(WaitMode::SLEEP).expect("waiter");
     waiter.attach(&clock).expect("attach");
     let ckpt = r.dir.join("run/checkpoints/simulator.ckpt");
     let mut max_ns = 0u64;

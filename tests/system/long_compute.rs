@@ -49,10 +49,7 @@ fn planning_keeps_its_heartbeat_through_a_long_computation() {
         .publisher::<PoseWithCovariance>("test/pose")
         .expect("pose");
     let goal = node.publisher::<Goal>("test/goal").expect("goal");
-    let mut waiter = Waiter::new(WaitMode::Blocking {
-        max_spin: Duration::ZERO,
-    })
-    .expect("waiter");
+    let mut waiter = Waiter::new(WaitMode::SLEEP).expect("waiter");
     waiter.attach(&events).expect("attach");
     waiter.attach(&status).expect("attach");
     waiter.attach(&reports).expect("attach");
@@ -94,22 +91,14 @@ fn planning_keeps_its_heartbeat_through_a_long_computation() {
     map.publish_copy(info, &cells).expect("publish the map");
     pose.update_connections();
     let p = PoseWithCovariance {
-        pose: Pose2D {
-            x: 2.0,
-            y: 2.0,
-            theta: 0.0,
-        },
+        pose: Pose2D::new(2.0, 2.0, 0.0),
         ..PoseWithCovariance::default()
     };
     pose.publish(p).expect("pose");
     goal.update_connections();
     let g = Goal {
         id: 1,
-        pose: Pose2D {
-            x: 190.0,
-            y: 190.0,
-            theta: 0.0,
-        },
+        pose: Pose2D::new(190.0, 190.0, 0.0),
         tolerance_m: 0.2,
         ..Goal::default()
     };

@@ -261,10 +261,7 @@ fn the_mission_succeeds_while_slam_planning_and_servo_are_killed() {
     let events = node
         .subscriber::<ModuleEvent>(SUPERVISOR_EVENTS)
         .expect("events");
-    let mut waiter = Waiter::new(WaitMode::Blocking {
-        max_spin: Duration::ZERO,
-    })
-    .expect("waiter");
+    let mut waiter = Waiter::new(WaitMode::SLEEP).expect("waiter");
     waiter.attach(&status).expect("attach");
     waiter.attach(&events).expect("attach");
     let victims = ["slam", "planning", "servo"];

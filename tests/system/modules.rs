@@ -105,24 +105,12 @@ impl Procs {
             );
         }
         for mut c in self.children.drain(..) {
-            let deadline = Instant::now() + Duration::from_secs(10);
-            loop {
-                match c.try_wait() {
-                    Ok(Some(status)) => {
-                        assert!(status.success(), "a module exited with {status}");
-                        break;
-                    }
-                    Ok(None) if Instant::now() < deadline => {
-                        // Waiting for a process to exit: poll its status every millisecond.
-                        std::thread::sleep(Duration::from_millis(1));
-                    }
-                    _ => {
-                        let _ = c.kill();
-                        let _ = c.wait();
-                        panic!("a module did not stop on SIGTERM");
-                    }
-                }
-            }
+            let Some(status) = crate::common::wait_exit(&mut c, Duration::from_secs(10)) else {
+                let _ = c.kill();
+                let _ = c.wait();
+                panic!("a module did not stop on SIGTERM");
+            };
+            assert!(status.success(), "a module exited with {status}");
         }
     }
 }

@@ -213,11 +213,7 @@ fn a_recorded_mission_holds_every_channel_with_foxglove_schemas_and_its_drops() 
         .flatten()
     {
         let path = e.path();
-        let Some(module) = path
-            .file_name()
-            .and_then(|n| n.to_str())
-            .and_then(|n| n.strip_suffix(".log"))
-        else {
+        let Some(module) = hng_recorder::internal::log_module(&path) else {
             continue;
         };
         let lines = std::fs::read_to_string(&path)

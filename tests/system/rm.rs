@@ -74,10 +74,7 @@ impl Observer {
         let reports = node
             .subscriber::<ModuleReport>(REPORT_CHANNEL)
             .expect("reports");
-        let mut waiter = Waiter::new(WaitMode::Blocking {
-            max_spin: Duration::ZERO,
-        })
-        .expect("waiter");
+        let mut waiter = Waiter::new(WaitMode::SLEEP).expect("waiter");
         waiter.attach(&status).expect("attach");
         waiter.attach(&costs).expect("attach");
         waiter.attach(&commands).expect("attach");
@@ -388,39 +385,14 @@ fraction = 0.6
         .slice_subscriber::<JsonInfo>(SUPERVISOR_STATUS)
         .expect("supervisor status");
     let mut obs = Observer::new(&prefix);
-    let mut waiter = Waiter::new(WaitMode::Blocking {
-        max_spin: Duration::ZERO,
-    })
-    .expect("waiter");
+    let mut waiter = Waiter::new(WaitMode::SLEEP).expect("waiter");
     waiter.attach(&sup).expect("attach");
-    let log = std::fs::File::create(dir.join("run.log")).expect("log file");
-    let child = Command::new(HNG)
-        .args(["run", "--no-gui", "--status-period", "0.1", "--run-dir"])
-        .arg(&dir)
-        .arg(&file)
-        .env("HNG_PREFIX", &prefix)
-        .env("HNG_LOG", "info")
-        .stdin(Stdio::null())
-        .stdout(Stdio::null())
-        .stderr(log)
-        .spawn()
-        .expect("spawn hng run");
+    let child = crate::common::spawn_hng_run(&prefix, &dir, &file, &[]);
     struct Guard(Option<Child>, String, PathBuf);
     impl Drop for Guard {
         fn drop(&mut self) {
             if let Some(mut c) = self.0.take() {
-                let _ = nix::sys::signal::kill(
-                    nix::unistd::Pid::from_raw(c.id() as i32),
-                    nix::sys::signal::Signal::SIGTERM,
-                );
-                let deadline = Instant::now() + Duration::from_secs(10);
-                while Instant::now() < deadline {
-                    if let Ok(Some(_)) = c.try_wait() {
-                        break;
-                    }
-                    // Waiting for a process to exit: poll its status at 5 ms intervals.
-                    std::thread::sleep(Duration::from_millis(5));
-                }
+                let _ = crate::common::terminate(&mut c, Duration::from_secs(10));
                 let _ = c.kill();
                 let _ = c.wait();
             }

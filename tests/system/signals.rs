@@ -60,17 +60,12 @@ impl Run {
         let log = std::fs::File::create(dir.join(format!("run{n}.log"))).expect("log file");
         // No operator page unless the test asks for one (`--gui ADDR`).
         let page = args.contains(&"--gui");
-        let mut child = Command::new(HNG)
-            .arg("run")
+        let mut child = crate::common::hng_run(prefix, log)
             .args(if page { None } else { Some("--no-gui") })
             .arg("--run-dir")
             .arg(dir.join("run"))
             .args(args)
-            .env("HNG_PREFIX", prefix)
-            .env("HNG_LOG", "info")
-            .stdin(Stdio::null())
             .stdout(Stdio::piped())
-            .stderr(log)
             .spawn()
             .expect("spawn hng run");
         let out = child.stdout.take().expect("stdout");
@@ -150,19 +145,12 @@ impl Run {
     /// Waits for `hng run` to end; returns its status (stdout read to the end).
     pub fn wait(&mut self) -> ExitStatus {
         let mut child = self.child.take().expect("running");
-        let deadline = Instant::now() + TIMEOUT;
-        let status = loop {
-            if let Some(s) = child.try_wait().expect("try_wait") {
-                break s;
-            }
-            assert!(
-                Instant::now() < deadline,
+        let status = crate::common::wait_exit(&mut child, TIMEOUT).unwrap_or_else(|| {
+            panic!(
                 "hng run did not end within {TIMEOUT:?}; log tail:\n{}",
                 tail(&self.log())
-            );
-            // Waiting for a process to exit: poll its status at 5 ms intervals.
-            std::thread::sleep(Duration::from_millis(5));
-        };
+            )
+        });
         while let Ok(l) = self.lines.recv_timeout(Duration::from_secs(5)) {
             self.stdout.push(l);
         }
@@ -413,10 +401,7 @@ impl Events {
         let sub = node
             .subscriber::<ModuleEvent>(SUPERVISOR_EVENTS)
             .expect("events");
-        let mut waiter = Waiter::new(WaitMode::Blocking {
-            max_spin: Duration::ZERO,
-        })
-        .expect("waiter");
+        let mut waiter = Waiter::new(WaitMode::SLEEP).expect("waiter");
         waiter.attach(&sub).expect("attach");
         Events {
             sub,
@@ -527,25 +512,7 @@ fn run_log(dir: &std::path::Path) -> String {
         .map(|f| std::fs::read_to_string(f).unwrap_or_default())
         .collect::<Vec<_>>()
         .join("\n");
-    strip_ansi(&text)
-}
-
-/// The log without its colour codes (`ESC [ ... m`).
-pub fn strip_ansi(text: &str) -> String {
-    let mut out = String::with_capacity(text.len());
-    let mut chars = text.chars();
-    while let Some(c) = chars.next() {
-        if c == '\u{1b}' {
-            for d in chars.by_ref() {
-                if d.is_ascii_alphabetic() {
-                    break;
-                }
-            }
-        } else {
-            out.push(c);
-        }
-    }
-    out
+    hng_recorder::internal::strip_ansi(&text)
 }
 
 #[test]

@@ -76,24 +76,10 @@ impl Drop for SimSystem {
 }
 
 fn terminate(mut c: Child) -> ExitStatus {
-    let _ = nix::sys::signal::kill(
-        nix::unistd::Pid::from_raw(c.id() as i32),
-        nix::sys::signal::Signal::SIGTERM,
-    );
-    let deadline = Instant::now() + Duration::from_secs(10);
-    loop {
-        match c.try_wait() {
-            Ok(Some(s)) => return s,
-            Ok(None) if Instant::now() < deadline => {
-                // Waiting for a process to exit: poll its status at 1 ms intervals.
-                std::thread::sleep(Duration::from_millis(1));
-            }
-            _ => {
-                let _ = c.kill();
-                panic!("the simulator did not stop within 10 s of SIGTERM");
-            }
-        }
-    }
+    crate::common::terminate(&mut c, Duration::from_secs(10)).unwrap_or_else(|| {
+        let _ = c.kill();
+        panic!("the simulator did not stop within 10 s of SIGTERM");
+    })
 }
 
 /// A subscriber with its own waiter.

@@ -46,13 +46,7 @@ fn scene(noise_sigma: f64) -> Scene {
         ..ImageParams::default()
     };
     let renderer = Renderer::new(&world, params).expect("renderer");
-    let camera = CameraModel {
-        width: params.width,
-        height: params.height,
-        fov: params.fov,
-        beacon_height: params.beacon_height,
-        ..CameraModel::default()
-    };
+    let camera = hng::bench::vision::camera_model(&params);
     Scene {
         world,
         params,

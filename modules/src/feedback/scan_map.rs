@@ -325,14 +325,7 @@ mod tests {
 
     /// A 360-beam scan of `truth` from `pose` (ray marching, 12 m range).
     fn scan(truth: &OccupancyGrid, pose: &Pose2D) -> LaserScan {
-        let mut s = LaserScan {
-            angle_min: -std::f32::consts::PI,
-            angle_increment: std::f32::consts::TAU / 360.0,
-            range_min: 0.1,
-            range_max: 12.0,
-            count: 360,
-            ..LaserScan::default()
-        };
+        let mut s = LaserScan::full_circle(&[f32::INFINITY; 360], 0.1, 12.0);
         for i in 0..360 {
             let a = pose.theta + f64::from(s.angle(i));
             let mut r = 0.1;

@@ -162,7 +162,8 @@ pub struct GridPlanner {
     heap: BinaryHeap<Open>,
 }
 
-const NEIGHBOURS: [(i64, i64); 8] = [
+/// The eight neighbours of a cell (dx, dy), the four sides first.
+pub const NEIGHBOURS: [(i64, i64); 8] = [
     (1, 0),
     (-1, 0),
     (0, 1),

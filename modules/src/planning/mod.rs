@@ -27,7 +27,8 @@ pub mod progress;
 mod smooth;
 
 pub use astar::{
-    GridPath, GridPlanner, Path, PlanError, PlannerConfig, SQRT_2, octile, path_length_cells,
+    GridPath, GridPlanner, NEIGHBOURS, Path, PlanError, PlannerConfig, SQRT_2, octile,
+    path_length_cells,
 };
 pub use clearance::path_clearance;
 pub use costmap::{Costmap, CostmapConfig, inflation_cost, resample};

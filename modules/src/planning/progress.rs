@@ -386,11 +386,11 @@ pub fn recovery_waypoint(
         },
         goal_id,
         index: 0,
-        pose: hng_runtime::msg::Pose2D {
-            x: pose.x + CARROT_M * a.cos(),
-            y: pose.y + CARROT_M * a.sin(),
-            theta: pose.theta,
-        },
+        pose: hng_runtime::msg::Pose2D::new(
+            pose.x + CARROT_M * a.cos(),
+            pose.y + CARROT_M * a.sin(),
+            pose.theta,
+        ),
         speed,
         is_final: 0,
     })

@@ -134,6 +134,27 @@ impl SlamEval {
             f64::NAN
         }
     }
+
+    /// The figures on one line: mean relative errors of the pipeline, the front end alone and
+    /// odometry, their ATEs, the loop closures and the speeds (pipeline / front end).
+    pub fn summary(&self) -> String {
+        format!(
+            "rel {:5.2} cm {:.3} deg | front end {:5.2} cm {:.3} deg | odometry {:5.2} cm \
+             {:.3} deg | ATE {:.3} / {:.3} / {:.3} m | {} closures | {:.0} / {:.0} scans/s",
+            self.trans_err_mean_m * 100.0,
+            self.rot_err_mean_deg,
+            self.front_end_trans_err_mean_m * 100.0,
+            self.front_end_rot_err_mean_deg,
+            self.odom_trans_err_mean_m * 100.0,
+            self.odom_rot_err_mean_deg,
+            self.ate_rmse_m,
+            self.ate_front_end_rmse_m,
+            self.odom_ate_rmse_m,
+            self.loop_closures,
+            self.scans_per_s,
+            self.front_end_scans_per_s,
+        )
+    }
 }
 
 /// Translation (m) and rotation (rad) of `a⁻¹·b`.

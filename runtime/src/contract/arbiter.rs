@@ -146,10 +146,7 @@ impl CommandArbiter {
 #[allow(clippy::unwrap_used)] // Tests may unwrap.
 mod tests {
     use super::*;
-
-    fn ms(v: u64) -> Duration {
-        Duration::from_millis(v)
-    }
+    use crate::contract::tests::ms;
 
     #[test]
     fn contract_arbiter_priority_preemption_and_freshness() {

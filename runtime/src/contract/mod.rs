@@ -154,7 +154,7 @@ pub use agent::{
     Timing,
 };
 pub use arbiter::{CommandArbiter, Verdict};
-pub use priority::{MAX_DEPTH, Priority, PriorityError};
+pub use priority::{MAX_DEPTH, Priority, PriorityError, dotted};
 pub use service::{NeedSpec, Requirement, ServiceError, ServiceOffer};
 pub use value::{
     FeedbackLog, Proposal, ResourceVec, Unavailable, ValueInputs, best_of, compute_value,

@@ -206,17 +206,33 @@ impl PartialOrd for Priority {
 
 impl fmt::Display for Priority {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        if self.is_root() {
-            return f.write_str("root");
-        }
-        for (i, c) in self.parts().iter().enumerate() {
-            if i > 0 {
-                f.write_str(".")?;
-            }
-            write!(f, "{c}")?;
-        }
-        Ok(())
+        write_dotted(f, self.parts())
     }
+}
+
+fn write_dotted(f: &mut fmt::Formatter<'_>, parts: &[u16]) -> fmt::Result {
+    if parts.is_empty() {
+        return f.write_str("root");
+    }
+    for (i, c) in parts.iter().enumerate() {
+        if i > 0 {
+            f.write_str(".")?;
+        }
+        write!(f, "{c}")?;
+    }
+    Ok(())
+}
+
+/// Priority components as [`Priority`] displays them (`1.2.5`, `root` when empty), for the
+/// raw components of wire tables, which may hold values [`Priority::new`] refuses.
+pub fn dotted(parts: &[u16]) -> String {
+    struct Dotted<'a>(&'a [u16]);
+    impl fmt::Display for Dotted<'_> {
+        fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+            write_dotted(f, self.0)
+        }
+    }
+    Dotted(parts).to_string()
 }
 
 impl fmt::Debug for Priority {

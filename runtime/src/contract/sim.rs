@@ -199,15 +199,11 @@ impl Sim {
             } else {
                 self.next_tick
             };
-            if at > until {
+            if !self.reach(at, until) {
                 break;
             }
-            self.now = self.now.max(at);
             if msg_first {
-                let Some((_, (to, bytes))) = self.queue.pop_first() else {
-                    break;
-                };
-                self.deliver(to, &bytes);
+                self.deliver_first();
             } else {
                 let ids: Vec<ModuleId> = self.agents.keys().copied().collect();
                 for id in ids {
@@ -218,6 +214,22 @@ impl Sim {
             }
         }
         self.now = self.now.max(until);
+    }
+
+    /// Moves the clock to `at`; false if `at` is past `until` (the run ends first).
+    fn reach(&mut self, at: Duration, until: Duration) -> bool {
+        if at > until {
+            return false;
+        }
+        self.now = self.now.max(at);
+        true
+    }
+
+    /// Delivers the first queued message.
+    fn deliver_first(&mut self) {
+        if let Some((_, (to, bytes))) = self.queue.pop_first() {
+            self.deliver(to, &bytes);
+        }
     }
 
     /// Deadline-driven: every agent runs when a message comes and at its next deadline.
@@ -241,15 +253,11 @@ impl Sim {
                 (false, _, Some((d, _))) => d,
                 _ => break,
             };
-            if at > until {
+            if !self.reach(at, until) {
                 break;
             }
-            self.now = self.now.max(at);
             if msg_first {
-                let Some((_, (to, bytes))) = self.queue.pop_first() else {
-                    break;
-                };
-                self.deliver(to, &bytes);
+                self.deliver_first();
             } else if let Some((_, id)) = next_agent {
                 self.ticks += 1;
                 self.with(id, |a, now| a.tick(now));

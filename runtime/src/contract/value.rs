@@ -259,10 +259,7 @@ pub(crate) fn better(a: &Proposal, b: &Proposal) -> bool {
 #[allow(clippy::unwrap_used)] // Tests may unwrap.
 mod tests {
     use super::*;
-
-    fn ms(v: u64) -> Duration {
-        Duration::from_millis(v)
-    }
+    use crate::contract::tests::ms;
 
     #[test]
     fn contract_value_formula() {

@@ -79,14 +79,13 @@ impl OccupancyGrid {
                 value: fill,
             });
         }
-        Ok(Self {
+        Ok(Self::unchecked(
             width,
             height,
             resolution,
             origin,
-            origin_yaw: 0.0,
-            data: vec![fill; n],
-        })
+            vec![fill; n],
+        ))
     }
 
     /// A grid from existing row-major data (row 0 = lowest y).
@@ -111,14 +110,25 @@ impl OccupancyGrid {
         {
             return Err(GridError::BadCellValue { index, value });
         }
-        Ok(Self {
+        Ok(Self::unchecked(width, height, resolution, origin, data))
+    }
+
+    /// A grid of checked dimensions and cells, its x axis along the map's.
+    fn unchecked(
+        width: u32,
+        height: u32,
+        resolution: f64,
+        origin: [f64; 2],
+        data: Vec<i8>,
+    ) -> Self {
+        Self {
             width,
             height,
             resolution,
             origin,
             origin_yaw: 0.0,
             data,
-        })
+        }
     }
 
     fn check_dims(width: u32, height: u32, resolution: f64) -> Result<usize, GridError> {
@@ -152,6 +162,20 @@ impl OccupancyGrid {
     /// rotated map_server map.
     pub fn origin_yaw(&self) -> f64 {
         self.origin_yaw
+    }
+    /// The header of this grid's message on a map channel (frame `map`, no stamp); the
+    /// cells are [`OccupancyGrid::data`].
+    pub fn info(&self) -> crate::msg::GridInfo {
+        crate::msg::GridInfo {
+            header: crate::msg::Header {
+                frame_id: crate::msg::FrameId::MAP,
+                ..crate::msg::Header::default()
+            },
+            resolution: self.resolution as f32,
+            width: self.width,
+            height: self.height,
+            origin: crate::msg::Pose2D::new(self.origin[0], self.origin[1], self.origin_yaw),
+        }
     }
     /// The same grid with its x axis turned by `yaw` radians about `origin`.
     #[must_use]

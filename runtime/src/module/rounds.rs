@@ -9,8 +9,6 @@
 //! `lockstep` list, or a simulator without lockstep) is never called there and follows the
 //! common channel, as every module did before selective rounds.
 
-use std::time::Duration;
-
 use crate::channel::{Node, Subscriber, channel_key};
 use crate::clock::lockstep::{Acker, round_channel};
 use crate::clock::{CLOCK_CHANNEL, Clock};
@@ -41,9 +39,7 @@ impl Rounds {
     pub(super) fn new(node: &Node, catch_signals: bool) -> Result<Rounds, Error> {
         let common = node.subscriber::<msg::Clock>(CLOCK_CHANNEL)?;
         let own = node.subscriber::<msg::Clock>(&round_channel(node.name()))?;
-        let mut waiter = Waiter::new(WaitMode::Blocking {
-            max_spin: Duration::ZERO,
-        })?;
+        let mut waiter = Waiter::new(WaitMode::SLEEP)?;
         waiter.attach(&common)?;
         waiter.attach(&own)?;
         if catch_signals {

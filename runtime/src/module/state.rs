@@ -58,9 +58,20 @@ pub fn decode_state<T: DeserializeOwned>(bytes: &[u8]) -> Result<T, ModuleError>
 
 /// Writes [`crate::Module::checkpoint`] and [`crate::Module::restore`] for a module whose
 /// checkpointed state is the one field `$field` (any `Serialize + DeserializeOwned` type).
-/// Use inside `impl Module for ...`.
+/// Use inside `impl Module for ...`. With a second argument, `$load(&mut self, S) ->
+/// ModuleResult` applies a restored state (the field and whatever derives from it) instead of
+/// the plain assignment.
 #[macro_export]
 macro_rules! checkpoint_field {
+    ($field:ident, $load:path) => {
+        fn checkpoint(&self) -> ::std::option::Option<::std::vec::Vec<u8>> {
+            $crate::module::encode_state(&self.$field)
+        }
+
+        fn restore(&mut self, state: &[u8]) -> $crate::ModuleResult {
+            $load(self, $crate::module::decode_state(state)?)
+        }
+    };
     ($field:ident) => {
         fn checkpoint(&self) -> ::std::option::Option<::std::vec::Vec<u8>> {
             $crate::module::encode_state(&self.$field)

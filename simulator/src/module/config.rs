@@ -2,8 +2,6 @@
 
 use std::path::PathBuf;
 
-use std::time::Duration;
-
 use hng_runtime::ModuleResult;
 use hng_runtime::msg::MAX_BEAMS;
 use hng_runtime::wait::WaitMode;
@@ -152,9 +150,7 @@ pub(super) fn wait_mode(toml: &str, env_wait: Option<&str>) -> Option<WaitMode> 
         return None;
     }
     let cfg: SimModuleConfig = toml::from_str(toml).ok()?;
-    (!matches!(cfg.speed, Speed::Unlimited)).then_some(WaitMode::Blocking {
-        max_spin: Duration::ZERO,
-    })
+    (!matches!(cfg.speed, Speed::Unlimited)).then_some(WaitMode::SLEEP)
 }
 
 pub(super) fn config_error(
@@ -254,9 +250,7 @@ mod tests {
 
     #[test]
     fn the_simulator_sleeps_at_once_when_paced_and_spins_at_max_unless_told() {
-        let sleep = Some(WaitMode::Blocking {
-            max_spin: Duration::ZERO,
-        });
+        let sleep = Some(WaitMode::SLEEP);
         assert_eq!(wait_mode("speed = \"realtime\"", None), sleep);
         assert_eq!(wait_mode("speed = 6", None), sleep);
         assert_eq!(wait_mode("speed = \"max\"", None), None);

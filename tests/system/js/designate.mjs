@@ -9,23 +9,12 @@
 //   - clicks at MISS_FRACTION, reports the answer text.
 // The test computes the fractions from the bearings and the field of view it published; the
 // page must turn the click back into a bearing with that field of view.
-import { launchBrowser } from "./launch.mjs";
+import { say, withPage } from "./launch.mjs";
 import path from "node:path";
-import fs from "node:fs";
 
 const [url, dir, hitArg, missArg, beaconsArg] = process.argv.slice(2);
 const beacons = Number(beaconsArg || 2);
-const say = (o) => process.stdout.write(JSON.stringify(o) + "\n");
-fs.mkdirSync(dir, { recursive: true });
-// Everything, the browser's start included, inside the try: a failure is one {"event":
-// "error"} line on stdout, never a silent exit (the test shows it with the exit status and
-// stderr).
-let code = 0, browser = null, userDir = null;
-try {
-  ({ browser, userDir } = await launchBrowser(dir, say));
-  const page = browser.pages()[0] || (await browser.newPage());
-  page.on("pageerror", (e) => say({ event: "page_error", error: String(e) }));
-  await page.goto(url);
+await withPage(url, dir, async (page) => {
   await page.waitForFunction((n) => (window.hng.state.counts.image || 0) >= 1 && window.hng.seenBeacons().length >= n, beacons, { timeout: 60000 });
   say({ event: "tracked", beacons: await page.evaluate(() => window.hng.seenBeacons()), hfov: await page.evaluate(() => window.hng.state.image.hfov) });
   const click = async (fraction) => {
@@ -40,12 +29,4 @@ try {
   await click(Number(missArg));
   await page.waitForFunction(() => document.getElementById("answer").textContent.startsWith("no beacon there"), null, { timeout: 10000 });
   say({ event: "miss", answers: await page.evaluate(() => window.hng.state.answers.length), text: await page.textContent("#answer") });
-  say({ event: "done" });
-} catch (e) {
-  say({ event: "error", error: String(e && e.stack || e) });
-  code = 1;
-} finally {
-  if (browser) await browser.close().catch(() => {});
-  if (userDir) fs.rmSync(userDir, { recursive: true, force: true });
-}
-process.exit(code);
+});

@@ -10,25 +10,13 @@
 //   - waits until the robot moves again (the mission's next goal), presses STOP, waits until
 //     the page shows it stopped;
 //   - saves screenshots in ARTEFACT_DIR (gui-contracts, gui-path, gui-goal, gui-stop .png).
-import { launchBrowser } from "./launch.mjs";
+import { say, withPage } from "./launch.mjs";
 import path from "node:path";
-import fs from "node:fs";
 
 const [url, dir, gx, gy, timeoutArg] = process.argv.slice(2);
 const goal = { x: Number(gx), y: Number(gy) };
 const timeout = Number(timeoutArg || 120000);
-const say = (o) => process.stdout.write(JSON.stringify(o) + "\n");
-fs.mkdirSync(dir, { recursive: true });
-
-// Everything, the browser's start included, inside the try: a failure is one {"event":
-// "error"} line on stdout, never a silent exit (the test shows it with the exit status and
-// stderr).
-let code = 0, browser = null, userDir = null;
-try {
-  ({ browser, userDir } = await launchBrowser(dir, say));
-  const page = browser.pages()[0] || (await browser.newPage());
-  page.on("pageerror", (e) => say({ event: "page_error", error: String(e) }));
-  await page.goto(url);
+await withPage(url, dir, async (page) => {
   const counts = () => page.evaluate(() => ({ ...window.hng.state.counts }));
   await page.waitForFunction(() => (window.hng.state.counts.pose || 0) >= 2 && (window.hng.state.counts.scan || 0) >= 2, null, { timeout });
   const c0 = await counts();
@@ -84,12 +72,4 @@ try {
   say({ event: "stopped_on_page", answer_text: await page.textContent("#answer"), level: await page.textContent("#level") });
   await page.waitForTimeout(300); // let the panels draw for the screenshot
   await page.screenshot({ path: path.join(dir, "gui-stop.png") });
-  say({ event: "done" });
-} catch (e) {
-  say({ event: "error", error: String(e && e.stack || e) });
-  code = 1;
-} finally {
-  if (browser) await browser.close().catch(() => {});
-  if (userDir) fs.rmSync(userDir, { recursive: true, force: true });
-}
-process.exit(code);
+});

@@ -35,3 +35,30 @@ export async function launchBrowser(dir, say) {
     }
   }
 }
+
+// One JSON object per line on stdout ({"event": ...}), for the Rust test.
+export const say = (o) => process.stdout.write(JSON.stringify(o) + "\n");
+
+// Opens `url` in a browser of its own (profile and artefacts in `dir`), runs `script(page)`,
+// says {"event": "done"} and exits the process. Everything, the browser's start included, is
+// inside the try: a failure is one {"event": "error"} line on stdout and exit status 1, never a
+// silent exit (the test shows it with the exit status and stderr). The page's own errors are
+// {"event": "page_error"} lines.
+export async function withPage(url, dir, script) {
+  let code = 0, browser = null, userDir = null;
+  try {
+    ({ browser, userDir } = await launchBrowser(dir, say));
+    const page = browser.pages()[0] || (await browser.newPage());
+    page.on("pageerror", (e) => say({ event: "page_error", error: String(e) }));
+    await page.goto(url);
+    await script(page);
+    say({ event: "done" });
+  } catch (e) {
+    say({ event: "error", error: String(e && e.stack || e) });
+    code = 1;
+  } finally {
+    if (browser) await browser.close().catch(() => {});
+    if (userDir) fs.rmSync(userDir, { recursive: true, force: true });
+  }
+  process.exit(code);
+}

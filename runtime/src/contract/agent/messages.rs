@@ -197,22 +197,38 @@ impl ContractAgent {
             self.drops.record(DropReason::StaleReply);
             return;
         };
+        if let Some(proposals) = self.reply_to_call(i, from, p.query_id) {
+            // Duplicates are resolved at the deadline (the last one counts).
+            proposals.push(Proposal {
+                provider: from,
+                value: p.value,
+                channel: p.channel.clone(),
+            });
+        }
+    }
+
+    /// The proposals of slot `i`'s open call `query_id`, `from` marked as having replied;
+    /// `None`, counted as a stale reply, if that call is not open.
+    fn reply_to_call(
+        &mut self,
+        i: usize,
+        from: ModuleId,
+        query_id: u64,
+    ) -> Option<&mut Vec<Proposal>> {
         match &mut self.needs[i].state {
             NeedState::Calling {
-                query_id,
+                query_id: open,
                 proposals,
                 replied,
                 ..
-            } if *query_id == p.query_id => {
+            } if *open == query_id => {
                 replied.insert(from);
-                // Duplicates are resolved at the deadline (the last one counts).
-                proposals.push(Proposal {
-                    provider: from,
-                    value: p.value,
-                    channel: p.channel.clone(),
-                });
+                Some(proposals)
             }
-            _ => self.drops.record(DropReason::StaleReply),
+            _ => {
+                self.drops.record(DropReason::StaleReply);
+                None
+            }
         }
     }
 
@@ -228,17 +244,8 @@ impl ContractAgent {
             self.drops.record(DropReason::StaleReply);
             return;
         };
-        match &mut self.needs[i].state {
-            NeedState::Calling {
-                query_id,
-                proposals,
-                replied,
-                ..
-            } if *query_id == r.query_id => {
-                replied.insert(from);
-                proposals.retain(|x| x.provider != from);
-            }
-            _ => self.drops.record(DropReason::StaleReply),
+        if let Some(proposals) = self.reply_to_call(i, from, r.query_id) {
+            proposals.retain(|x| x.provider != from);
         }
         self.needs[i].candidates.retain(|x| x.provider != from);
     }
