@@ -18,6 +18,13 @@
 //! from its "Localization" provider; until a provider is known, from the configured `map` and
 //! `pose` channels.
 //!
+//! Its [`GoalStatus`] (`planning/status`, a state channel read by the Manager and the
+//! Interface, which act on `Reached` and `Refused` only) goes out when the goal, its state or
+//! the refusal reason change, and while `Active` only when the distance left has changed by
+//! `status_step_m` (0.25 m) since the last one sent ([`StatusFilter`]): in lockstep every
+//! message wakes its readers for a round of their own, and one `Active` status per pose
+//! (50 Hz) cost the Manager and the Interface a round each at every odometry step.
+//!
 //! Quality Q: 1 while following a plan; 0 while waiting for a map, a pose or a goal; -1 when
 //! the goal is refused.
 
@@ -56,6 +63,34 @@ pub const MAPPING_NEED: u16 = 2;
 /// Rank of Planning's "Localization" need (contract priority `P(planning).3`).
 pub const LOCALIZATION_NEED: u16 = 3;
 
+/// Which goal statuses go out (see the [module documentation](self)).
+#[derive(Debug, Clone, Copy)]
+pub struct StatusFilter {
+    step_m: f64,
+    last: Option<GoalStatus>,
+}
+
+impl StatusFilter {
+    /// Republishes an unchanged `Active` status after the distance left moved `step_m`.
+    pub fn new(step_m: f64) -> StatusFilter {
+        StatusFilter { step_m, last: None }
+    }
+
+    /// True when `s` is to be published (it is then the last one sent).
+    pub fn wants(&mut self, s: &GoalStatus) -> bool {
+        let same = self.last.is_some_and(|l| {
+            l.goal_id == s.goal_id
+                && l.state == s.state
+                && l.reason == s.reason
+                && (l.distance_m - s.distance_m).abs() < self.step_m
+        });
+        if !same {
+            self.last = Some(*s);
+        }
+        !same
+    }
+}
+
 /// The Planning module.
 #[derive(Debug)]
 pub struct PlanningModule {
@@ -75,6 +110,7 @@ pub struct PlanningModule {
     goal: Subscriber<Goal>,
     waypoint_out: Publisher<Waypoint>,
     status_out: Publisher<GoalStatus>,
+    status_filter: StatusFilter,
     progress_out: Publisher<NavProgress>,
     path_out: PathOut,
     last_pose: Option<Pose2D>,
@@ -151,7 +187,9 @@ impl PlanningModule {
         if let Some(w) = out.waypoint {
             self.waypoint_out.publish(w)?;
         }
-        if let Some(s) = out.status {
+        if let Some(s) = out.status
+            && self.status_filter.wants(&s)
+        {
             self.status_out.publish(s)?;
         }
         let goal_id = self.core.goal().map_or(0, |g| g.id);
@@ -209,6 +247,7 @@ impl Module for PlanningModule {
             goal: ctx.subscribe(&cfg.goal, None)?,
             waypoint_out: ctx.publisher(&cfg.waypoint_out)?,
             status_out: ctx.publisher(&cfg.status_out)?,
+            status_filter: StatusFilter::new(non_negative("status_step_m", cfg.status_step_m)?),
             progress_out: ctx.publisher(&cfg.progress_out)?,
             path_out: PathOut::new(ctx, &cfg.path_out)?,
             last_pose: None,
@@ -295,6 +334,35 @@ pub(crate) mod tests {
     use super::*;
     use crate::msgs::{GoalState, RefusalReason};
     use crate::planning::{FREE, OCCUPIED};
+
+    #[test]
+    fn an_active_status_goes_out_again_only_after_the_distance_moved_and_any_change_at_once() {
+        let st = |goal_id, state: GoalState, distance_m, reason| GoalStatus {
+            goal_id,
+            state: state as u8,
+            distance_m,
+            reason,
+            ..GoalStatus::default()
+        };
+        let mut f = StatusFilter::new(0.25);
+        assert!(f.wants(&st(1, GoalState::Active, 10.0, 0)), "the first one");
+        assert!(!f.wants(&st(1, GoalState::Active, 9.9, 0)));
+        assert!(
+            !f.wants(&st(1, GoalState::Active, 9.76, 0)),
+            "0.24 m from the last sent"
+        );
+        assert!(f.wants(&st(1, GoalState::Active, 9.75, 0)), "0.25 m");
+        assert!(!f.wants(&st(1, GoalState::Active, 9.7, 0)));
+        assert!(f.wants(&st(2, GoalState::Active, 9.7, 0)), "another goal");
+        assert!(f.wants(&st(2, GoalState::Refused, 9.7, 3)), "another state");
+        assert!(!f.wants(&st(2, GoalState::Refused, 9.7, 3)));
+        assert!(
+            f.wants(&st(2, GoalState::Refused, 9.7, 4)),
+            "another reason"
+        );
+        let mut every = StatusFilter::new(0.0);
+        assert!((0..3).all(|_| every.wants(&st(1, GoalState::Active, 5.0, 0))));
+    }
 
     /// A walled 10 x 6 m room at 0.1 m, split by a wall at x = 5 but for the cells `gap` of y.
     pub(crate) fn walled_room(gap: std::ops::Range<i64>) -> OccupancyGrid {

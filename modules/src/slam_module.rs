@@ -23,6 +23,12 @@
 //! Quality Q: the front end's match quality (`2·score − 1`, see [`crate::slam::PoseEstimate`]),
 //! smoothed over a few scans, times [`SLAM_Q_SCALE`]; -1 (aptitude 0) when scans or odometry stop.
 //!
+//! Idle rate: while no client is contracted to either offer, SLAM matches one scan in
+//! `idle_scan_every` (default 5: 2 Hz at the simulator's 10 Hz lidar) and carries its pose on
+//! the odometry between them: it keeps tracking, with its local map, graph and Q made from
+//! the scans it matches, at a fraction of the CPU ([`IdleRate`]). From the first scan after
+//! a contract is made it matches every scan again.
+//!
 //! Checkpoint: the pose, the odometry reading it goes with, and the number of scans. After a
 //! restart the tracker is anchored there: its first pose is the checkpointed pose plus the
 //! odometry motion since the checkpoint, so the motion during the downtime (and since the last
@@ -240,6 +246,51 @@ pub struct SlamModuleConfig {
     /// Map cell size, m (default 0.05).
     #[default(0.05)]
     pub resolution: f64,
+    /// While no client is contracted: match one scan in this many (default 5; 1: every
+    /// scan). See [`IdleRate`].
+    #[default(5)]
+    pub idle_scan_every: u32,
+}
+
+/// Which scans SLAM matches: every one while a client is contracted to its offers, one in
+/// `every` while none is (the first scan after a contract is always matched).
+#[derive(Debug, Clone, Copy)]
+pub struct IdleRate {
+    every: u32,
+    /// Scans left out since the last one matched.
+    skipped: u32,
+    /// The last scan was seen while contracted.
+    active: bool,
+}
+
+impl IdleRate {
+    /// One scan in `every` while idle (0 counts as 1); the first scan is matched.
+    pub fn new(every: u32) -> IdleRate {
+        let every = every.max(1);
+        IdleRate {
+            every,
+            skipped: every - 1,
+            active: false,
+        }
+    }
+
+    /// A scan arrived, `active`: a client is contracted now. True: match it.
+    pub fn take(&mut self, active: bool) -> bool {
+        let woke = active && !self.active;
+        self.active = active;
+        if active || woke || self.skipped + 1 >= self.every {
+            self.skipped = 0;
+            true
+        } else {
+            self.skipped += 1;
+            false
+        }
+    }
+
+    /// Scans left out since the last one matched.
+    pub fn skipped(&self) -> u32 {
+        self.skipped
+    }
 }
 
 #[derive(Debug, Clone, Copy, Default, Serialize, Deserialize, PartialEq)]
@@ -264,6 +315,7 @@ pub struct SlamModule {
     pose_out: Publisher<PoseWithCovariance>,
     map_out: Option<SlicePublisher<GridInfo>>,
     restored_scans: u64,
+    idle: IdleRate,
 }
 
 impl SlamModule {
@@ -288,6 +340,9 @@ impl Module for SlamModule {
     fn configure(ctx: &mut Context, cfg: SlamModuleConfig) -> ModuleResult<Self> {
         let timeout = seconds("input_timeout_s", cfg.input_timeout_s)?;
         crate::common::positive("resolution", cfg.resolution)?;
+        if cfg.idle_scan_every == 0 {
+            return Err(crate::common::field_error("idle_scan_every", "must be at least 1").into());
+        }
         let mut scfg = SlamConfig::default();
         scfg.mapper.resolution = cfg.resolution;
         let map_out = if cfg.map_out.is_empty() {
@@ -325,6 +380,7 @@ impl Module for SlamModule {
             pose_out: ctx.publisher(&cfg.pose_out)?,
             map_out,
             restored_scans: 0,
+            idle: IdleRate::new(cfg.idle_scan_every),
         })
     }
 
@@ -343,7 +399,9 @@ impl Module for SlamModule {
             while let Some(s) = self.scan.receive()? {
                 latest = Some(*s);
             }
+            // Uncontracted: one scan in `idle_scan_every` (the odometry carries the pose).
             if let Some(s) = latest
+                && self.idle.take(ctx.is_active())
                 && let Some(r) = self.tracker.on_scan(&s)
             {
                 if !r.matched {
@@ -488,6 +546,30 @@ mod tests {
             (p.x - truth.x).hypot(p.y - truth.y) < 0.03,
             "{p:?} vs {truth:?}"
         );
+    }
+
+    #[test]
+    fn idle_slam_matches_one_scan_in_n_and_every_scan_from_the_first_after_a_contract() {
+        let mut r = IdleRate::new(5);
+        // Uncontracted: one scan in five, the first one included.
+        let idle: Vec<bool> = (0..11).map(|_| r.take(false)).collect();
+        assert_eq!(
+            idle,
+            [
+                true, false, false, false, false, true, false, false, false, false, true
+            ]
+        );
+        // Mid-way through an idle gap a contract comes: its very first scan is matched,
+        // and every one after it.
+        assert!(!r.take(false));
+        assert_eq!(r.skipped(), 1);
+        assert!((0..6).all(|_| r.take(true)));
+        // The contract ends: idle again, counting from the last scan matched.
+        let after: Vec<bool> = (0..5).map(|_| r.take(false)).collect();
+        assert_eq!(after, [false, false, false, false, true]);
+        // 1 (or 0): every scan.
+        let mut every = IdleRate::new(0);
+        assert!((0..5).all(|_| every.take(false)));
     }
 
     #[test]

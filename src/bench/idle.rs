@@ -13,6 +13,16 @@
 //! (issue #15): an idle module under 10 wake-ups a second and 0.3 % of a core; the whole
 //! default system under 10 % of one core.
 //!
+//! - `default_system_max`: the same mission at `--speed max` (lockstep as fast as the
+//!   machine goes, what `hng eval nav` pays per problem), run to its end: `cpu_s` (the whole
+//!   process tree's user + system time, from `getrusage(RUSAGE_CHILDREN)` once it has been
+//!   reaped, start-up and stop included), `sim_s` (the mission summary's simulated time),
+//!   `wall_s`, and `cpu_per_sim_s`, the CPU seconds the system spends per simulated second
+//!   (the #21 target of one 30 m problem, about 70 simulated seconds, in under 2 s of wall
+//!   time needs well under 0.03 at two cores). Its percentiles are the per-second CPU of
+//!   the tree, sampled like the 1x case. One row per process follows
+//!   (`default_system_max/NAME`, `cpu_per_sim_s` from its last procfs reading).
+//!
 //! `default_system_1x` is followed by one row per process of the system,
 //! `default_system_1x/NAME` (NAME: the module's `HNG_MODULE_NAME`, else the executable's name
 //! and the pid), with its own `cpu_percent`, `wakeups_per_s` and `share_percent` (its part
@@ -38,7 +48,7 @@ pub struct IdleArgs {
     /// Seconds before measuring (start-up, first contracts).
     #[arg(long, default_value_t = 3)]
     pub warmup: u32,
-    /// Only this case (`module_no_input` or `default_system_1x`).
+    /// Only this case (`module_no_input`, `default_system_1x` or `default_system_max`).
     #[arg(long)]
     pub case: Option<String>,
     /// One JSON object per case instead of a table.
@@ -177,6 +187,9 @@ struct Guard(Child);
 
 impl Drop for Guard {
     fn drop(&mut self) {
+        if let Ok(Some(_)) = self.0.try_wait() {
+            return; // ended (and reaped) already: its pid may belong to another process now
+        }
         let pid = nix::unistd::Pid::from_raw(self.0.id() as i32);
         let _ = nix::sys::signal::kill(pid, nix::sys::signal::Signal::SIGTERM);
         let deadline = Instant::now() + Duration::from_secs(20);
@@ -287,14 +300,122 @@ fn default_system(args: &IdleArgs) -> Result<Vec<BenchRow>> {
     Ok(rows)
 }
 
+/// CPU time of the reaped descendants of this process (user + system), ns.
+fn children_cpu_ns() -> u64 {
+    use nix::sys::resource::{UsageWho, getrusage};
+    getrusage(UsageWho::RUSAGE_CHILDREN).map_or(0, |u| {
+        let t = |v: nix::sys::time::TimeVal| {
+            (v.tv_sec().max(0) as u64) * 1_000_000_000 + (v.tv_usec().max(0) as u64) * 1_000
+        };
+        t(u.user_time()) + t(u.system_time())
+    })
+}
+
+/// The built-in mission at `--speed max`, to its end: CPU per simulated second.
+fn default_system_max() -> Result<Vec<BenchRow>> {
+    let prefix = shm::unique_prefix("benchmaxsys");
+    let exe = std::env::current_exe().context("the hng binary")?;
+    let run_dir: PathBuf = std::env::temp_dir().join(format!("hng-{prefix}bench"));
+    let summary = run_dir.join("bench-summary.json");
+    std::fs::create_dir_all(&run_dir).with_context(|| format!("creating {}", run_dir.display()))?;
+    let before = children_cpu_ns();
+    let started = Instant::now();
+    let child = Command::new(&exe)
+        .args(["run", "--no-gui", "--speed", "max", "--summary"])
+        .arg(&summary)
+        .env("HNG_PREFIX", &prefix)
+        .env("HNG_RUN_DIR", &run_dir)
+        .env_remove("HNG_LOG")
+        .env_remove("RUST_LOG")
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .spawn()
+        .context("start hng run --speed max")?;
+    let mut guard = Guard(child);
+    let root = guard.0.id() as i32;
+    // Per process: the last reading seen (a process's last fraction of a second is lost,
+    // the total below is exact), and per-second CPU of the tree for the percentiles.
+    let mut last: BTreeMap<i32, (String, u64)> = BTreeMap::new();
+    let mut windows = Vec::new();
+    let mut prev_total = 0u64;
+    let mut next = Instant::now();
+    let deadline = started + Duration::from_secs(600);
+    let status = loop {
+        if let Some(st) = guard.0.try_wait().context("waiting for hng run")? {
+            break st;
+        }
+        anyhow::ensure!(
+            Instant::now() < deadline,
+            "hng run --speed max: no end after 600 s"
+        );
+        for (pid, u) in tree_usage(root) {
+            let e = last.entry(pid).or_insert_with(|| (process_name(pid), 0));
+            e.1 = e.1.max(u.cpu_ns);
+        }
+        let total: u64 = last.values().map(|(_, c)| *c).sum();
+        if Instant::now() >= next {
+            windows.push(total.saturating_sub(prev_total));
+            prev_total = total;
+            next += Duration::from_secs(1);
+        }
+        // The sampling pace, not a synchronisation: the loop ends when the child exits.
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    let wall_s = started.elapsed().as_secs_f64();
+    let cpu_ns = children_cpu_ns().saturating_sub(before);
+    drop(guard);
+    let text = std::fs::read_to_string(&summary)
+        .with_context(|| format!("the mission summary {}", summary.display()));
+    shm::remove_prefix_files(&prefix);
+    let _ = std::fs::remove_dir_all(&run_dir);
+    let doc: serde_json::Value = serde_json::from_str(&text?).context("the mission summary")?;
+    let sim_s = doc
+        .get("sim_time_s")
+        .and_then(serde_json::Value::as_f64)
+        .filter(|s| *s > 0.0)
+        .context("the mission summary has no sim_time_s")?;
+    let success = doc.get("success").and_then(serde_json::Value::as_bool);
+    let per_sim = |ns: u64| (ns as f64 * 1e-9 / sim_s * 10_000.0).round() / 10_000.0;
+    if windows.is_empty() {
+        windows.push(cpu_ns);
+    }
+    let mut rows = vec![
+        BenchRow::new("idle", "default_system_max", Percentiles::of(&mut windows))
+            .with("processes", last.len() as u64)
+            .with("exit_ok", status.success())
+            .with("mission_success", success.unwrap_or(false))
+            .with("cpu_s", (cpu_ns as f64 * 1e-9 * 1000.0).round() / 1000.0)
+            .with("sim_s", (sim_s * 100.0).round() / 100.0)
+            .with("wall_s", (wall_s * 100.0).round() / 100.0)
+            .with("cpu_per_sim_s", per_sim(cpu_ns)),
+    ];
+    for (name, c) in last.values() {
+        let mut one = vec![*c];
+        rows.push(
+            BenchRow::new(
+                "idle",
+                &format!("default_system_max/{name}"),
+                Percentiles::of(&mut one),
+            )
+            .with("cpu_s", (*c as f64 * 1e-9 * 1000.0).round() / 1000.0)
+            .with("cpu_per_sim_s", per_sim(*c))
+            .with(
+                "share_percent",
+                (*c as f64 / cpu_ns.max(1) as f64 * 1000.0).round() / 10.0,
+            ),
+        );
+    }
+    Ok(rows)
+}
+
 /// `hng bench idle`.
 pub fn run(args: &IdleArgs) -> Result<()> {
     anyhow::ensure!(args.seconds > 0, "--seconds must be at least 1");
     let want = |c: &str| args.case.as_deref().is_none_or(|w| w == c);
     if let Some(c) = &args.case {
         anyhow::ensure!(
-            ["module_no_input", "default_system_1x"].contains(&c.as_str()),
-            "unknown case {c:?}: module_no_input or default_system_1x"
+            ["module_no_input", "default_system_1x", "default_system_max"].contains(&c.as_str()),
+            "unknown case {c:?}: module_no_input, default_system_1x or default_system_max"
         );
     }
     let mut rows = Vec::new();
@@ -303,6 +424,9 @@ pub fn run(args: &IdleArgs) -> Result<()> {
     }
     if want("default_system_1x") {
         rows.extend(default_system(args)?);
+    }
+    if want("default_system_max") {
+        rows.extend(default_system_max()?);
     }
     crate::bench::print_rows(&rows, args.json);
     Ok(())

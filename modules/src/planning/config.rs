@@ -25,6 +25,11 @@ pub struct PlanningModuleConfig {
     /// Goal status out (default `planning/status`).
     #[default("planning/status".into())]
     pub status_out: String,
+    /// An `Active` status goes out again only when the distance left has changed by this
+    /// much since the last one sent, m (default 0.25; 0: at every pose); any other change
+    /// (goal, state, reason) goes out at once. See [`crate::planning_module::StatusFilter`].
+    #[default(0.25)]
+    pub status_step_m: f64,
     /// Stalls and recoveries out (default `planning/progress`).
     #[default(crate::planning::progress::PROGRESS_CHANNEL.into())]
     pub progress_out: String,

@@ -86,6 +86,7 @@ impl Lockstep {
         let round = self.barrier.open_at(monotonic_ns(), sim_ns, again);
         self.members += self.barrier.members() as u64;
         let called: Vec<&str> = self.barrier.called().collect();
+        tracing::trace!(round, sim_ns, again, ?called, "lockstep: round opened");
         for (name, publisher) in &self.calls {
             if called.contains(&name.as_str()) {
                 publisher.publish(msg::Clock {
