@@ -246,22 +246,32 @@ fn module_no_input(args: &IdleArgs) -> Result<BenchRow> {
         .with("meets_target", ok))
 }
 
-fn default_system(args: &IdleArgs) -> Result<Vec<BenchRow>> {
-    let prefix = shm::unique_prefix("benchidlesys");
+/// `hng run --no-gui ARGS` of this binary on `prefix`, quiet, its run directory `run_dir`.
+fn spawn_run(prefix: &str, run_dir: &std::path::Path, args: &[&str]) -> Result<Guard> {
     let exe = std::env::current_exe().context("the hng binary")?;
-    let run_dir: PathBuf = std::env::temp_dir().join(format!("hng-{prefix}bench"));
-    let duration = (args.warmup + args.seconds + 30).to_string();
     let child = Command::new(&exe)
-        .args(["run", "--no-gui", "--speed", "1", "--duration", &duration])
-        .env("HNG_PREFIX", &prefix)
-        .env("HNG_RUN_DIR", &run_dir)
+        .args(["run", "--no-gui"])
+        .args(args)
+        .env("HNG_PREFIX", prefix)
+        .env("HNG_RUN_DIR", run_dir)
         .env_remove("HNG_LOG")
         .env_remove("RUST_LOG")
         .stdin(Stdio::null())
         .stdout(Stdio::null())
         .spawn()
-        .context("start hng run")?;
-    let guard = Guard(child);
+        .with_context(|| format!("start hng run {}", args.join(" ")))?;
+    Ok(Guard(child))
+}
+
+fn default_system(args: &IdleArgs) -> Result<Vec<BenchRow>> {
+    let prefix = shm::unique_prefix("benchidlesys");
+    let run_dir: PathBuf = std::env::temp_dir().join(format!("hng-{prefix}bench"));
+    let duration = (args.warmup + args.seconds + 30).to_string();
+    let guard = spawn_run(
+        &prefix,
+        &run_dir,
+        &["--speed", "1", "--duration", &duration],
+    )?;
     std::thread::sleep(Duration::from_secs(u64::from(args.warmup)));
     let processes = tree(guard.0.id() as i32).len();
     let (mut cpu, wake, wall, per) = measure_per_process(guard.0.id() as i32, args.seconds);
@@ -314,24 +324,17 @@ fn children_cpu_ns() -> u64 {
 /// The built-in mission at `--speed max`, to its end: CPU per simulated second.
 fn default_system_max() -> Result<Vec<BenchRow>> {
     let prefix = shm::unique_prefix("benchmaxsys");
-    let exe = std::env::current_exe().context("the hng binary")?;
     let run_dir: PathBuf = std::env::temp_dir().join(format!("hng-{prefix}bench"));
     let summary = run_dir.join("bench-summary.json");
     std::fs::create_dir_all(&run_dir).with_context(|| format!("creating {}", run_dir.display()))?;
     let before = children_cpu_ns();
     let started = Instant::now();
-    let child = Command::new(&exe)
-        .args(["run", "--no-gui", "--speed", "max", "--summary"])
-        .arg(&summary)
-        .env("HNG_PREFIX", &prefix)
-        .env("HNG_RUN_DIR", &run_dir)
-        .env_remove("HNG_LOG")
-        .env_remove("RUST_LOG")
-        .stdin(Stdio::null())
-        .stdout(Stdio::null())
-        .spawn()
-        .context("start hng run --speed max")?;
-    let mut guard = Guard(child);
+    let summary_arg = summary.to_string_lossy();
+    let mut guard = spawn_run(
+        &prefix,
+        &run_dir,
+        &["--speed", "max", "--summary", &summary_arg],
+    )?;
     let root = guard.0.id() as i32;
     // Per process: the last reading seen (a process's last fraction of a second is lost,
     // the total below is exact), and per-second CPU of the tree for the percentiles.
