@@ -17,7 +17,11 @@ pub struct CpuList {
 impl CpuList {
     /// Parses `list`; each CPU must exist on this machine.
     pub fn parse(list: &str) -> Result<CpuList> {
-        let online = std::thread::available_parallelism().map_or(1, usize::from);
+        // The CPUs this machine has, not those this process may use now
+        // (`available_parallelism` follows the current affinity and would refuse the rest).
+        // SAFETY: sysconf reads a system constant; no memory is passed.
+        let n = unsafe { nix::libc::sysconf(nix::libc::_SC_NPROCESSORS_CONF) };
+        let configured = usize::try_from(n).unwrap_or(1).max(1);
         let mut set = CpuSet::new();
         for part in list.split(',').map(str::trim) {
             let (lo, hi) = part.split_once('-').unwrap_or((part, part));
@@ -27,8 +31,11 @@ impl CpuList {
                     .with_context(|| format!("`{s}` in CPU list `{list}` is not a CPU number"))
             };
             let (lo, hi) = (number(lo)?, number(hi)?);
-            if lo > hi || hi >= online {
-                bail!("CPU list `{list}`: `{part}` is not within 0-{}", online - 1);
+            if lo > hi || hi >= configured {
+                bail!(
+                    "CPU list `{list}`: `{part}` is not within 0-{}",
+                    configured - 1
+                );
             }
             for cpu in lo..=hi {
                 set.set(cpu).with_context(|| format!("CPU {cpu}"))?;
