@@ -99,9 +99,29 @@ pub fn min_interval(topic: &str) -> Duration {
     })
 }
 
-/// When the frame after one of `topic` sent at `now` may go, given when this one was allowed.
-fn next_allowed(allowed_from: Option<Instant>, now: Instant, topic: &str) -> Instant {
-    allowed_from.map_or(now, |a| (a + min_interval(topic)).max(now))
+/// When a topic's next frame may go: a generic cell rate algorithm with a burst of one
+/// interval. Each frame sent moves the time to `max(it + interval, now)`, so the stream keeps
+/// to one frame per [`min_interval`] in the long run, yet a source at or below that rate is
+/// never held back by its jitter. With a plain "interval since the last frame" one late frame
+/// delayed every later one (a backlog of up to 75 ms at 10 Hz, shrinking by 10 ms a frame).
+#[derive(Debug, Clone, Copy, Default)]
+struct Pace {
+    allowed_from: Option<Instant>,
+}
+
+impl Pace {
+    /// When the next frame may go (`now` when nothing was sent yet).
+    fn due(self, now: Instant) -> Instant {
+        self.allowed_from.unwrap_or(now)
+    }
+
+    /// A frame of `topic` went at `now`.
+    fn sent(&mut self, now: Instant, topic: &str) {
+        self.allowed_from = Some(
+            self.allowed_from
+                .map_or(now, |a| (a + min_interval(topic)).max(now)),
+        );
+    }
 }
 
 /// Most events kept for the timeline.
@@ -220,13 +240,8 @@ struct Sources {
 struct State {
     hub: Arc<Hub>,
     dirty: Vec<bool>,
-    /// Per topic, when its next frame may go (a generic cell rate algorithm with a burst of one
-    /// interval): each frame sent moves it to `max(it + interval, now)`, so the stream keeps to
-    /// one frame per [`min_interval`] in the long run, yet a source at or below that rate is
-    /// never held back by its jitter. With a plain "interval since the last frame" one late
-    /// frame delayed every later one (a backlog of up to 75 ms at 10 Hz, shrinking by 10 ms a
-    /// frame).
-    allowed_from: Vec<Option<Instant>>,
+    /// Per topic, when its next frame may go.
+    pace: Vec<Pace>,
     tables: BTreeMap<u32, (Instant, ContractTable)>,
     /// (client, service) -> provider, to see switches.
     holders: BTreeMap<(String, String), String>,
@@ -318,7 +333,7 @@ pub fn run(opts: &BusOptions, hub: &Arc<Hub>, stop: &AtomicBool) -> Result<(), c
     let mut st = State {
         hub: Arc::clone(hub),
         dirty: vec![false; TOPICS.len()],
-        allowed_from: vec![None; TOPICS.len()],
+        pace: vec![Pace::default(); TOPICS.len()],
         tables: BTreeMap::new(),
         holders: BTreeMap::new(),
         events: VecDeque::new(),
@@ -342,7 +357,7 @@ pub fn run(opts: &BusOptions, hub: &Arc<Hub>, stop: &AtomicBool) -> Result<(), c
         if clients > had_clients {
             // A newcomer gets every topic held.
             st.dirty.iter_mut().for_each(|d| *d = true);
-            st.allowed_from.iter_mut().for_each(|t| *t = None);
+            st.pace.iter_mut().for_each(|p| *p = Pace::default());
         }
         had_clients = clients;
         let now = Instant::now();
@@ -352,7 +367,7 @@ pub fn run(opts: &BusOptions, hub: &Arc<Hub>, stop: &AtomicBool) -> Result<(), c
                 if !st.dirty[i] {
                     continue;
                 }
-                let due = st.allowed_from[i].unwrap_or(now);
+                let due = st.pace[i].due(now);
                 if due <= now {
                     st.dirty[i] = false;
                     let put = if let Some((v, bytes, stamp)) = encode_bulk(topic, &src) {
@@ -365,7 +380,7 @@ pub fn run(opts: &BusOptions, hub: &Arc<Hub>, stop: &AtomicBool) -> Result<(), c
                         false
                     };
                     if put {
-                        st.allowed_from[i] = Some(next_allowed(st.allowed_from[i], now, topic));
+                        st.pace[i].sent(now, topic);
                     }
                 } else {
                     next = Some(next.map_or(due, |n: Instant| n.min(due)));
@@ -757,7 +772,7 @@ mod tests {
     /// the bus loop sends them: the latest frame, once allowed, checked every millisecond.
     fn sends(topic: &str, arrivals: &[u64]) -> Vec<u64> {
         let t0 = Instant::now();
-        let mut allowed: Option<Instant> = None;
+        let mut pace = Pace::default();
         let mut dirty = false;
         let mut next = arrivals.iter().peekable();
         let mut out = Vec::new();
@@ -766,9 +781,9 @@ mod tests {
             while next.next_if(|&&a| a <= ms).is_some() {
                 dirty = true;
             }
-            if dirty && allowed.is_none_or(|a| a <= now) {
+            if dirty && pace.due(now) <= now {
                 dirty = false;
-                allowed = Some(next_allowed(allowed, now, topic));
+                pace.sent(now, topic);
                 out.push(ms);
             }
         }
