@@ -259,8 +259,6 @@ pub struct IdleRate {
     every: u32,
     /// Scans left out since the last one matched.
     skipped: u32,
-    /// The last scan was seen while contracted.
-    active: bool,
 }
 
 impl IdleRate {
@@ -270,15 +268,12 @@ impl IdleRate {
         IdleRate {
             every,
             skipped: every - 1,
-            active: false,
         }
     }
 
     /// A scan arrived, `active`: a client is contracted now. True: match it.
     pub fn take(&mut self, active: bool) -> bool {
-        let woke = active && !self.active;
-        self.active = active;
-        if active || woke || self.skipped + 1 >= self.every {
+        if active || self.skipped + 1 >= self.every {
             self.skipped = 0;
             true
         } else {
