@@ -161,7 +161,7 @@ impl ChannelKind {
     pub fn qos_of(self, channel: &str) -> Qos {
         match ChannelLimits::from_env() {
             Ok(l) => l.qos_of(self, channel),
-            Err(_) => self.default_qos(),
+            Err(_) => ChannelLimits::default().qos_of(self, channel),
         }
     }
 }
@@ -177,6 +177,13 @@ pub const MAX_RECORD_BUFFER: usize = 16384;
 
 static PROCESS_LIMITS: std::sync::OnceLock<Result<ChannelLimits, String>> =
     std::sync::OnceLock::new();
+
+/// Channels whose recorder's buffer is larger than their kind's unless `HNG_CHANNEL_LIMITS`
+/// says otherwise: the true pose (`sim/ground_truth`), against which the mission monitor of
+/// `hng run` and `hng eval nav` judges every goal. It comes at 100 Hz of simulated time, so
+/// at `--speed max` (20 times real time and more) 64 samples last a few tens of milliseconds
+/// of a loaded machine; 1024 last 10 s of simulated time.
+pub const BUILT_IN_RECORD_BUFFERS: &[(&str, usize)] = &[("sim/ground_truth", 1024)];
 
 /// Publisher and subscriber limits and recorder's buffers per channel kind, and recorder's
 /// buffers per channel (see the module docs).
@@ -199,7 +206,10 @@ impl Default for ChannelLimits {
         ChannelLimits {
             limits,
             record,
-            channels: Vec::new(),
+            channels: BUILT_IN_RECORD_BUFFERS
+                .iter()
+                .map(|(c, n)| ((*c).to_owned(), *n))
+                .collect(),
         }
     }
 }

@@ -166,6 +166,7 @@ pub fn summary(results: &[ProblemResult]) -> serde_json::Value {
         "stuck_time_s": results.iter().map(|r| r.stuck_time_s).sum::<f64>(),
         "stalls": results.iter().map(|r| r.stalls).sum::<u64>(),
         "recoveries": results.iter().map(|r| r.recoveries).sum::<u64>(),
+        "true_poses_lost": results.iter().map(|r| r.true_poses_lost).sum::<u64>(),
         "sim_time_s": sim,
         "wall_s_total": walls.iter().sum::<f64>(),
         "wall_s_mean": mean(&walls),

@@ -67,6 +67,8 @@ pub struct ProblemResult {
     pub stalls: u64,
     /// Recovery behaviours Planning started.
     pub recoveries: u64,
+    /// True poses the mission monitor lost (an overloaded machine; see `hng run`'s summary).
+    pub true_poses_lost: u64,
     /// Distance of the true pose from the goal at the end, m.
     pub true_error_m: Option<f64>,
     /// CPU time of each module process (and `run`, the supervisor), s.
@@ -315,6 +317,7 @@ pub fn run(p: &Problem, o: &RunOptions) -> Result<(ProblemResult, Option<Stoppin
                 stuck_time_s: 0.0,
                 stalls: 0,
                 recoveries: 0,
+                true_poses_lost: 0,
                 true_error_m: None,
                 cpu_s,
             }
@@ -390,6 +393,7 @@ fn from_summary(
         stuck_time_s: f64_of(s, "stuck_time_s").unwrap_or(0.0),
         stalls: count("stalls"),
         recoveries: count("recoveries"),
+        true_poses_lost: count("true_poses_lost"),
         true_error_m: goal.and_then(|g| f64_of(g, "true_error_m")),
         cpu_s,
     }

@@ -113,6 +113,10 @@ pub struct Summary {
     pub stalls: u64,
     /// Recovery behaviours Planning started.
     pub recoveries: u64,
+    /// True poses the monitor lost before reading them (its buffer overflowed: the machine
+    /// starved it). A goal is judged against the true pose at the time it was reported
+    /// reached; with poses lost around that time the judgement may be off.
+    pub true_poses_lost: u64,
     /// Why the mission failed (`null` on success).
     pub failure: Option<String>,
 }
@@ -239,6 +243,8 @@ struct State {
     providers: BTreeMap<(String, String), u32>,
     /// Modules that died and were not yet started again.
     dead: HashMap<String, u32>,
+    /// True poses lost so far had been said.
+    truth_loss_said: bool,
 }
 
 impl State {
@@ -286,6 +292,7 @@ impl State {
             collisions: 0,
             goals: Vec::new(),
             done: false,
+            truth_loss_said: false,
             restarts: 0,
             switches: 0,
             names: HashMap::new(),
@@ -349,6 +356,7 @@ impl State {
             stuck_time_s: self.nav.stuck_time_s(),
             stalls: self.nav.stalls(),
             recoveries: self.nav.recoveries(),
+            true_poses_lost: self.truth.stats().dropped,
             failure: failure.clone(),
         };
         if ended {
@@ -452,6 +460,15 @@ impl State {
             let active = !self.done && !self.goals.is_empty();
             self.nav
                 .on_truth(p.header.stamp_ns as f64 * 1e-9, x, y, active);
+        }
+        let lost = self.truth.stats().dropped;
+        if lost > 0 && !self.truth_loss_said {
+            self.truth_loss_said = true;
+            self.say(&format!(
+                "monitor: {lost} true poses lost before it could read them (the machine is too \
+                 loaded for it); goals are judged against the nearest pose it has, and the \
+                 summary counts the losses (true_poses_lost)"
+            ));
         }
         while let Some(m) = self.progress.receive()? {
             let line = self.nav.on_progress(&m);

@@ -124,6 +124,7 @@ fn summary_fields_are_exactly_the_documented_ones(s: &serde_json::Value) {
             "stalls",
             "stuck_time_s",
             "success",
+            "true_poses_lost",
             "wall_time_s"
         ]
     );
