@@ -657,6 +657,7 @@ impl Node {
             counters: self.counters.clone(),
             round: self.round.clone(),
             key: channel_key(channel),
+            empty_at: Cell::new(None),
         });
         K::update_connections(&port);
         Ok(Receiver {
@@ -732,6 +733,9 @@ pub(crate) struct Inlet {
     round: Rc<Cell<u32>>,
     /// [`channel_key`] of the channel.
     pub(crate) key: u64,
+    /// The channel's publish count ([`WakeFlag::published`]) when the port was last found
+    /// empty (`None`: not empty, or not looked at).
+    pub(crate) empty_at: Cell<Option<u32>>,
 }
 
 impl Inlet {
@@ -775,6 +779,13 @@ impl Inlet {
 pub(crate) trait Input {
     fn inlet(&self) -> &Rc<Inlet>;
     fn has_samples(&self) -> bool;
+    /// [`Input::has_samples`], answered from the channel's publish count when nothing was
+    /// published since the port was last found empty: cheap enough to spin on, but blind to
+    /// samples that arrive without a publish (a late joiner's history), so never the last
+    /// look before sleeping (see [`crate::wake`]).
+    fn may_have_samples(&self) -> bool {
+        self.has_samples()
+    }
 }
 
 /// Identifies an input (a subscriber) in executor callbacks.

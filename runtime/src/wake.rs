@@ -17,8 +17,18 @@
 //! full fence is needed (a locked add is cheaper than `mfence` on x86). A subscriber killed while blocked leaves the count
 //! raised; publishers then merely notify when they need not. The segments live in `/dev/shm`
 //! under the system's prefix and are removed with the prefix ([`crate::cleanup_prefix`]).
+//!
+//! The same word also counts the samples published (its high 32 bits; the low 32 bits are
+//! the waiters): the publisher's read-modify-write adds one to the count instead of zero, so
+//! it costs nothing more. A subscriber that found its port empty at count `c` knows it is
+//! still empty while the count reads `c`: the spin before a sleep then reads one word per
+//! input instead of asking iceoryx2, whose `has_samples` walks every publisher slot of the
+//! channel (128 on the report and control channels). Samples that reach a port without a
+//! publish (a late joiner's history, delivered when the publisher updates its connections) do
+//! not move the count: only the spin uses it; the check before sleeping, and the one after
+//! waking, ask the port itself ([`crate::wait::Waiter`]).
 
-use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::atomic::{AtomicU64, Ordering};
 
 use crate::error::Error;
 use crate::shm::Segment;
@@ -49,7 +59,7 @@ impl WakeFlag {
     }
 
     #[inline]
-    fn counter(&self) -> &AtomicU32 {
+    fn word(&self) -> &AtomicU64 {
         // SAFETY: the segment is 64 bytes, page-aligned, lives as long as self, and is only
         // ever accessed atomically.
         unsafe { self.segment.get() }
@@ -57,20 +67,62 @@ impl WakeFlag {
 
     /// Subscriber side: announce that we are about to block. Check for samples after this.
     pub(crate) fn begin_wait(&self) {
-        self.counter().fetch_add(1, Ordering::SeqCst);
+        self.word().fetch_add(1, Ordering::SeqCst);
     }
 
     /// Subscriber side: we are awake again.
     pub(crate) fn end_wait(&self) {
-        // Saturating: a restarted subscriber must not wrap a count left by a dead one.
+        // Saturating: a restarted subscriber must not wrap a count left by a dead one (nor
+        // borrow from the publish count above it).
         let _ = self
-            .counter()
-            .fetch_update(Ordering::SeqCst, Ordering::SeqCst, |v| v.checked_sub(1));
+            .word()
+            .fetch_update(Ordering::SeqCst, Ordering::SeqCst, |v| {
+                (waiters(v) > 0).then(|| v - 1)
+            });
     }
 
-    /// Publisher side, after sending: does anyone need a notification?
+    /// Publisher side, after sending: counts the sample; does anyone need a notification?
     #[inline]
-    pub(crate) fn has_waiters(&self) -> bool {
-        self.counter().fetch_add(0, Ordering::SeqCst) > 0
+    pub(crate) fn published_has_waiters(&self) -> bool {
+        waiters(self.word().fetch_add(PUBLISHED_ONE, Ordering::SeqCst)) > 0
+    }
+
+    /// Subscriber side: the samples published so far (wrapping). Read it before asking the
+    /// port whether it has samples: if the port had none, it has none while this is unchanged.
+    #[inline]
+    pub(crate) fn published(&self) -> u32 {
+        (self.word().load(Ordering::SeqCst) >> 32) as u32
+    }
+}
+
+/// One sample in the publish count (the word's high half).
+const PUBLISHED_ONE: u64 = 1 << 32;
+
+#[inline]
+fn waiters(word: u64) -> u32 {
+    word as u32
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn publishes_are_counted_apart_from_waiters_and_waiters_never_borrow_from_them() {
+        let prefix = crate::shm::unique_prefix("wakeword");
+        let flag = WakeFlag::open(&prefix, "t/wake").expect("open");
+        let before = flag.published();
+        assert!(!flag.published_has_waiters());
+        assert_eq!(flag.published(), before.wrapping_add(1));
+        flag.begin_wait();
+        assert!(flag.published_has_waiters());
+        assert_eq!(flag.published(), before.wrapping_add(2));
+        flag.end_wait();
+        // One end too many (a waiter that died blocked, then restarted): the count stays.
+        flag.end_wait();
+        assert_eq!(flag.published(), before.wrapping_add(2));
+        assert!(!flag.published_has_waiters());
+        drop(flag);
+        crate::shm::remove_prefix_files(&prefix);
     }
 }

@@ -127,6 +127,19 @@ impl<K: Kind> Input for Reader<K> {
     fn has_samples(&self) -> bool {
         self.held_ready() || K::has_samples(&self.port)
     }
+    fn may_have_samples(&self) -> bool {
+        if self.held_ready() {
+            return true;
+        }
+        // The count first: a sample published after this read moves it (see crate::wake).
+        let published = self.inlet.wake.published();
+        if self.inlet.empty_at.get() == Some(published) {
+            return false;
+        }
+        let has = K::has_samples(&self.port);
+        self.inlet.empty_at.set((!has).then_some(published));
+        has
+    }
 }
 
 /// Receives messages from a channel: [`Subscriber`] for fixed-size ones, [`SliceSubscriber`]
