@@ -601,7 +601,10 @@ impl Node {
             .buffer_size(buffer)
             .create()
             .map_err(|e| self.port_error(channel, name, kind, "create subscriber", e))?;
-        self.receiver(channel, name, kind, port)
+        // Without history every sample reaches the port through a publish, which the wake
+        // word counts: an empty port is known empty while the count stands (crate::wake).
+        let counted = service.static_config().history_size() == 0;
+        self.receiver(channel, name, kind, port, counted)
     }
 
     /// The sending side shared by both publisher kinds: notifier, wake flag, header stamping.
@@ -642,6 +645,7 @@ impl Node {
         name: &ServiceName,
         kind: ChannelKind,
         port: K::Port,
+        counted: bool,
     ) -> Result<Receiver<K>, Error> {
         let listener = self
             .events(channel, name, kind)?
@@ -657,6 +661,7 @@ impl Node {
             counters: self.counters.clone(),
             round: self.round.clone(),
             key: channel_key(channel),
+            counted,
             empty_at: Cell::new(None),
         });
         K::update_connections(&port);
@@ -733,9 +738,13 @@ pub(crate) struct Inlet {
     round: Rc<Cell<u32>>,
     /// [`channel_key`] of the channel.
     pub(crate) key: u64,
+    /// Every sample reaches the port through a counted publish (a channel without history):
+    /// [`Inlet::empty_at`] is then exact. A channel with history also gets samples when a
+    /// publisher hands its history to a late joiner, which no publish counts.
+    counted: bool,
     /// The channel's publish count ([`WakeFlag::published`]) when the port was last found
     /// empty (`None`: not empty, or not looked at).
-    pub(crate) empty_at: Cell<Option<u32>>,
+    empty_at: Cell<Option<u32>>,
 }
 
 impl Inlet {
@@ -769,6 +778,27 @@ impl Inlet {
         self.stats.set(stats);
     }
 
+    /// The publish count to read before looking at the port, and whether the port is known
+    /// empty at that count (nothing published since it was found empty): then there is no
+    /// need to ask iceoryx2, whose look walks every publisher slot of the channel (128 on the
+    /// report and control channels). Always `false` on a channel with history.
+    #[inline]
+    fn known_empty(&self) -> (u32, bool) {
+        if !self.counted {
+            return (0, false);
+        }
+        let published = self.wake.published();
+        (published, self.empty_at.get() == Some(published))
+    }
+
+    /// What a look at the port found, at the count [`Inlet::known_empty`] read before it.
+    #[inline]
+    fn looked(&self, published: u32, empty: bool) {
+        if self.counted {
+            self.empty_at.set(empty.then_some(published));
+        }
+    }
+
     /// Consumes pending event notifications without blocking.
     pub(crate) fn drain_events(&self) {
         let _ = self.listener.try_wait(|_| {});
@@ -779,13 +809,6 @@ impl Inlet {
 pub(crate) trait Input {
     fn inlet(&self) -> &Rc<Inlet>;
     fn has_samples(&self) -> bool;
-    /// [`Input::has_samples`], answered from the channel's publish count when nothing was
-    /// published since the port was last found empty: cheap enough to spin on, but blind to
-    /// samples that arrive without a publish (a late joiner's history), so never the last
-    /// look before sleeping (see [`crate::wake`]).
-    fn may_have_samples(&self) -> bool {
-        self.has_samples()
-    }
 }
 
 /// Identifies an input (a subscriber) in executor callbacks.

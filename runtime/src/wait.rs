@@ -273,13 +273,6 @@ impl Waiter {
         self.inputs.iter().any(|(_, i)| i.has_samples())
     }
 
-    /// [`Waiter::any_ready`] for the spin before a sleep: an input whose channel saw no
-    /// publish since its port was last found empty is not asked again ([`crate::wake`]).
-    /// Samples that come without a publish are found by the full look before sleeping.
-    fn any_may_be_ready(&self) -> bool {
-        self.inputs.iter().any(|(_, i)| i.may_have_samples())
-    }
-
     /// The keys ([`crate::channel::channel_key`]) of the channels watched: a lockstep
     /// participant's inputs.
     pub fn input_keys(&self) -> impl Iterator<Item = u64> + '_ {
@@ -299,10 +292,11 @@ impl Waiter {
     pub fn wait(&mut self, timeout: Option<Duration>) -> Result<Wake, Error> {
         // Poll a little (a few microseconds) before reading the clock: data that is about to
         // arrive (the common case on a busy pipeline) then costs no clock read at all. Kept
-        // even when the CPUs are crowded: it measured faster than sleeping at once. Each look
-        // reads the inputs' publish counts, not their ports, unless something was published.
+        // even when the CPUs are crowded: it measured faster than sleeping at once. A look at
+        // an input without history reads its channel's publish count, and asks the port only
+        // when something was published since it was found empty (crate::wake).
         for i in 0..64 {
-            if self.any_may_be_ready() {
+            if self.any_ready() {
                 if i == 0 {
                     self.stats.immediate += 1;
                 } else {
@@ -379,7 +373,7 @@ impl Waiter {
     fn spin_until(&mut self, end: u64) -> Option<Wake> {
         let mut n: u32 = 0;
         loop {
-            if self.any_may_be_ready() {
+            if self.any_ready() {
                 return Some(Wake::Data);
             }
             n = n.wrapping_add(1);
@@ -531,12 +525,13 @@ impl Waiter {
 mod tests {
     use super::*;
     use crate::channel::NodeOptions;
-    use crate::msg::Goal;
+    use crate::msg::{Goal, Twist};
     use crate::shm;
 
-    /// The spin reads publish counts; what arrives without a publish (a late joiner's
-    /// history, handed over when the publisher updates its connections) is still found, by
-    /// the look at the ports before sleeping.
+    /// Looks at inputs without history read publish counts; what arrives without a publish
+    /// (a late joiner's history, handed over when the publisher updates its connections) is
+    /// still found on a channel with history, and a publish after an empty look on a channel
+    /// without history is found at once.
     #[test]
     fn a_waiter_finds_new_publishes_and_history_that_came_without_one() {
         let prefix = shm::unique_prefix("waitcount");
@@ -568,6 +563,31 @@ mod tests {
         publisher.publish(goal).expect("publish");
         assert_eq!(waiter.wait(Some(short)).expect("wait"), Wake::Data);
         assert_eq!(subscriber.receive().expect("rx").map(|g| g.id), Some(7));
+
+        // A channel without history (commands): empty looks are answered from the count.
+        let commands = a.publisher::<Twist>("t/cmd").expect("commands");
+        let command_sub = b.subscriber::<Twist>("t/cmd").expect("command sub");
+        waiter.attach(&command_sub).expect("attach");
+        for _ in 0..3 {
+            assert!(command_sub.receive().expect("rx").is_none());
+            assert!(!waiter.any_ready());
+            assert_eq!(waiter.ready().count(), 0);
+        }
+        let mut cmd = Twist::default();
+        cmd.linear_x = 0.5;
+        commands.publish(cmd).expect("publish");
+        assert!(waiter.any_ready());
+        assert_eq!(waiter.ready().collect::<Vec<_>>(), [command_sub.id()]);
+        assert_eq!(waiter.wait(Some(short)).expect("wait"), Wake::Data);
+        let got: Vec<f64> = std::iter::from_fn(|| command_sub.receive().expect("rx"))
+            .map(|t| t.linear_x)
+            .collect();
+        assert_eq!(got, [0.5]);
+        assert_eq!(waiter.wait(Some(short)).expect("wait"), Wake::Timeout);
+        commands.publish(cmd).expect("publish");
+        assert_eq!(waiter.wait(Some(short)).expect("wait"), Wake::Data);
+        assert!(command_sub.receive().expect("rx").is_some());
+        drop((command_sub, commands));
         drop((subscriber, publisher, waiter, a, b));
         shm::remove_prefix_files(&prefix);
     }

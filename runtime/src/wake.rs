@@ -21,12 +21,13 @@
 //! The same word also counts the samples published (its high 32 bits; the low 32 bits are
 //! the waiters): the publisher's read-modify-write adds one to the count instead of zero, so
 //! it costs nothing more. A subscriber that found its port empty at count `c` knows it is
-//! still empty while the count reads `c`: the spin before a sleep then reads one word per
-//! input instead of asking iceoryx2, whose `has_samples` walks every publisher slot of the
-//! channel (128 on the report and control channels). Samples that reach a port without a
-//! publish (a late joiner's history, delivered when the publisher updates its connections) do
-//! not move the count: only the spin uses it; the check before sleeping, and the one after
-//! waking, ask the port itself ([`crate::wait::Waiter`]).
+//! still empty while the count reads `c`, and reads one word instead of asking iceoryx2,
+//! whose look walks every publisher slot of the channel (128 on the report and control
+//! channels): in the spin before a sleep, in the executor's look at its inputs after a wake,
+//! and in the `receive` that ends a drain (the contract plane drains a handful of channels at
+//! every call). Only on channels without history: a publisher hands its history to a late
+//! joiner when it updates its connections, which no publish counts, so a subscriber of a
+//! channel with history always asks its port (those channels have at most 4 publishers).
 
 use std::sync::atomic::{AtomicU64, Ordering};
 

@@ -125,19 +125,16 @@ impl<K: Kind> Input for Reader<K> {
         &self.inlet
     }
     fn has_samples(&self) -> bool {
-        self.held_ready() || K::has_samples(&self.port)
-    }
-    fn may_have_samples(&self) -> bool {
         if self.held_ready() {
             return true;
         }
         // The count first: a sample published after this read moves it (see crate::wake).
-        let published = self.inlet.wake.published();
-        if self.inlet.empty_at.get() == Some(published) {
+        let (published, empty) = self.inlet.known_empty();
+        if empty {
             return false;
         }
         let has = K::has_samples(&self.port);
-        self.inlet.empty_at.set((!has).then_some(published));
+        self.inlet.looked(published, !has);
         has
     }
 }
@@ -180,12 +177,18 @@ impl<K: Kind> Receiver<K> {
         if r.held_ready() {
             return Ok(r.held.borrow_mut().pop_front());
         }
+        let (published, empty) = r.inlet.known_empty();
+        if empty {
+            return Ok(None);
+        }
         loop {
             let next =
                 K::receive(&r.port).map_err(|e| Error::channel(&r.inlet.channel, "receive", e))?;
             let Some(s) = next else {
+                r.inlet.looked(published, true);
                 return Ok(None);
             };
+            r.inlet.looked(published, false);
             r.inlet.account(K::header(&s));
             if r.inlet.is_current_round(K::header(&s)) {
                 r.held.borrow_mut().push_back(K::copied(s));
