@@ -558,9 +558,12 @@ mod tests {
         assert!(subscriber.receive().expect("rx").is_none());
         assert_eq!(waiter.wait(Some(short)).expect("wait"), Wake::Timeout);
         // A publish after an empty look is seen by the spin.
-        let mut goal = Goal::default();
-        goal.id = 7;
-        publisher.publish(goal).expect("publish");
+        publisher
+            .publish(Goal {
+                id: 7,
+                ..Goal::default()
+            })
+            .expect("publish");
         assert_eq!(waiter.wait(Some(short)).expect("wait"), Wake::Data);
         assert_eq!(subscriber.receive().expect("rx").map(|g| g.id), Some(7));
 
@@ -573,8 +576,10 @@ mod tests {
             assert!(!waiter.any_ready());
             assert_eq!(waiter.ready().count(), 0);
         }
-        let mut cmd = Twist::default();
-        cmd.linear_x = 0.5;
+        let cmd = Twist {
+            linear_x: 0.5,
+            ..Twist::default()
+        };
         commands.publish(cmd).expect("publish");
         assert!(waiter.any_ready());
         assert_eq!(waiter.ready().collect::<Vec<_>>(), [command_sub.id()]);
