@@ -120,6 +120,29 @@ impl<K: Kind> Reader<K> {
     }
 }
 
+impl Inlet {
+    /// The publish count to read before looking at the port, and whether the port is known
+    /// empty at that count (nothing published since it was found empty): then there is no
+    /// need to ask iceoryx2, whose look walks every publisher slot of the channel (128 on the
+    /// report and control channels). Always `false` on a channel with history.
+    #[inline]
+    fn known_empty(&self) -> (u32, bool) {
+        if !self.counted {
+            return (0, false);
+        }
+        let published = self.wake.published();
+        (published, self.empty_at.get() == Some(published))
+    }
+
+    /// What a look at the port found, at the count [`Inlet::known_empty`] read before it.
+    #[inline]
+    fn looked(&self, published: u32, empty: bool) {
+        if self.counted {
+            self.empty_at.set(empty.then_some(published));
+        }
+    }
+}
+
 impl<K: Kind> Input for Reader<K> {
     fn inlet(&self) -> &Rc<Inlet> {
         &self.inlet
