@@ -608,7 +608,10 @@ impl Node {
             .buffer_size(buffer)
             .create()
             .map_err(|e| self.port_error(channel, name, kind, "create subscriber", e))?;
-        self.receiver(channel, name, kind, port)
+        // Without history every sample reaches the port through a publish, which the wake
+        // word counts: an empty port is known empty while the count stands (crate::wake).
+        let counted = service.static_config().history_size() == 0;
+        self.receiver(channel, name, kind, port, counted)
     }
 
     /// The sending side shared by both publisher kinds: notifier, wake flag, header stamping.
@@ -649,6 +652,7 @@ impl Node {
         name: &ServiceName,
         kind: ChannelKind,
         port: K::Port,
+        counted: bool,
     ) -> Result<Receiver<K>, Error> {
         let listener = self
             .events(channel, name, kind)?
@@ -664,6 +668,8 @@ impl Node {
             counters: self.counters.clone(),
             round: self.round.clone(),
             key: channel_key(channel),
+            counted,
+            empty_at: Cell::new(None),
         });
         K::update_connections(&port);
         Ok(Receiver {
@@ -739,6 +745,13 @@ pub(crate) struct Inlet {
     round: Rc<Cell<u32>>,
     /// [`channel_key`] of the channel.
     pub(crate) key: u64,
+    /// Every sample reaches the port through a counted publish (a channel without history):
+    /// [`Inlet::empty_at`] is then exact. A channel with history also gets samples when a
+    /// publisher hands its history to a late joiner, which no publish counts.
+    counted: bool,
+    /// The channel's publish count ([`WakeFlag::published`]) when the port was last found
+    /// empty (`None`: not empty, or not looked at).
+    empty_at: Cell<Option<u32>>,
 }
 
 impl Inlet {

@@ -292,7 +292,9 @@ impl Waiter {
     pub fn wait(&mut self, timeout: Option<Duration>) -> Result<Wake, Error> {
         // Poll a little (a few microseconds) before reading the clock: data that is about to
         // arrive (the common case on a busy pipeline) then costs no clock read at all. Kept
-        // even when the CPUs are crowded: it measured faster than sleeping at once.
+        // even when the CPUs are crowded: it measured faster than sleeping at once. A look at
+        // an input without history reads its channel's publish count, and asks the port only
+        // when something was published since it was found empty (crate::wake).
         for i in 0..64 {
             if self.any_ready() {
                 if i == 0 {
@@ -516,5 +518,82 @@ impl Waiter {
                 return Ok(Wake::Timeout);
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::channel::NodeOptions;
+    use crate::msg::{Goal, Twist};
+    use crate::shm;
+
+    /// Looks at inputs without history read publish counts; what arrives without a publish
+    /// (a late joiner's history, handed over when the publisher updates its connections) is
+    /// still found on a channel with history, and a publish after an empty look on a channel
+    /// without history is found at once.
+    #[test]
+    fn a_waiter_finds_new_publishes_and_history_that_came_without_one() {
+        let prefix = shm::unique_prefix("waitcount");
+        let a = Node::new(NodeOptions::new("a").prefix(&prefix)).expect("node a");
+        let b = Node::new(NodeOptions::new("b").prefix(&prefix)).expect("node b");
+        let publisher = a.publisher::<Goal>("t/goal").expect("publisher");
+        publisher
+            .publish(Goal::default())
+            .expect("before anyone reads");
+        let subscriber = b.subscriber::<Goal>("t/goal").expect("subscriber");
+        let mut waiter = Waiter::new(WaitMode::default()).expect("waiter");
+        waiter.attach(&subscriber).expect("attach");
+        // Found empty at the current count (the history is not handed over yet).
+        let short = Duration::from_millis(5);
+        assert_eq!(waiter.wait(Some(short)).expect("wait"), Wake::Timeout);
+        // The history comes with the publisher's next update, without a publish.
+        a.update_connections();
+        assert_eq!(
+            waiter.wait(Some(Duration::from_secs(5))).expect("wait"),
+            Wake::Data,
+            "history without a publish"
+        );
+        assert_eq!(subscriber.receive().expect("rx").map(|g| g.id), Some(0));
+        assert!(subscriber.receive().expect("rx").is_none());
+        assert_eq!(waiter.wait(Some(short)).expect("wait"), Wake::Timeout);
+        // A publish after an empty look is seen by the spin.
+        publisher
+            .publish(Goal {
+                id: 7,
+                ..Goal::default()
+            })
+            .expect("publish");
+        assert_eq!(waiter.wait(Some(short)).expect("wait"), Wake::Data);
+        assert_eq!(subscriber.receive().expect("rx").map(|g| g.id), Some(7));
+
+        // A channel without history (commands): empty looks are answered from the count.
+        let commands = a.publisher::<Twist>("t/cmd").expect("commands");
+        let command_sub = b.subscriber::<Twist>("t/cmd").expect("command sub");
+        waiter.attach(&command_sub).expect("attach");
+        for _ in 0..3 {
+            assert!(command_sub.receive().expect("rx").is_none());
+            assert!(!waiter.any_ready());
+            assert_eq!(waiter.ready().count(), 0);
+        }
+        let cmd = Twist {
+            linear_x: 0.5,
+            ..Twist::default()
+        };
+        commands.publish(cmd).expect("publish");
+        assert!(waiter.any_ready());
+        assert_eq!(waiter.ready().collect::<Vec<_>>(), [command_sub.id()]);
+        assert_eq!(waiter.wait(Some(short)).expect("wait"), Wake::Data);
+        let got: Vec<f64> = std::iter::from_fn(|| command_sub.receive().expect("rx"))
+            .map(|t| t.linear_x)
+            .collect();
+        assert_eq!(got, [0.5]);
+        assert_eq!(waiter.wait(Some(short)).expect("wait"), Wake::Timeout);
+        commands.publish(cmd).expect("publish");
+        assert_eq!(waiter.wait(Some(short)).expect("wait"), Wake::Data);
+        assert!(command_sub.receive().expect("rx").is_some());
+        drop((command_sub, commands));
+        drop((subscriber, publisher, waiter, a, b));
+        shm::remove_prefix_files(&prefix);
     }
 }

@@ -17,8 +17,19 @@
 //! full fence is needed (a locked add is cheaper than `mfence` on x86). A subscriber killed while blocked leaves the count
 //! raised; publishers then merely notify when they need not. The segments live in `/dev/shm`
 //! under the system's prefix and are removed with the prefix ([`crate::cleanup_prefix`]).
+//!
+//! The same word also counts the samples published (its high 32 bits; the low 32 bits are
+//! the waiters): the publisher's read-modify-write adds one to the count instead of zero, so
+//! it costs nothing more. A subscriber that found its port empty at count `c` knows it is
+//! still empty while the count reads `c`, and reads one word instead of asking iceoryx2,
+//! whose look walks every publisher slot of the channel (128 on the report and control
+//! channels): in the spin before a sleep, in the executor's look at its inputs after a wake,
+//! and in the `receive` that ends a drain (the contract plane drains a handful of channels at
+//! every call). Only on channels without history: a publisher hands its history to a late
+//! joiner when it updates its connections, which no publish counts, so a subscriber of a
+//! channel with history always asks its port (those channels have at most 4 publishers).
 
-use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::atomic::{AtomicU64, Ordering};
 
 use crate::error::Error;
 use crate::shm::Segment;
@@ -49,7 +60,7 @@ impl WakeFlag {
     }
 
     #[inline]
-    fn counter(&self) -> &AtomicU32 {
+    fn word(&self) -> &AtomicU64 {
         // SAFETY: the segment is 64 bytes, page-aligned, lives as long as self, and is only
         // ever accessed atomically.
         unsafe { self.segment.get() }
@@ -57,20 +68,62 @@ impl WakeFlag {
 
     /// Subscriber side: announce that we are about to block. Check for samples after this.
     pub(crate) fn begin_wait(&self) {
-        self.counter().fetch_add(1, Ordering::SeqCst);
+        self.word().fetch_add(1, Ordering::SeqCst);
     }
 
     /// Subscriber side: we are awake again.
     pub(crate) fn end_wait(&self) {
-        // Saturating: a restarted subscriber must not wrap a count left by a dead one.
+        // Saturating: a restarted subscriber must not wrap a count left by a dead one (nor
+        // borrow from the publish count above it).
         let _ = self
-            .counter()
-            .fetch_update(Ordering::SeqCst, Ordering::SeqCst, |v| v.checked_sub(1));
+            .word()
+            .fetch_update(Ordering::SeqCst, Ordering::SeqCst, |v| {
+                (waiters(v) > 0).then(|| v - 1)
+            });
     }
 
-    /// Publisher side, after sending: does anyone need a notification?
+    /// Publisher side, after sending: counts the sample; does anyone need a notification?
     #[inline]
-    pub(crate) fn has_waiters(&self) -> bool {
-        self.counter().fetch_add(0, Ordering::SeqCst) > 0
+    pub(crate) fn published_has_waiters(&self) -> bool {
+        waiters(self.word().fetch_add(PUBLISHED_ONE, Ordering::SeqCst)) > 0
+    }
+
+    /// Subscriber side: the samples published so far (wrapping). Read it before asking the
+    /// port whether it has samples: if the port had none, it has none while this is unchanged.
+    #[inline]
+    pub(crate) fn published(&self) -> u32 {
+        (self.word().load(Ordering::SeqCst) >> 32) as u32
+    }
+}
+
+/// One sample in the publish count (the word's high half).
+const PUBLISHED_ONE: u64 = 1 << 32;
+
+#[inline]
+fn waiters(word: u64) -> u32 {
+    word as u32
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn publishes_are_counted_apart_from_waiters_and_waiters_never_borrow_from_them() {
+        let prefix = crate::shm::unique_prefix("wakeword");
+        let flag = WakeFlag::open(&prefix, "t/wake").expect("open");
+        let before = flag.published();
+        assert!(!flag.published_has_waiters());
+        assert_eq!(flag.published(), before.wrapping_add(1));
+        flag.begin_wait();
+        assert!(flag.published_has_waiters());
+        assert_eq!(flag.published(), before.wrapping_add(2));
+        flag.end_wait();
+        // One end too many (a waiter that died blocked, then restarted): the count stays.
+        flag.end_wait();
+        assert_eq!(flag.published(), before.wrapping_add(2));
+        assert!(!flag.published_has_waiters());
+        drop(flag);
+        crate::shm::remove_prefix_files(&prefix);
     }
 }

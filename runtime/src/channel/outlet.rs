@@ -42,7 +42,7 @@ impl Outlet {
     pub(super) fn sent(&self) -> Result<(), Error> {
         Counters::add(&self.counters.msgs_out, 1);
         self.writes.note(self.key);
-        if self.wake.has_waiters() {
+        if self.wake.published_has_waiters() {
             self.notified.set(self.notified.get() + 1);
             Counters::add(&self.counters.wakeups, 1);
             self.notifier

@@ -120,12 +120,45 @@ impl<K: Kind> Reader<K> {
     }
 }
 
+impl Inlet {
+    /// The publish count to read before looking at the port, and whether the port is known
+    /// empty at that count (nothing published since it was found empty): then there is no
+    /// need to ask iceoryx2, whose look walks every publisher slot of the channel (128 on the
+    /// report and control channels). Always `false` on a channel with history.
+    #[inline]
+    fn known_empty(&self) -> (u32, bool) {
+        if !self.counted {
+            return (0, false);
+        }
+        let published = self.wake.published();
+        (published, self.empty_at.get() == Some(published))
+    }
+
+    /// What a look at the port found, at the count [`Inlet::known_empty`] read before it.
+    #[inline]
+    fn looked(&self, published: u32, empty: bool) {
+        if self.counted {
+            self.empty_at.set(empty.then_some(published));
+        }
+    }
+}
+
 impl<K: Kind> Input for Reader<K> {
     fn inlet(&self) -> &Rc<Inlet> {
         &self.inlet
     }
     fn has_samples(&self) -> bool {
-        self.held_ready() || K::has_samples(&self.port)
+        if self.held_ready() {
+            return true;
+        }
+        // The count first: a sample published after this read moves it (see crate::wake).
+        let (published, empty) = self.inlet.known_empty();
+        if empty {
+            return false;
+        }
+        let has = K::has_samples(&self.port);
+        self.inlet.looked(published, !has);
+        has
     }
 }
 
@@ -167,12 +200,18 @@ impl<K: Kind> Receiver<K> {
         if r.held_ready() {
             return Ok(r.held.borrow_mut().pop_front());
         }
+        let (published, empty) = r.inlet.known_empty();
+        if empty {
+            return Ok(None);
+        }
         loop {
             let next =
                 K::receive(&r.port).map_err(|e| Error::channel(&r.inlet.channel, "receive", e))?;
             let Some(s) = next else {
+                r.inlet.looked(published, true);
                 return Ok(None);
             };
+            r.inlet.looked(published, false);
             r.inlet.account(K::header(&s));
             if r.inlet.is_current_round(K::header(&s)) {
                 r.held.borrow_mut().push_back(K::copied(s));
