@@ -104,9 +104,9 @@ system = "hng"
 
 [defaults]
 restart = "on-failure"
-heartbeat_period = "100ms"
-checkpoint_period = "1s"
-stop_timeout = "2s"
+heartbeat_period_s = 0.1
+checkpoint_period_s = 1.0
+stop_timeout_s = 2.0
 
 [[module]]
 name = "probe"

@@ -23,7 +23,8 @@ fn config_of<M: Module>(text: &str) -> Result<(), ModuleProblem> {
         .map(drop)
         .map_err(|e| ModuleProblem::Config {
             span: e.span(),
-            message: format!("invalid configuration: {}", e.message()),
+            message: hng_runtime::module::renamed_to_seconds(e.message())
+                .unwrap_or_else(|| format!("invalid configuration: {}", e.message())),
         })
 }
 
@@ -114,5 +115,17 @@ mod tests {
         assert!(message.contains("colour"), "{message}");
         let span = span.expect("a span");
         assert_eq!(&text[span.start..span.start + 6], "colour");
+    }
+
+    #[test]
+    fn an_old_duration_key_names_its_new_spelling() {
+        let text = "speed = 2\nduration = 60.0\n";
+        let Some(Err(ModuleProblem::Config { span, message })) = check_config("simulator", text)
+        else {
+            panic!("the old key is an error");
+        };
+        assert_eq!(message, "`duration` is now `duration_s` (seconds)");
+        let span = span.expect("a span");
+        assert_eq!(&text[span.start..span.start + 8], "duration");
     }
 }

@@ -119,8 +119,6 @@ pub enum MissionOp {
     Skip = 3,
 }
 
-impl MissionOp {}
-
 /// A change of mission, sent to the Manager on `hng/mission` (a command channel: every
 /// message counts, none is replayed to late joiners).
 #[repr(C)]

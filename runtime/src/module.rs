@@ -45,6 +45,7 @@ mod logging;
 mod options;
 mod rounds;
 mod run;
+mod seconds;
 mod state;
 
 use beat::Beat;
@@ -53,6 +54,7 @@ pub use logging::init_tracing;
 pub use options::{RunError, RunOptions};
 use rounds::Rounds;
 pub use run::{run_module, run_module_on_wall_clock, run_module_with};
+pub use seconds::renamed_to_seconds;
 pub use state::{decode_state, encode_state};
 
 /// The well-known channel every module publishes its [`ModuleReport`] on.

@@ -196,7 +196,7 @@ impl Module for SimulatorModule {
             out: Vec::new(),
             speed: cfg.speed,
             pacer: Pacer::new(cfg.speed, 0),
-            end_ns: cfg.duration.map(secs_to_ns),
+            end_ns: cfg.duration_s.map(secs_to_ns),
             max_steps: cfg.max_steps_per_tick,
             clock_every: cfg.clock_every_steps,
             steps_since_clock: 0,
@@ -586,11 +586,11 @@ mod tests {
         assert!(e.contains("`start`"), "{e}");
         let e = error(
             SimModuleConfig {
-                duration: Some(f64::NAN),
+                duration_s: Some(f64::NAN),
                 ..Default::default()
             }
             .build_world(),
         );
-        assert!(e.contains("`duration`"), "{e}");
+        assert!(e.contains("`duration_s`"), "{e}");
     }
 }

@@ -169,7 +169,7 @@ impl Simulator {
         world.validate()?;
         let mut phys = PhysicsWorld::new();
         phys.gravity = Vector::ZERO;
-        phys.integration_parameters.dt = world.dt as f32;
+        phys.integration_parameters.dt = world.dt_s as f32;
         for b in world.obstacle_boxes() {
             phys.insert_collider(box_collider(&b), None);
         }
@@ -209,7 +209,7 @@ impl Simulator {
             theta: wrap_angle(r.start.theta),
         };
         let mut sim = Self {
-            dt_ns: secs_to_ns(world.dt).max(1),
+            dt_ns: secs_to_ns(world.dt_s).max(1),
             now_ns: 0,
             drive: Drive::default(),
             pose,
@@ -701,7 +701,7 @@ impl Simulator {
         let r = &self.world.robot;
         let d = &mut self.drive;
         let idle_ns = self.now_ns.saturating_sub(d.last_cmd_ns.unwrap_or(0));
-        if idle_ns as f64 * 1e-9 > r.cmd_timeout && (d.target_v != 0.0 || d.target_w != 0.0) {
+        if idle_ns as f64 * 1e-9 > r.cmd_timeout_s && (d.target_v != 0.0 || d.target_w != 0.0) {
             d.target_v = 0.0;
             d.target_w = 0.0;
             if !d.timed_out {

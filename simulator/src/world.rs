@@ -30,7 +30,7 @@ pub struct World {
     pub seed: u64,
     /// Physics time step in seconds (default 0.01).
     #[serde(default = "default_dt")]
-    pub dt: f64,
+    pub dt_s: f64,
     /// The robot.
     pub robot: RobotConfig,
     /// Straight walls.
@@ -97,7 +97,7 @@ pub struct RobotConfig {
     pub max_angular_accel: f64,
     /// The robot stops when no command arrived for this long, seconds (default 0.5).
     #[serde(default = "RobotConfig::default_cmd_timeout")]
-    pub cmd_timeout: f64,
+    pub cmd_timeout_s: f64,
 }
 
 impl RobotConfig {
@@ -130,7 +130,7 @@ impl RobotConfig {
             max_angular_speed: Self::default_max_angular_speed(),
             max_linear_accel: Self::default_max_linear_accel(),
             max_angular_accel: Self::default_max_angular_accel(),
-            cmd_timeout: Self::default_cmd_timeout(),
+            cmd_timeout_s: Self::default_cmd_timeout(),
         }
     }
 }
@@ -492,7 +492,7 @@ impl World {
         Self {
             name: default_name(),
             seed: 0,
-            dt: default_dt(),
+            dt_s: default_dt(),
             robot: RobotConfig::at(start),
             walls: Vec::new(),
             boxes: Vec::new(),
@@ -520,7 +520,8 @@ impl World {
         let mut world: World = toml::from_str(src).map_err(|e| {
             let offset = e.span().map_or(0, |s| s.start);
             let (line, column) = line_col(src, offset);
-            let message = e.message().trim().to_owned();
+            let message = hng_runtime::module::renamed_to_seconds(e.message())
+                .unwrap_or_else(|| e.message().trim().to_owned());
             let mut field = toml_field_at(src, offset);
             if let Some(missing) = backticked(&message, "missing field `") {
                 field = join_field(&field, missing);

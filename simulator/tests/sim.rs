@@ -622,6 +622,20 @@ fn malformed_world_files_name_line_and_field() {
         e.starts_with("world.toml:14:1: field `sensors.lidar.min_range`"),
         "{e}"
     );
+    // Durations are seconds in `_s` keys; an old key names its new spelling.
+    let e = parse_err(&format!("dt = 0.01\n{GOOD}"));
+    assert!(
+        e.starts_with("world.toml:1:1: field `dt`") && e.contains("`dt` is now `dt_s` (seconds)"),
+        "{e}"
+    );
+    let e = parse_err(&GOOD.replace("y = 2.0 }", "y = 2.0 }\ncmd_timeout = 0.5"));
+    assert!(
+        e.starts_with("world.toml:3:1: field `robot.cmd_timeout`")
+            && e.contains("`cmd_timeout` is now `cmd_timeout_s` (seconds)"),
+        "{e}"
+    );
+    let e = parse_err(&format!("dt_s = -0.01\n{GOOD}"));
+    assert!(e.starts_with("world.toml:1:1: field `dt_s`"), "{e}");
 }
 
 #[test]

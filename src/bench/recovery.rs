@@ -65,6 +65,7 @@ impl Bench {
         let dir = std::env::temp_dir().join(format!("{prefix}run"));
         std::fs::create_dir_all(&dir).context("creating the bench's folder")?;
         let file = dir.join("recovery.toml");
+        let period_s = heartbeat_ms as f64 / 1000.0;
         std::fs::write(
             &file,
             format!(
@@ -74,11 +75,11 @@ impl Bench {
 name = "probe"
 command = ["hng", "module", "heartbeat-probe"]
 restart = "always"
-backoff_reset_after = "1ms"     # every kill is a first failure: restart at once
+backoff_reset_after_s = 0.001     # every kill is a first failure: restart at once
 give_up_failures = 1000000
-heartbeat_period = "{heartbeat_ms}ms"
-checkpoint_period = "10ms"
-stop_timeout = "2s"
+heartbeat_period_s = {period_s}
+checkpoint_period_s = 0.01
+stop_timeout_s = 2.0
 config = {{ output = "bench/probe", period_s = 0.01 }}
 "#
             ),

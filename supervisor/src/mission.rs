@@ -265,16 +265,16 @@ fn render_plan(
         s,
         r#"[defaults]
 restart = "on-failure"
-heartbeat_period = "200ms"
-heartbeat_timeout = "3s"
-start_timeout = "10s"
-checkpoint_period = "500ms"
-stop_timeout = "2s"
-backoff_initial = "50ms"
-backoff_max = "500ms"
-backoff_reset_after = "2s"
+heartbeat_period_s = 0.2
+heartbeat_timeout_s = 3.0
+start_timeout_s = 10.0
+checkpoint_period_s = 0.5
+stop_timeout_s = 2.0
+backoff_initial_s = 0.05
+backoff_max_s = 0.5
+backoff_reset_after_s = 2.0
 give_up_failures = 50
-give_up_window = "60s"
+give_up_window_s = 60.0
 "#
     );
     let module = |s: &mut String, name: &str, cmd: &str| {

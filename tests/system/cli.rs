@@ -141,7 +141,7 @@ fn a_client_removes_system_files_left_on_a_prefix_where_no_system_runs() {
 }
 
 #[test]
-fn built_in_module_names_configs_and_zero_durations_are_checked_before_anything_starts() {
+fn built_in_module_names_configs_and_bad_or_old_durations_are_checked_before_anything_starts() {
     let prefix = shm::unique_prefix("clibad");
     let dir = std::env::temp_dir().join(format!("hng-clibad-{}", prefix.trim_end_matches('_')));
     std::fs::create_dir_all(&dir).expect("dir");
@@ -150,8 +150,8 @@ fn built_in_module_names_configs_and_zero_durations_are_checked_before_anything_
         "system = \"bad\"",                               // 1
         "",                                               // 2
         "[defaults]",                                     // 3
-        "heartbeat_period = \"0ms\"",                     // 4
-        "give_up_window = \"0s\"",                        // 5
+        "heartbeat_period_s = 0.0",                       // 4
+        "give_up_window_s = 0.0",                         // 5
         "",                                               // 6
         "[[module]]",                                     // 7
         "name = \"a\"",                                   // 8
@@ -160,7 +160,7 @@ fn built_in_module_names_configs_and_zero_durations_are_checked_before_anything_
         "[[module]]",                                     // 11
         "name = \"b\"",                                   // 12
         "command = [\"hng\", \"module\", \"interface\"]", // 13
-        "start_timeout = \"0s\"",                         // 14
+        "start_timeout_s = 0.0",                          // 14
         "",                                               // 15
         "[module.config]",                                // 16
         "teleop_in = \"hng/teleop\"",                     // 17
@@ -169,8 +169,10 @@ fn built_in_module_names_configs_and_zero_durations_are_checked_before_anything_
         "[[module]]",                                     // 20
         "name = \"c\"",                                   // 21
         "command = [\"hng\", \"module\", \"robot\"]",     // 22
-        "[module.config]",                                // 23
-        "max_linear_speed = \"fast\"",                    // 24
+        "heartbeat_period = \"200ms\"",                   // 23
+        "stop_timeout_s = -1",                            // 24
+        "[module.config]",                                // 25
+        "max_linear_speed = \"fast\"",                    // 26
     ];
     std::fs::write(&file, text.join("\n")).expect("write");
     let out = Command::new(HNG)
@@ -183,12 +185,17 @@ fn built_in_module_names_configs_and_zero_durations_are_checked_before_anything_
     assert_eq!(out.status.code(), Some(2), "exit code 2: {err}");
     let name = file.display().to_string();
     for (line, needle) in [
-        (4, "heartbeat_period"),
-        (5, "give_up_window"),
+        (4, "heartbeat_period_s"),
+        (5, "give_up_window_s"),
         (9, "no built-in module \"plannign\""),
-        (14, "start_timeout"),
+        (14, "start_timeout_s"),
         (18, "colour"),
-        (24, "max_linear_speed"),
+        (
+            23,
+            "`module[2].heartbeat_period`: `heartbeat_period` is now `heartbeat_period_s` (seconds): write heartbeat_period_s = 0.2",
+        ),
+        (24, "`module[2].stop_timeout_s`: -1 s is negative"),
+        (26, "max_linear_speed"),
     ] {
         assert!(
             err.lines()

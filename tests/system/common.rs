@@ -16,19 +16,19 @@ use hng_runtime::{Node, NodeOptions, Publisher, Subscriber, shm};
 use hng_simulator::module::SimStatus;
 
 /// A launch file: its header (`system`, `clock = "sim"`, the `[defaults]` of supervision given
-/// as `heartbeat_timeout` and `start_timeout`), then one `[[module]]` entry per `(name, keys,
+/// as `heartbeat_timeout_s` and `start_timeout_s`, seconds), then one `[[module]]` entry per `(name, keys,
 /// config)`: built-in module `name` (`hng module NAME`), its extra keys (`manager = true`) and
 /// its `config` table (TOML lines; none when empty).
 pub(crate) fn launch_file(
     system: &str,
-    heartbeat_timeout: &str,
-    start_timeout: &str,
+    heartbeat_timeout_s: f64,
+    start_timeout_s: f64,
     modules: &[(&str, &str, &str)],
 ) -> String {
     let mut s = format!(
-        "system = {system:?}\nclock = \"sim\"\n\n[defaults]\nheartbeat_period = \"200ms\"\n\
-         heartbeat_timeout = {heartbeat_timeout:?}\nstart_timeout = {start_timeout:?}\n\
-         stop_timeout = \"2s\"\n"
+        "system = {system:?}\nclock = \"sim\"\n\n[defaults]\nheartbeat_period_s = 0.2\n\
+         heartbeat_timeout_s = {heartbeat_timeout_s:?}\nstart_timeout_s = {start_timeout_s:?}\n\
+         stop_timeout_s = 2.0\n"
     );
     for (name, keys, config) in modules {
         s.push_str(&format!(

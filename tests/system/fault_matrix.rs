@@ -25,12 +25,12 @@ const MODULES: [(&str, &str, &str); 3] = [
     (
         "builtin",
         "built-in module (`hng module heartbeat-probe`)",
-        "command = [\"hng\", \"module\", \"heartbeat-probe\"]\nheartbeat_period = \"50ms\"\nheartbeat_timeout = \"250ms\"",
+        "command = [\"hng\", \"module\", \"heartbeat-probe\"]\nheartbeat_period_s = 0.05\nheartbeat_timeout_s = 0.25",
     ),
     (
         "sdk",
         "SDK module (`run_module`, hng-testmod counter)",
-        "command = [\"TESTMOD\", \"counter\"]\nheartbeat_period = \"50ms\"\nheartbeat_timeout = \"250ms\"",
+        "command = [\"TESTMOD\", \"counter\"]\nheartbeat_period_s = 0.05\nheartbeat_timeout_s = 0.25",
     ),
     (
         "script",
@@ -148,7 +148,7 @@ fn fault_matrix_every_signal_to_every_kind_of_module() {
     let dir = test_dir(&prefix);
     std::fs::create_dir_all(&dir).expect("dir");
     let mut launch = String::from(
-        "system = \"matrix\"\n\n[defaults]\nrestart = \"on-failure\"\nbackoff_initial = \"10ms\"\nstop_timeout = \"5s\"\ngive_up_failures = 100\n",
+        "system = \"matrix\"\n\n[defaults]\nrestart = \"on-failure\"\nbackoff_initial_s = 0.01\nstop_timeout_s = 5.0\ngive_up_failures = 100\n",
     );
     for (name, _, lines) in MODULES {
         launch.push_str(&format!(

@@ -47,7 +47,7 @@ struct RunningSystem {
 /// fixture's path).
 fn launch_file(modules: &str) -> String {
     format!(
-        "system = \"faults\"\n\n[defaults]\nstop_timeout = \"5s\"\nbackoff_initial = \"10ms\"\n\n{}",
+        "system = \"faults\"\n\n[defaults]\nstop_timeout_s = 5.0\nbackoff_initial_s = 0.01\n\n{}",
         modules.replace("TESTMOD", TESTMOD)
     )
 }
@@ -291,9 +291,9 @@ impl Drop for RunningSystem {
     }
 }
 
-fn module(state_ms: u32, extra: &str, config: &str) -> String {
+fn module(checkpoint_s: f64, extra: &str, config: &str) -> String {
     format!(
-        "[[module]]\nname = \"counter\"\ncommand = [\"TESTMOD\", \"faulty\"]\ncheckpoint_period = \"{state_ms}ms\"\n{extra}\n[module.config]\nperiod_s = 0.005\n{config}\n"
+        "[[module]]\nname = \"counter\"\ncommand = [\"TESTMOD\", \"faulty\"]\ncheckpoint_period_s = {checkpoint_s}\n{extra}\n[module.config]\nperiod_s = 0.005\n{config}\n"
     )
 }
 
@@ -316,7 +316,7 @@ fn crash_and_recover(
     let mut sys = RunningSystem::start_with(tag, |dir| {
         let log = dir.join("counts");
         module(
-            20,
+            0.02,
             extra,
             &format!("{config}\ncount_log = {:?}", log.display().to_string()),
         )
@@ -414,7 +414,7 @@ fn exit_1_is_recorded_and_the_module_resumes() {
 fn a_sigstopped_module_is_a_hang_killed_and_restarted() {
     crash_and_recover(
         "fstop",
-        "heartbeat_period = \"50ms\"",
+        "heartbeat_period_s = 0.05",
         "",
         Some("STOP"),
         |e| e["kind"] == "hang" && e["silent_for_ms"].as_f64().is_some_and(|ms| ms >= 100.0),
@@ -425,7 +425,7 @@ fn a_sigstopped_module_is_a_hang_killed_and_restarted() {
 fn a_busy_loop_that_stops_heartbeats_is_a_hang() {
     crash_and_recover(
         "fbusy",
-        "heartbeat_period = \"50ms\"",
+        "heartbeat_period_s = 0.05",
         "fault = \"busy\"\nfault_after = 30\nfault_runs = 1",
         None,
         |e| e["kind"] == "hang",
@@ -438,8 +438,8 @@ fn a_crash_loop_reaches_the_give_up_rule_and_is_deactivated() {
     let mut sys = RunningSystem::start(
         "floop",
         &module(
-            1,
-            "give_up_failures = 3\ngive_up_window = \"60s\"",
+            0.001,
+            "give_up_failures = 3\ngive_up_window_s = 60.0",
             "fault = \"exit1\"\nfault_after = 3",
         ),
     );

@@ -27,8 +27,8 @@ fn planning_keeps_its_heartbeat_through_a_long_computation() {
     let file = dir.join("plan.toml");
     std::fs::write(
         &file,
-        "system = \"longplan\"\n\n[defaults]\nheartbeat_period = \"30ms\"\nheartbeat_timeout = \"100ms\"\n\
-         start_timeout = \"10s\"\n\n[[module]]\nname = \"planning\"\ncommand = [\"hng\", \"module\", \"planning\"]\n\
+        "system = \"longplan\"\n\n[defaults]\nheartbeat_period_s = 0.03\nheartbeat_timeout_s = 0.1\n\
+         start_timeout_s = 10.0\n\n[[module]]\nname = \"planning\"\ncommand = [\"hng\", \"module\", \"planning\"]\n\
          [module.config]\nmap = \"test/map\"\npose = \"test/pose\"\ngoal = \"test/goal\"\n",
     )
     .expect("launch file");

@@ -28,14 +28,14 @@ use crate::common::TestSystem;
 const WORLD: &str = r#"
 name = "wall-ahead"
 seed = 11
-dt = 0.01
+dt_s = 0.01
 
 [robot]
 start = { x = 1.0, y = 1.5, theta = 0.0 }
 radius = 0.2
 max_linear_speed = 1.0
 max_linear_accel = 2.0
-cmd_timeout = 0.5
+cmd_timeout_s = 0.5
 
 [[walls]]
 from = [0.0, 0.0]

@@ -61,7 +61,7 @@ pub(crate) fn launch(
         ("manager", "manager = true", "goals = []"),
     ];
     modules.extend(extra.iter().map(|(name, config)| (*name, "", *config)));
-    launch_file("orders", "5s", "20s", &modules)
+    launch_file("orders", 5.0, 20.0, &modules)
 }
 
 /// The map of `world` (default: built-in) for Maps, written into `dir`.

@@ -347,8 +347,8 @@ fn over_limit_through_hng_run_is_killed_recorded_and_restarted() {
         r#"system = "rmrun"
 
 [defaults]
-stop_timeout = "5s"
-backoff_initial = "10ms"
+stop_timeout_s = 5.0
+backoff_initial_s = 0.01
 restart = "always"
 
 [[module]]

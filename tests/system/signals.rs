@@ -442,7 +442,7 @@ fn a_shell_script_module_gets_sigterm_with_a_clean_signal_state_and_exits_on_it(
     let file = launch_file(
         &dir.join("launch"),
         &format!(
-            "system = \"shell\"\n[defaults]\nstop_timeout = \"60s\"\n\n\
+            "system = \"shell\"\n[defaults]\nstop_timeout_s = 60.0\n\n\
              [[module]]\nname = \"sleeper\"\ncommand = [\"/bin/sleep\", \"1000\"]\n\n\
              [[module]]\nname = \"script\"\ncommand = [\"/bin/sh\", \"-c\", {script:?}]\n"
         ),
@@ -681,7 +681,7 @@ fn a_sent_sigsegv_kills_a_module_on_the_first_delivery() {
     // A built-in module (the hng executable) and an SDK module (run_module).
     let file = launch_file(
         &dir.join("launch"),
-        "system = \"segv\"\n[defaults]\nheartbeat_period = \"100ms\"\nheartbeat_timeout = \"30s\"\n\n\
+        "system = \"segv\"\n[defaults]\nheartbeat_period_s = 0.1\nheartbeat_timeout_s = 30.0\n\n\
          [[module]]\nname = \"probe\"\ncommand = [\"hng\", \"module\", \"heartbeat-probe\"]\n\n\
          [[module]]\nname = \"counter\"\ncommand = [\"TESTMOD\", \"faulty\"]\n[module.config]\nperiod_s = 0.02\n",
     );

@@ -18,8 +18,8 @@ fn launch() -> String {
         "speed = 2\nwait_for = [\"laser\", \"robot\", \"security\", \"interface\", \"manager\"]";
     crate::common::launch_file(
         "teleop",
-        "3s",
-        "10s",
+        3.0,
+        10.0,
         &[
             ("simulator", "", sim),
             ("laser", "", ""),

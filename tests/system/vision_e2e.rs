@@ -30,7 +30,7 @@ fn world(dir: &std::path::Path, script: &str) -> PathBuf {
         r#"
 name = "beacon-room"
 seed = 5
-dt = 0.01
+dt_s = 0.01
 
 [robot]
 start = {{ x = 1.0, y = 3.0, theta = 0.0 }}
@@ -102,10 +102,10 @@ clock = "sim"
 
 [defaults]
 restart = "on-failure"
-heartbeat_period = "200ms"
-heartbeat_timeout = "5s"
-start_timeout = "30s"
-stop_timeout = "3s"
+heartbeat_period_s = 0.2
+heartbeat_timeout_s = 5.0
+start_timeout_s = 30.0
+stop_timeout_s = 3.0
 
 [[module]]
 name = "simulator"

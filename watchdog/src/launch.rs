@@ -6,6 +6,10 @@
 //! consumes. Every problem found is reported with file, line, column and
 //! field, all at once, before anything starts.
 //!
+//! Durations are seconds, as numbers, in keys ending in `_s` (as in every configuration of
+//! hng): not negative, not NaN or infinite. A key of the old spelling (`heartbeat_period =
+//! "100ms"`) is reported with its new name and the value to write.
+//!
 //! # Format
 //!
 //! ```toml
@@ -16,16 +20,16 @@
 //!
 //! [defaults]                          # optional: applies to every module
 //! restart = "on-failure"              # always | on-failure | never
-//! backoff_initial = "100ms"           # 2nd consecutive restart waits this (1st is immediate)
-//! backoff_max = "10s"                 # doubling stops here
-//! backoff_reset_after = "30s"         # a run this long resets the backoff
+//! backoff_initial_s = 0.1             # 2nd consecutive restart waits this (1st is immediate)
+//! backoff_max_s = 10.0                # doubling stops here
+//! backoff_reset_after_s = 30.0        # a run this long resets the backoff
 //! give_up_failures = 5                # more than 5 restarts ...
-//! give_up_window = "60s"              # ... within 60 s => module Deactivated
-//! heartbeat_period = "100ms"          # or "off" (default): no hang detection
-//! heartbeat_timeout = "300ms"         # default: 3 heartbeat periods
-//! start_timeout = "5s"                # spawn -> first heartbeat
-//! checkpoint_period = "1s"            # or "off" (default)
-//! stop_timeout = "5s"                 # SIGTERM -> SIGKILL
+//! give_up_window_s = 60.0             # ... within 60 s => module Deactivated
+//! heartbeat_period_s = 0.1            # or "off" (default): no hang detection
+//! heartbeat_timeout_s = 0.3           # default: 3 heartbeat periods
+//! start_timeout_s = 5.0               # spawn -> first heartbeat
+//! checkpoint_period_s = 1.0           # or "off" (default)
+//! stop_timeout_s = 5.0                # SIGTERM -> SIGKILL
 //! cpu_quota = 0.5                     # fraction of one CPU (or "50%")
 //! memory_max = "512MiB"               # bytes, K/M/G/T (1024) or kB/MB/GB (1000); "max" = none
 //! pids_max = 64
@@ -111,8 +115,10 @@ pub struct ResourceCaps {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 pub struct HeartbeatSpec {
     /// How often the module sends a heartbeat.
+    #[serde(rename = "period_s", serialize_with = "seconds")]
     pub period: Duration,
     /// A module silent for longer than this is killed (cause `Hang`).
+    #[serde(rename = "timeout_s", serialize_with = "seconds")]
     pub timeout: Duration,
 }
 
@@ -132,22 +138,29 @@ pub struct ModuleSpec {
     /// Restart policy.
     pub restart: RestartPolicy,
     /// Delay before the second consecutive restart; doubles each time after.
+    #[serde(rename = "backoff_initial_s", serialize_with = "seconds")]
     pub backoff_initial: Duration,
     /// Cap of the restart delay.
+    #[serde(rename = "backoff_max_s", serialize_with = "seconds")]
     pub backoff_max: Duration,
     /// A process that ran at least this long resets the backoff.
+    #[serde(rename = "backoff_reset_after_s", serialize_with = "seconds")]
     pub backoff_reset_after: Duration,
     /// More than this many automatic restarts within `give_up_window` deactivates the module.
     pub give_up_failures: u32,
     /// Window of the give-up rule.
+    #[serde(rename = "give_up_window_s", serialize_with = "seconds")]
     pub give_up_window: Duration,
     /// `None`: no hang detection.
     pub heartbeat: Option<HeartbeatSpec>,
     /// Spawn to first heartbeat, when heartbeats are on.
+    #[serde(rename = "start_timeout_s", serialize_with = "seconds")]
     pub start_timeout: Duration,
     /// How often the module should checkpoint (passed to it in `HNG_CHECKPOINT_PERIOD_MS`).
+    #[serde(rename = "checkpoint_period_s", serialize_with = "seconds_or_off")]
     pub checkpoint_period: Option<Duration>,
     /// SIGTERM to SIGKILL.
+    #[serde(rename = "stop_timeout_s", serialize_with = "seconds")]
     pub stop_timeout: Duration,
     /// Caps for the resource manager.
     pub resources: ResourceCaps,
@@ -183,6 +196,19 @@ impl ModuleSpec {
             provides: Vec::new(),
             config: String::new(),
         }
+    }
+}
+
+/// A duration as seconds (the files' convention) in the plan `hng run --check` prints.
+fn seconds<S: serde::Serializer>(d: &Duration, s: S) -> Result<S::Ok, S::Error> {
+    s.serialize_f64(d.as_secs_f64())
+}
+
+/// [`seconds`], or `"off"`.
+fn seconds_or_off<S: serde::Serializer>(d: &Option<Duration>, s: S) -> Result<S::Ok, S::Error> {
+    match d {
+        Some(d) => seconds(d, s),
+        None => s.serialize_str("off"),
     }
 }
 
@@ -260,6 +286,7 @@ mod check;
 mod error;
 mod parse;
 mod raw;
+mod renamed;
 mod settings;
 #[cfg(test)]
 mod tests;

@@ -58,7 +58,7 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
     } else {
         toml::from_str(&opts.config_toml).map_err(|e| RunError::Config {
             module: opts.name.clone(),
-            detail: e.to_string(),
+            detail: super::renamed_to_seconds(e.message()).unwrap_or_else(|| e.to_string()),
         })?
     };
     let clock = match opts.clock {

@@ -31,8 +31,11 @@ pub const REASON_LEN: usize = 96;
 
 /// The level of an order, from remote control to "reach that beacon".
 #[repr(u32)]
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, strum::FromRepr, strum::IntoStaticStr,
+)]
 #[serde(rename_all = "snake_case")]
+#[strum(serialize_all = "snake_case")]
 pub enum OrderKind {
     /// Software emergency stop: the robot stops and every operator order ends.
     Stop = 0,
@@ -53,29 +56,12 @@ pub enum OrderKind {
 impl OrderKind {
     /// From the wire value.
     pub fn from_u32(v: u32) -> Option<OrderKind> {
-        Some(match v {
-            0 => OrderKind::Stop,
-            1 => OrderKind::Teleop,
-            2 => OrderKind::Waypoints,
-            3 => OrderKind::Goal,
-            4 => OrderKind::ReachBeacon,
-            5 => OrderKind::FollowWall,
-            6 => OrderKind::Release,
-            _ => return None,
-        })
+        Self::from_repr(v)
     }
 
     /// The order's name as the CLI and the operator page spell it.
-    pub const fn name(self) -> &'static str {
-        match self {
-            OrderKind::Stop => "stop",
-            OrderKind::Teleop => "teleop",
-            OrderKind::Waypoints => "waypoints",
-            OrderKind::Goal => "goal",
-            OrderKind::ReachBeacon => "reach_beacon",
-            OrderKind::FollowWall => "follow_wall",
-            OrderKind::Release => "release",
-        }
+    pub fn name(self) -> &'static str {
+        self.into()
     }
 }
 
@@ -306,8 +292,15 @@ mod tests {
         for v in 0..7 {
             let k = OrderKind::from_u32(v).expect("known kind");
             assert_eq!(k as u32, v);
+            // The name is the one serde writes (the page and the CLI spell it so).
+            assert_eq!(
+                serde_json::to_value(k).ok(),
+                Some(serde_json::Value::from(k.name()))
+            );
         }
         assert_eq!(OrderKind::from_u32(7), None);
+        assert_eq!(OrderKind::ReachBeacon.name(), "reach_beacon");
+        assert_eq!(OrderKind::FollowWall.name(), "follow_wall");
     }
 
     #[test]

@@ -87,7 +87,7 @@ pub struct SimModuleConfig {
     /// Noise seed, overriding the world's.
     pub seed: Option<u64>,
     /// Stop cleanly after this many simulated seconds.
-    pub duration: Option<f64>,
+    pub duration_s: Option<f64>,
     /// Sensor switches (hybrid simulation).
     #[default(SensorSwitches::default())]
     pub sensors: SensorSwitches,
@@ -214,11 +214,11 @@ impl SimModuleConfig {
                 ),
             ));
         }
-        if let Some(d) = self.duration
+        if let Some(d) = self.duration_s
             && !(d.is_finite() && d > 0.0)
         {
             return Err(config_error(
-                "duration",
+                "duration_s",
                 format!("must be > 0 seconds, got {d}"),
             ));
         }

@@ -8,11 +8,11 @@ impl World {
     /// Checks every value; errors name the field.
     pub fn validate(&self) -> Result<()> {
         check(
-            self.dt.is_finite() && self.dt > 0.0 && self.dt <= 1.0,
-            "dt",
+            self.dt_s.is_finite() && self.dt_s > 0.0 && self.dt_s <= 1.0,
+            "dt_s",
             "must be in (0, 1] seconds",
         )?;
-        check(self.dt * 1e9 >= 1.0, "dt", "must be at least 1 ns")?;
+        check(self.dt_s * 1e9 >= 1.0, "dt_s", "must be at least 1 ns")?;
         let r = &self.robot;
         check_finite(&[r.start.x, r.start.y, r.start.theta], "robot.start")?;
         check_pos(r.radius, "robot.radius")?;
@@ -20,7 +20,7 @@ impl World {
         check_pos(r.max_angular_speed, "robot.max_angular_speed")?;
         check_pos(r.max_linear_accel, "robot.max_linear_accel")?;
         check_pos(r.max_angular_accel, "robot.max_angular_accel")?;
-        check_pos(r.cmd_timeout, "robot.cmd_timeout")?;
+        check_pos(r.cmd_timeout_s, "robot.cmd_timeout_s")?;
         for (i, w) in self.walls.iter().enumerate() {
             check_finite(&[w.from[0], w.from[1]], &format!("walls[{i}].from"))?;
             check_finite(&[w.to[0], w.to[1]], &format!("walls[{i}].to"))?;

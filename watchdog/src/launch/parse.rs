@@ -124,11 +124,26 @@ impl Cx<'_> {
         let mut root = root.into_inner();
 
         // Split off the modules so every one is deserialized (and reported) on its own.
-        let modules_value = root
+        let mut modules_value = root
             .keys()
             .find(|k| k.get_ref() == "module")
             .cloned()
             .and_then(|key| root.remove(&key));
+        // Old spellings, all reported at once (the rest of each table is still checked).
+        for (key, value) in root.iter_mut() {
+            if key.get_ref() == "defaults"
+                && let DeValue::Table(t) = value.get_mut()
+            {
+                self.renamed_keys(t, "defaults");
+            }
+        }
+        if let Some(DeValue::Array(arr)) = modules_value.as_mut().map(|v| v.get_mut()) {
+            for (i, el) in arr.iter_mut().enumerate() {
+                if let DeValue::Table(t) = el.get_mut() {
+                    self.renamed_keys(t, &format!("module[{i}]"));
+                }
+            }
+        }
         let top_table = root.clone();
         let top = match RawTop::deserialize(ValueDeserializer::from(Spanned::new(
             root_span,

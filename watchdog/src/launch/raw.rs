@@ -27,74 +27,57 @@ pub(crate) struct RawTop {
     pub(crate) defaults: Option<S<RawSettings>>,
 }
 
-/// Settings allowed in `[defaults]` and in each module.
-#[derive(Debug, Default, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub(crate) struct RawSettings {
-    pub(crate) restart: Option<S<RestartPolicy>>,
-    pub(crate) backoff_initial: Option<S<Scalar>>,
-    pub(crate) backoff_max: Option<S<Scalar>>,
-    pub(crate) backoff_reset_after: Option<S<Scalar>>,
-    pub(crate) give_up_failures: Option<S<i64>>,
-    pub(crate) give_up_window: Option<S<Scalar>>,
-    pub(crate) heartbeat_period: Option<S<Scalar>>,
-    pub(crate) heartbeat_timeout: Option<S<Scalar>>,
-    pub(crate) start_timeout: Option<S<Scalar>>,
-    pub(crate) checkpoint_period: Option<S<Scalar>>,
-    pub(crate) stop_timeout: Option<S<Scalar>>,
-    pub(crate) cpu_quota: Option<S<Scalar>>,
-    pub(crate) memory_max: Option<S<Scalar>>,
-    pub(crate) pids_max: Option<S<Scalar>>,
-    pub(crate) env: Option<BTreeMap<S<String>, S<String>>>,
-}
-
-/// A `[[module]]` table: its own keys plus every `[defaults]` key. (Not
-/// `#[serde(flatten)]`: that would lose the spans and `deny_unknown_fields`.)
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub(crate) struct RawModule {
-    pub(crate) name: S<String>,
-    pub(crate) command: S<Vec<S<String>>>,
-    pub(crate) manager: Option<S<bool>>,
-    pub(crate) needs: Option<Vec<S<String>>>,
-    pub(crate) provides: Option<Vec<S<String>>>,
-    pub(crate) config: Option<S<toml::Table>>,
-    pub(crate) restart: Option<S<RestartPolicy>>,
-    pub(crate) backoff_initial: Option<S<Scalar>>,
-    pub(crate) backoff_max: Option<S<Scalar>>,
-    pub(crate) backoff_reset_after: Option<S<Scalar>>,
-    pub(crate) give_up_failures: Option<S<i64>>,
-    pub(crate) give_up_window: Option<S<Scalar>>,
-    pub(crate) heartbeat_period: Option<S<Scalar>>,
-    pub(crate) heartbeat_timeout: Option<S<Scalar>>,
-    pub(crate) start_timeout: Option<S<Scalar>>,
-    pub(crate) checkpoint_period: Option<S<Scalar>>,
-    pub(crate) stop_timeout: Option<S<Scalar>>,
-    pub(crate) cpu_quota: Option<S<Scalar>>,
-    pub(crate) memory_max: Option<S<Scalar>>,
-    pub(crate) pids_max: Option<S<Scalar>>,
-    pub(crate) env: Option<BTreeMap<S<String>, S<String>>>,
-}
-
-impl RawModule {
-    /// Move the per-module settings out.
-    pub(crate) fn take_settings(&mut self) -> RawSettings {
-        RawSettings {
-            restart: self.restart.take(),
-            backoff_initial: self.backoff_initial.take(),
-            backoff_max: self.backoff_max.take(),
-            backoff_reset_after: self.backoff_reset_after.take(),
-            give_up_failures: self.give_up_failures.take(),
-            give_up_window: self.give_up_window.take(),
-            heartbeat_period: self.heartbeat_period.take(),
-            heartbeat_timeout: self.heartbeat_timeout.take(),
-            start_timeout: self.start_timeout.take(),
-            checkpoint_period: self.checkpoint_period.take(),
-            stop_timeout: self.stop_timeout.take(),
-            cpu_quota: self.cpu_quota.take(),
-            memory_max: self.memory_max.take(),
-            pids_max: self.pids_max.take(),
-            env: self.env.take(),
+/// The settings allowed in `[defaults]` and in each module, listed once: [`RawSettings`] has
+/// them alone, [`RawModule`] after the module's own keys, and `take_settings` moves them from
+/// one to the other. (Not `#[serde(flatten)]`: that would lose the spans and
+/// `deny_unknown_fields`.) Durations are seconds (`*_s`).
+macro_rules! settings {
+    ($($field:ident: $ty:ty,)+) => {
+        /// Settings allowed in `[defaults]` and in each module.
+        #[derive(Debug, Default, Deserialize)]
+        #[serde(deny_unknown_fields)]
+        pub(crate) struct RawSettings {
+            $(pub(crate) $field: Option<$ty>,)+
         }
-    }
+
+        /// A `[[module]]` table: its own keys plus every `[defaults]` key.
+        #[derive(Debug, Deserialize)]
+        #[serde(deny_unknown_fields)]
+        pub(crate) struct RawModule {
+            pub(crate) name: S<String>,
+            pub(crate) command: S<Vec<S<String>>>,
+            pub(crate) manager: Option<S<bool>>,
+            pub(crate) needs: Option<Vec<S<String>>>,
+            pub(crate) provides: Option<Vec<S<String>>>,
+            pub(crate) config: Option<S<toml::Table>>,
+            $(pub(crate) $field: Option<$ty>,)+
+        }
+
+        impl RawModule {
+            /// Move the per-module settings out.
+            pub(crate) fn take_settings(&mut self) -> RawSettings {
+                RawSettings {
+                    $($field: self.$field.take(),)+
+                }
+            }
+        }
+    };
+}
+
+settings! {
+    restart: S<RestartPolicy>,
+    backoff_initial_s: S<Scalar>,
+    backoff_max_s: S<Scalar>,
+    backoff_reset_after_s: S<Scalar>,
+    give_up_failures: S<i64>,
+    give_up_window_s: S<Scalar>,
+    heartbeat_period_s: S<Scalar>,
+    heartbeat_timeout_s: S<Scalar>,
+    start_timeout_s: S<Scalar>,
+    checkpoint_period_s: S<Scalar>,
+    stop_timeout_s: S<Scalar>,
+    cpu_quota: S<Scalar>,
+    memory_max: S<Scalar>,
+    pids_max: S<Scalar>,
+    env: BTreeMap<S<String>, S<String>>,
 }

@@ -41,12 +41,9 @@ impl Cx<'_> {
             let (v, field) = v?;
             let r = match v.get_ref() {
                 Scalar::Str(t) if allow_off && t.trim() == "off" => Ok(None),
-                Scalar::Str(t) => parse_duration(t).map(Some),
-                Scalar::Int(0) => Ok(Some(Duration::ZERO)),
-                Scalar::Int(_) | Scalar::Float(_) => Err(
-                    "a duration needs a unit: write a string such as \"250ms\" or \"2s\""
-                        .to_owned(),
-                ),
+                Scalar::Str(t) => Err(not_seconds(t, allow_off)),
+                Scalar::Int(x) => seconds(*x as f64).map(Some),
+                Scalar::Float(x) => seconds(*x).map(Some),
             };
             match r {
                 Ok(d) => Some(d),
@@ -61,14 +58,14 @@ impl Cx<'_> {
         if let Some((v, _)) = pick!(s, restart) {
             spec.restart = *v.get_ref();
         }
-        if let Some(Some(d)) = dur(pick!(s, backoff_initial), false, &mut errs) {
+        if let Some(Some(d)) = dur(pick!(s, backoff_initial_s), false, &mut errs) {
             spec.backoff_initial = d;
         }
-        let backoff_max_field = pick!(s, backoff_max);
+        let backoff_max_field = pick!(s, backoff_max_s);
         if let Some(Some(d)) = dur(backoff_max_field.clone(), false, &mut errs) {
             spec.backoff_max = d;
         }
-        if let Some(Some(d)) = dur(pick!(s, backoff_reset_after), false, &mut errs) {
+        if let Some(Some(d)) = dur(pick!(s, backoff_reset_after_s), false, &mut errs) {
             spec.backoff_reset_after = d;
         }
         // A zero here would switch a safety mechanism off without saying so.
@@ -83,49 +80,49 @@ impl Cx<'_> {
                 ));
             }
         };
-        let f = pick!(s, give_up_window);
+        let f = pick!(s, give_up_window_s);
         match dur(f.clone(), false, &mut errs) {
             Some(Some(d)) if d.is_zero() => zero(
                 &f,
-                "give_up_window = 0 would never count a restart, so a crash loop would never be stopped: give a window such as \"60s\"",
+                "give_up_window_s = 0 would never count a restart, so a crash loop would never be stopped: give a window such as 60",
                 &mut errs,
             ),
             Some(Some(d)) => spec.give_up_window = d,
             _ => {}
         }
-        let f = pick!(s, start_timeout);
+        let f = pick!(s, start_timeout_s);
         match dur(f.clone(), false, &mut errs) {
             Some(Some(d)) if d.is_zero() => zero(
                 &f,
-                "start_timeout = 0 would count every start as a hang: give the time a module may take to its first heartbeat, such as \"5s\"",
+                "start_timeout_s = 0 would count every start as a hang: give the time a module may take to its first heartbeat, such as 5",
                 &mut errs,
             ),
             Some(Some(d)) => spec.start_timeout = d,
             _ => {}
         }
-        let f = pick!(s, stop_timeout);
+        let f = pick!(s, stop_timeout_s);
         match dur(f.clone(), false, &mut errs) {
             Some(Some(d)) if d.is_zero() => zero(
                 &f,
-                "stop_timeout = 0 would SIGKILL every module without letting it stop (no final checkpoint): give a time such as \"5s\"",
+                "stop_timeout_s = 0 would SIGKILL every module without letting it stop (no final checkpoint): give a time such as 5",
                 &mut errs,
             ),
             Some(Some(d)) => spec.stop_timeout = d,
             _ => {}
         }
-        if let Some(d) = dur(pick!(s, checkpoint_period), true, &mut errs) {
+        if let Some(d) = dur(pick!(s, checkpoint_period_s), true, &mut errs) {
             spec.checkpoint_period = d.filter(|d| !d.is_zero());
         }
-        let period_field = pick!(s, heartbeat_period);
+        let period_field = pick!(s, heartbeat_period_s);
         let period = dur(period_field.clone(), true, &mut errs).flatten();
         if period.is_some_and(|p| p.is_zero()) {
             zero(
                 &period_field,
-                "heartbeat_period = 0 would switch hang detection off without saying so: give a period such as \"100ms\", or write \"off\"",
+                "heartbeat_period_s = 0 would switch hang detection off without saying so: give a period such as 0.1, or write \"off\"",
                 &mut errs,
             );
         }
-        let timeout_field = pick!(s, heartbeat_timeout);
+        let timeout_field = pick!(s, heartbeat_timeout_s);
         let timeout = dur(timeout_field.clone(), false, &mut errs).flatten();
         match (period, timeout, timeout_field) {
             (Some(p), t, tf) if !p.is_zero() => {
@@ -138,7 +135,9 @@ impl Cx<'_> {
                         v.span(),
                         f,
                         LaunchErrorKind::InvalidValue(format!(
-                            "heartbeat_timeout ({t:?}) must be longer than heartbeat_period ({p:?}); 3 periods is usual"
+                            "heartbeat_timeout_s ({}) must be longer than heartbeat_period_s ({}); 3 periods is usual",
+                            t.as_secs_f64(),
+                            p.as_secs_f64()
                         )),
                     ));
                 }
@@ -146,7 +145,7 @@ impl Cx<'_> {
                     period: p,
                     timeout: t,
                 });
-                if pick!(s, start_timeout).is_none() {
+                if pick!(s, start_timeout_s).is_none() {
                     spec.start_timeout = spec.start_timeout.max(t);
                 }
             }
@@ -154,7 +153,7 @@ impl Cx<'_> {
                 v.span(),
                 f,
                 LaunchErrorKind::InvalidValue(
-                    "heartbeat_timeout is set but heartbeat_period is not: set heartbeat_period too"
+                    "heartbeat_timeout_s is set but heartbeat_period_s is not: set heartbeat_period_s too"
                         .to_owned(),
                 ),
             )),
@@ -168,8 +167,9 @@ impl Cx<'_> {
                 v.span(),
                 f,
                 LaunchErrorKind::InvalidValue(format!(
-                    "backoff_max ({:?}) is smaller than backoff_initial ({:?})",
-                    spec.backoff_max, spec.backoff_initial
+                    "backoff_max_s ({}) is smaller than backoff_initial_s ({})",
+                    spec.backoff_max.as_secs_f64(),
+                    spec.backoff_initial.as_secs_f64()
                 )),
             ));
         }
@@ -274,6 +274,36 @@ impl Cx<'_> {
         spec.env = env;
         for (span, field, kind) in errs {
             self.err(span, Some(field), kind);
+        }
+    }
+}
+
+/// A duration in seconds: finite and not negative.
+fn seconds(x: f64) -> Result<Duration, String> {
+    if !x.is_finite() {
+        return Err(format!(
+            "{x} is not a duration: give a finite number of seconds"
+        ));
+    }
+    if x < 0.0 {
+        return Err(format!(
+            "{x} s is negative: a duration is 0 or more seconds"
+        ));
+    }
+    Duration::try_from_secs_f64(x).map_err(|_| format!("{x} s is out of range"))
+}
+
+/// Why a string is not a duration here, with the number to write when it reads as one
+/// (`"250ms"`: write 0.25).
+fn not_seconds(text: &str, allow_off: bool) -> String {
+    let or_off = if allow_off { " or \"off\"" } else { "" };
+    match parse_duration(text) {
+        Ok(d) => format!(
+            "durations are seconds as a number{or_off}: write {} instead of {text:?}",
+            d.as_secs_f64()
+        ),
+        Err(_) => {
+            format!("{text:?} is not a duration: give seconds as a number{or_off}, e.g. 0.25")
         }
     }
 }

@@ -45,12 +45,12 @@ system = "explorer"
 
 [defaults]
 restart = "on-failure"
-backoff_initial = "50ms"
-backoff_max = "2s"
+backoff_initial_s = 0.05
+backoff_max_s = 2
 give_up_failures = 3
-give_up_window = "10s"
-heartbeat_period = "100ms"
-stop_timeout = "1s"
+give_up_window_s = 10.0
+heartbeat_period_s = 0.1
+stop_timeout_s = 1
 memory_max = "512MiB"
 env = { RUST_LOG = "info", A = "1" }
 
@@ -63,8 +63,8 @@ restart = "always"
 cpu_quota = "50%"
 memory_max = "1GiB"
 pids_max = 32
-heartbeat_timeout = "1s"
-checkpoint_period = "2s"
+heartbeat_timeout_s = 1.0
+checkpoint_period_s = 2
 env = { A = "2" }
 
 [[module]]
@@ -72,7 +72,7 @@ name = "lidar"
 command = ["sleep", "1000"]
 provides = ["scan"]
 manager = false
-heartbeat_period = "off"
+heartbeat_period_s = "off"
 
 [[module]]
 name = "rm"
@@ -185,7 +185,7 @@ fn unknown_field_in_defaults_and_top_level() {
     let src = "system = \"s\"\nsytem = 1\n[[module]]\nname = \"a\"\ncommand = [\"sleep\"]\n";
     let k = one_error(src, 2, Some("sytem"));
     assert!(matches!(k, LaunchErrorKind::UnknownField(_)), "{k}");
-    let src = "system = \"s\"\n[defaults]\nheartbeat = \"1s\"\n[[module]]\nname = \"a\"\ncommand = [\"sleep\"]\n";
+    let src = "system = \"s\"\n[defaults]\nheartbeat = 1\n[[module]]\nname = \"a\"\ncommand = [\"sleep\"]\n";
     let k = one_error(src, 3, Some("defaults.heartbeat"));
     assert!(matches!(k, LaunchErrorKind::UnknownField(_)), "{k}");
 }
@@ -286,19 +286,22 @@ fn unprovided_need_is_a_warning() {
 fn invalid_values_in_module_and_defaults() {
     let src = r#"system = "s"
 [defaults]
-backoff_initial = "10 parsecs"
+backoff_initial_s = "10 parsecs"
 memory_max = "lots"
 [[module]]
 name = "a"
 command = ["sleep"]
-heartbeat_period = "100ms"
-heartbeat_timeout = "50ms"
+heartbeat_period_s = 0.1
+heartbeat_timeout_s = 0.05
 cpu_quota = -1
-stop_timeout = 5
+stop_timeout_s = "5s"
 [[module]]
 name = "b c"
 command = ["sleep"]
 pids_max = 0
+give_up_window_s = -1
+backoff_max_s = nan
+start_timeout_s = inf
 "#;
     let errs = errors(src);
     let got: Vec<(usize, Option<&str>)> =
@@ -306,13 +309,16 @@ pids_max = 0
     assert_eq!(
         got,
         [
-            (3, Some("defaults.backoff_initial")),
+            (3, Some("defaults.backoff_initial_s")),
             (4, Some("defaults.memory_max")),
-            (9, Some("module[0].heartbeat_timeout")),
+            (9, Some("module[0].heartbeat_timeout_s")),
             (10, Some("module[0].cpu_quota")),
-            (11, Some("module[0].stop_timeout")),
+            (11, Some("module[0].stop_timeout_s")),
             (13, Some("module[1].name")),
             (15, Some("module[1].pids_max")),
+            (16, Some("module[1].give_up_window_s")),
+            (17, Some("module[1].backoff_max_s")),
+            (18, Some("module[1].start_timeout_s")),
         ],
         "{errs:#?}"
     );
@@ -320,6 +326,91 @@ pids_max = 0
         errs.iter()
             .all(|e| matches!(e.kind, LaunchErrorKind::InvalidValue(_)))
     );
+    let text = |line: usize| {
+        errs.iter()
+            .find(|e| e.line == line)
+            .map(|e| e.kind.to_string())
+            .unwrap_or_default()
+    };
+    assert!(
+        text(11).contains("write 5 instead of \"5s\""),
+        "{}",
+        text(11)
+    );
+    assert!(text(16).contains("negative"), "{}", text(16));
+    assert!(text(17).contains("finite"), "{}", text(17));
+    assert!(text(18).contains("finite"), "{}", text(18));
+}
+
+#[test]
+fn old_duration_keys_name_their_new_spelling_all_at_once() {
+    let src = r#"system = "s"
+[defaults]
+heartbeat_period = "200ms"
+stop_timeout = "2s"
+[[module]]
+name = "a"
+command = ["sleep"]
+checkpoint_period = "off"
+start_timeout = 5
+colour = "blue"
+"#;
+    let errs = errors(src);
+    let got: Vec<(usize, usize, Option<&str>, String)> = errs
+        .iter()
+        .map(|e| (e.line, e.column, e.field.as_deref(), e.kind.to_string()))
+        .collect();
+    fn want<'a>(
+        line: usize,
+        field: &'a str,
+        message: &str,
+    ) -> (usize, usize, Option<&'a str>, String) {
+        (line, 1, Some(field), message.to_owned())
+    }
+    assert_eq!(
+        got[..4],
+        [
+            want(
+                3,
+                "defaults.heartbeat_period",
+                "`heartbeat_period` is now `heartbeat_period_s` (seconds): write heartbeat_period_s = 0.2"
+            ),
+            want(
+                4,
+                "defaults.stop_timeout",
+                "`stop_timeout` is now `stop_timeout_s` (seconds): write stop_timeout_s = 2"
+            ),
+            want(
+                8,
+                "module[0].checkpoint_period",
+                "`checkpoint_period` is now `checkpoint_period_s` (seconds): write checkpoint_period_s = \"off\""
+            ),
+            want(
+                9,
+                "module[0].start_timeout",
+                "`start_timeout` is now `start_timeout_s` (seconds)"
+            ),
+        ],
+        "{errs:#?}"
+    );
+    // The rest of the module is still checked.
+    assert_eq!(got.len(), 5, "{errs:#?}");
+    assert_eq!(got[4].2, Some("module[0].colour"), "{errs:#?}");
+    assert!(
+        errs.iter()
+            .all(|e| matches!(e.kind, LaunchErrorKind::UnknownField(_)))
+    );
+}
+
+#[test]
+fn the_printed_plan_says_durations_in_seconds() {
+    let p = plan(FULL);
+    let json = serde_json::to_value(&p.modules[1]).expect("a plan serializes");
+    assert_eq!(json["backoff_initial_s"], 0.05);
+    assert_eq!(json["checkpoint_period_s"], 2.0);
+    assert_eq!(json["heartbeat"]["timeout_s"], 1.0);
+    let lidar = serde_json::to_value(&p.modules[0]).expect("a plan serializes");
+    assert_eq!(lidar["checkpoint_period_s"], "off");
 }
 
 #[test]
