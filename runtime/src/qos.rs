@@ -21,7 +21,9 @@
 //! recorder's buffer, so a recorder that polls its channels every few milliseconds, and is
 //! sometimes not scheduled for longer, loses nothing of a channel published at up to
 //! `record_buffer` samples per such gap (64 samples: 64 ms of a 1 kHz stream). The channel's
-//! subscriber buffer bound is the larger of the two. Large messages (maps, images) keep a
+//! subscriber buffer bound is the larger of the two. A few channels have a larger built-in
+//! recorder's buffer ([`BUILT_IN_RECORD_BUFFERS`]: the true pose, which the mission monitor
+//! must not lose at `--speed max`). Large messages (maps, images) keep a
 //! small recorder's buffer: every publisher preallocates `subscribers x (bound + 2)` samples.
 //!
 //! The subscriber limits leave room, beside the modules, for the tools that watch a running
