@@ -153,13 +153,6 @@ pub fn iceoryx_config(prefix: &str) -> Result<iceoryx2::config::Config, Error> {
             "prefix {prefix:?} is not a valid file-name prefix: {e:?}"
         ))
     })?;
-    // iceoryx2's service, node and event files go to a tmpfs like its segments: on a disk
-    // file system (its default, /tmp) creating them is slow (ext4 scans for recently
-    // deleted inodes on every create, and a system creates some hundred at each start).
-    let root = format!("{}/", crate::shm::IOX_ROOT);
-    let root = Path::new(root.as_bytes())
-        .map_err(|e| Error::Config(format!("iceoryx2 root {root:?}: {e:?}")))?;
-    config.global.set_root_path(&root);
     Ok(config)
 }
 

@@ -1,7 +1,7 @@
 //! Shared-memory housekeeping: what a prefix leaves on the machine, and removing it.
 //!
 //! iceoryx2 keeps data segments and management files in `/dev/shm` and service, node and
-//! event files under `/dev/shm/iceoryx2` ([`IOX_ROOT`]), all named with the system's prefix; hng's wake segments
+//! event files under `/tmp/iceoryx2`, all named with the system's prefix; hng's wake segments
 //! ([`crate::wake`]) and CPU register ([`crate::cpus`]) live in `/dev/shm` too. A clean stop
 //! of every process removes almost all of it; what a crash leaves behind is reclaimed by
 //! iceoryx2's dead-node cleanup when a node starts, and what is left at the very end (for
@@ -80,9 +80,8 @@ impl Drop for Segment {
 
 /// Folders where iceoryx2 and hng put files.
 pub const SHM_DIR: &str = "/dev/shm";
-/// iceoryx2's root folder for service, node and event files (a tmpfs, as its segments'
-/// folder; iceoryx2's own default is `/tmp/iceoryx2`).
-pub const IOX_ROOT: &str = "/dev/shm/iceoryx2";
+/// iceoryx2's root folder for service, node and event files.
+pub const IOX_ROOT: &str = "/tmp/iceoryx2";
 
 /// iceoryx2's folder of per-node folders (under [`IOX_ROOT`]): each is named by the node's id
 /// (not by the prefix) and holds only that node's files, which are named with the prefix.
@@ -130,16 +129,14 @@ fn holds_only(dir: &Path, prefix: &str) -> bool {
     any
 }
 
-/// Every file or folder in `/dev/shm` (with [`IOX_ROOT`] below it) whose name starts with `prefix`.
+/// Every file or folder in `/dev/shm` and `/tmp/iceoryx2` whose name starts with `prefix`.
 pub fn prefix_files(prefix: &str) -> Vec<PathBuf> {
     let mut out = Vec::new();
     if prefix.is_empty() {
         return out;
     }
     walk(Path::new(SHM_DIR), prefix, &mut out);
-    if !Path::new(IOX_ROOT).starts_with(SHM_DIR) {
-        walk(Path::new(IOX_ROOT), prefix, &mut out);
-    }
+    walk(Path::new(IOX_ROOT), prefix, &mut out);
     out.sort();
     out
 }
