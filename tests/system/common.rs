@@ -111,7 +111,10 @@ impl TestSystem {
             .env("HNG_PREFIX", &self.prefix)
             .env("HNG_MODULE_NAME", name)
             .env("HNG_MODULE_CONFIG", config)
-            .env("HNG_LOG", "warn")
+            .env(
+                "HNG_LOG",
+                std::env::var("HNG_TEST_LOG").unwrap_or("warn".into()),
+            )
             .stdin(Stdio::null())
             .spawn()
             .expect("spawn hng-testmod");

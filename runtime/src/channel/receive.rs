@@ -21,8 +21,10 @@ pub trait Kind: sealed::Sealed + 'static {
     const NAME: &'static str;
     #[doc(hidden)]
     fn receive(port: &Self::Port) -> Result<Option<Self::Sample>, ReceiveError>;
+    /// Whether the port holds samples; `None` when iceoryx2 could not tell (a connection to
+    /// a publisher, or to a segment it just reallocated, could not be opened yet).
     #[doc(hidden)]
-    fn has_samples(port: &Self::Port) -> bool;
+    fn has_samples(port: &Self::Port) -> Option<bool>;
     #[doc(hidden)]
     fn update_connections(port: &Self::Port);
     #[doc(hidden)]
@@ -57,8 +59,8 @@ impl<T: Message> Kind for Fixed<T> {
             inner: Received::Shared(s),
         }))
     }
-    fn has_samples(port: &Self::Port) -> bool {
-        port.has_samples().unwrap_or(false)
+    fn has_samples(port: &Self::Port) -> Option<bool> {
+        port.has_samples().ok()
     }
     fn update_connections(port: &Self::Port) {
         let _ = port.update_connections();
@@ -84,8 +86,8 @@ impl<H: SliceMessage> Kind for Slice<H> {
             inner: Received::Shared(s),
         }))
     }
-    fn has_samples(port: &Self::Port) -> bool {
-        port.has_samples().unwrap_or(false)
+    fn has_samples(port: &Self::Port) -> Option<bool> {
+        port.has_samples().ok()
     }
     fn update_connections(port: &Self::Port) {
         let _ = port.update_connections();
@@ -156,9 +158,15 @@ impl<K: Kind> Input for Reader<K> {
         if empty {
             return false;
         }
-        let has = K::has_samples(&self.port);
-        self.inlet.looked(published, !has);
-        has
+        // A look that failed proves nothing: the port is not marked empty, so the next
+        // look (and `receive`) asks iceoryx2 again.
+        match K::has_samples(&self.port) {
+            Some(has) => {
+                self.inlet.looked(published, !has);
+                has
+            }
+            None => false,
+        }
     }
 }
 
@@ -246,7 +254,7 @@ impl<K: Kind> Receiver<K> {
 
     /// True if a message is waiting.
     pub fn has_samples(&self) -> bool {
-        K::has_samples(&self.reader.port)
+        K::has_samples(&self.reader.port).unwrap_or(false)
     }
 
     /// This subscriber's statistics.
