@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 use hng_runtime::module::REPORT_CHANNEL;
 use hng_runtime::msg::{
     BEHAVIOURS_CHANNEL, Behaviours, ModuleReport, ORDER_CHANNEL, ORDER_STATUS_CHANNEL, Order,
-    OrderKind, OrderStatus, Pose2D, PoseWithCovariance, Twist,
+    OrderKind, OrderStatus, Pose2D, PoseWithCovariance, Twist, module_id,
 };
 use hng_runtime::system::{CONTRACTS, ContractRole, ContractTable};
 use hng_runtime::wait::{WaitMode, Waiter};
@@ -249,6 +249,8 @@ pub(crate) struct Watch {
     reports: Subscriber<ModuleReport>,
     behaviours_in: Subscriber<Behaviours>,
     tables: Subscriber<ContractTable>,
+    /// The Robot's command input, where the Interface forwards teleop commands.
+    robot_cmds: Subscriber<Twist>,
     orders: Publisher<Order>,
     teleop: Publisher<Twist>,
     waiter: Waiter,
@@ -267,11 +269,18 @@ pub(crate) struct Watch {
     pub interface_dropped: u64,
     /// Latest contract table per module name.
     pub contracts: std::collections::BTreeMap<String, ContractTable>,
+    /// Every change of a client's provider, from every table read (not only the latest):
+    /// (the table's stamp in s, client module, need, provider id or 0 for none).
+    pub provider_changes: Vec<(f64, String, u16, u32)>,
     /// Publish this teleop command every 50 ms of simulated time (by the poses' stamps).
     pub drive: Option<Twist>,
     last_drive: f64,
     /// Teleop commands published so far.
     pub drive_sent: u64,
+    /// Simulated time (s) of the Interface's last non-zero command to the Robot, by its stamp:
+    /// when the Interface received the last teleop command it forwarded (lockstep), however
+    /// late the test published it.
+    pub last_forwarded: Option<f64>,
     seq: u32,
     _node: Node,
 }
@@ -284,7 +293,11 @@ impl Watch {
         let orders_status = node.subscriber(ORDER_STATUS_CHANNEL).expect("order status");
         let reports = node.subscriber(REPORT_CHANNEL).expect("reports");
         let behaviours_in = node.subscriber(BEHAVIOURS_CHANNEL).expect("behaviours");
-        let tables = node.subscriber(CONTRACTS).expect("contracts");
+        // Every table, not only the latest (provider_changes): a recorder's buffer.
+        let tables = node.tap_subscriber(CONTRACTS).expect("contracts");
+        let robot_cmds = node
+            .tap_subscriber("robot/cmd_vel")
+            .expect("robot commands");
         let orders = node.publisher(ORDER_CHANNEL).expect("orders");
         let teleop = node.publisher("hng/teleop").expect("teleop");
         let mut waiter = Waiter::new(WaitMode::SLEEP).expect("waiter");
@@ -300,6 +313,7 @@ impl Watch {
             reports,
             behaviours_in,
             tables,
+            robot_cmds,
             orders,
             teleop,
             waiter,
@@ -312,9 +326,11 @@ impl Watch {
             offers: Vec::new(),
             interface_dropped: 0,
             contracts: Default::default(),
+            provider_changes: Vec::new(),
             drive: None,
             last_drive: f64::NEG_INFINITY,
             drive_sent: 0,
+            last_forwarded: None,
             seq: 1000,
             _node: node,
         }
@@ -343,7 +359,39 @@ impl Watch {
             self.offers.push(*b);
         }
         while let Some(t) = self.tables.receive().expect("tables") {
-            self.contracts.insert(t.module().to_string(), *t);
+            let module = t.module().to_string();
+            let before = self.contracts.insert(module.clone(), *t);
+            let stamp = t.header.stamp_ns as f64 * 1e-9;
+            let provider = |table: &ContractTable, need: u16| {
+                table
+                    .entries()
+                    .iter()
+                    .find(|e| e.role == ContractRole::Client as u8 && e.need == need)
+                    .map_or(0, |e| e.peer)
+            };
+            for e in t.entries() {
+                if e.role == ContractRole::Client as u8 {
+                    let was = before.as_ref().map_or(0, |b| provider(b, e.need));
+                    if was != e.peer {
+                        self.provider_changes
+                            .push((stamp, module.clone(), e.need, e.peer));
+                    }
+                }
+            }
+            if let Some(b) = &before {
+                for e in b.entries() {
+                    if e.role == ContractRole::Client as u8 && provider(&t, e.need) == 0 {
+                        self.provider_changes
+                            .push((stamp, module.clone(), e.need, 0));
+                    }
+                }
+            }
+        }
+        let interface = module_id("interface");
+        while let Some(c) = self.robot_cmds.receive().expect("robot commands") {
+            if c.header.source == interface && (c.linear_x != 0.0 || c.angular_z != 0.0) {
+                self.last_forwarded = Some(c.header.stamp_ns as f64 * 1e-9);
+            }
         }
         // Paced by the true poses' stamps (the simulator's status comes every 100 ms of wall
         // time only).

@@ -22,7 +22,7 @@
 
 use hng_runtime::msg::{
     BeaconTrack, Behaviours, Order, OrderKind, OrderStatus, PLANNED_PATH_CHANNEL, PathInfo,
-    SIDE_RIGHT, TRACK_SEEN, Twist,
+    SIDE_RIGHT, TRACK_SEEN, Twist, module_id,
 };
 use hng_runtime::{Node, NodeOptions, shm};
 use nix::sys::signal::Signal;
@@ -327,37 +327,25 @@ fn the_showcase_switches_orders_of_every_kind_while_the_robot_moves() {
     ));
     // On the way the robot crosses the dark zone (lighting 0.15): "Track beacon" moves from
     // the colour tracker to the histogram tracker, and back once out of it. The contract log
-    // is (simulated time of the latest true pose when the test saw the change, tracker); the
-    // zone's entry and exit by the true pose.
-    let mut log: Vec<(f64, String)> = Vec::new();
-    let mut zone: (Option<f64>, Option<f64>) = (None, None);
-    let note = |w: &Watch, log: &mut Vec<(f64, String)>, zone: &mut (Option<f64>, Option<f64>)| {
-        let now = w.pose_t();
-        let tracker = w.provider_of("reacher", TRACK_NEED).unwrap_or_default();
-        if log.last().is_none_or(|l| l.1 != tracker) {
-            eprintln!(
-                "showcase: {now:.2} s at {:?}: Track beacon by {tracker:?}",
-                w.xy()
-            );
-            log.push((now, tracker));
-        }
-        let inside = dist(w.xy(), DARK.0) < DARK.1;
-        if inside && zone.0.is_none() {
-            eprintln!("showcase: {now:.2} s: into the dark at {:?}", w.xy());
-            zone.0 = Some(now);
-        }
-        if !inside && zone.0.is_some() && zone.1.is_none() {
-            zone.1 = Some(now);
-        }
+    // is (stamp of the Reacher's contract table that showed the change, tracker), from every
+    // table, and the zone's entry and exit come from every true pose of the phase: both
+    // simulated times, so they do not depend on when this test, outside lockstep, looked.
+    let phase_start = watch.pose_t();
+    let trackers = ["tracker_colour", "tracker_histogram"];
+    let log_of = |w: &Watch| -> Vec<(f64, String)> {
+        w.provider_changes
+            .iter()
+            .filter(|c| c.0 >= phase_start && c.1 == "reacher" && c.2 == TRACK_NEED)
+            .map(|c| {
+                let name = trackers.iter().find(|n| module_id(n) == c.3);
+                (c.0, name.map_or(String::new(), |n| n.to_string()))
+            })
+            .collect()
     };
     watch.until("Track beacon contracted to the colour tracker", |w| {
-        note(w, &mut log, &mut zone);
         w.provider_of("reacher", TRACK_NEED).as_deref() == Some("tracker_colour")
     });
-    watch.until("the robot near the beacon", |w| {
-        note(w, &mut log, &mut zone);
-        dist(w.xy(), BEACON) < 1.0
-    });
+    watch.until("the robot near the beacon", |w| dist(w.xy(), BEACON) < 1.0);
     // The reacher says it has arrived (it stops at its stop distance, by its tracker's
     // range), and the robot is then at rest where it stopped.
     let mut reached: Option<ReachStatus> = None;
@@ -379,13 +367,23 @@ fn the_showcase_switches_orders_of_every_kind_while_the_robot_moves() {
     watch.until(
         "Track beacon back to the colour tracker out of the dark",
         |w| {
-            note(w, &mut log, &mut zone);
+            let log = log_of(w);
             log.iter().any(|l| l.1 == "tracker_histogram")
                 && log.last().is_some_and(|l| l.1 == "tracker_colour")
         },
     );
-    let (Some(t_in), Some(t_out)) = zone else {
-        panic!("the robot never crossed the dark zone: {zone:?}, contract log {log:?}");
+    let log = log_of(&watch);
+    let inside = |&&(t, x, y): &&(f64, f64, f64)| t >= phase_start && dist((x, y), DARK.0) < DARK.1;
+    let t_in = watch.track.iter().find(inside).map(|p| p.0);
+    let t_out = t_in.and_then(|t_in| {
+        watch
+            .track
+            .iter()
+            .find(|p| p.0 > t_in && !inside(p))
+            .map(|p| p.0)
+    });
+    let (Some(t_in), Some(t_out)) = (t_in, t_out) else {
+        panic!("the robot never crossed the dark zone: {t_in:?} {t_out:?}, contract log {log:?}");
     };
     eprintln!(
         "showcase: dark zone from {t_in:.2} s to {t_out:.2} s; Track beacon contract log {log:?}"
