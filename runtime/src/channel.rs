@@ -145,9 +145,12 @@ impl NodeOptions {
     }
 }
 
-/// The iceoryx2 configuration of a prefix: hng's files only, signal handling and log noise off.
+/// The iceoryx2 configuration of a prefix: files named with it, its own root folder on tmpfs
+/// ([`crate::shm::iox_root`]); a prefix longer than [`crate::shm::MAX_PREFIX_LEN`] is refused.
 pub fn iceoryx_config(prefix: &str) -> Result<iceoryx2::config::Config, Error> {
+    let root = crate::shm::iox_root_path(prefix)?;
     let mut config = iceoryx2::config::Config::default();
+    config.global.set_root_path(&root);
     config.global.prefix = FileName::new(prefix.as_bytes()).map_err(|e| {
         Error::Config(format!(
             "prefix {prefix:?} is not a valid file-name prefix: {e:?}"

@@ -16,7 +16,7 @@
 //! comes first, the publisher sees the waiter and notifies. A wake-up is never lost, and no
 //! full fence is needed (a locked add is cheaper than `mfence` on x86). A subscriber killed while blocked leaves the count
 //! raised; publishers then merely notify when they need not. The segments live in `/dev/shm`
-//! under the system's prefix and are removed with the prefix ([`crate::cleanup_prefix`]).
+//! under the system's prefix and are removed with the prefix ([`crate::shm::remove_prefix_files`]).
 //!
 //! The same word also counts the samples published (its high 32 bits; the low 32 bits are
 //! the waiters): the publisher's read-modify-write adds one to the count instead of zero, so

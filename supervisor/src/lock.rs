@@ -164,31 +164,21 @@ fn read_pid(mut file: &File) -> Option<u32> {
     text.trim().parse().ok()
 }
 
-/// Removes every file of `prefix` except its lock file; returns how many were removed. Call
-/// only while holding the lock, when no process of the prefix runs.
+/// Removes every file of `prefix` except its lock file (its iceoryx2 root folder with the
+/// rest); returns how many were removed. Call only while holding the lock, when no process of
+/// the prefix runs.
 pub fn remove_prefix_files_but_lock(prefix: &str) -> usize {
-    let lock = lock_path(prefix);
-    let mut n = 0;
-    for p in shm::prefix_files(prefix) {
-        if p == lock {
-            continue;
-        }
-        let ok = if p.is_dir() {
-            std::fs::remove_dir_all(&p).is_ok()
-        } else {
-            std::fs::remove_file(&p).is_ok()
-        };
-        n += usize::from(ok);
-    }
-    n
+    shm::remove_prefix_files_but(prefix, Some(&lock_path(prefix)))
 }
 
 /// Takes the prefix's lock (one system per prefix). When the last system on the prefix died
 /// without its orderly stop, says so: what its processes left is reclaimed by iceoryx2's
 /// dead-node clean-up as this system's nodes start (not by removing the prefix's files, which
 /// a tool or a test may already have opened for this run), and the orderly stop removes the
-/// rest.
+/// rest (the iceoryx2 root folder with it). A prefix too long for iceoryx2's socket paths is
+/// refused before anything is created.
 pub fn lock_prefix(prefix: &str) -> Result<SystemLock> {
+    shm::check_prefix(prefix)?;
     let got = SystemLock::acquire(prefix)?;
     if let Some(pid) = got.stale_pid {
         tracing::warn!(

@@ -220,6 +220,12 @@ fn iox2_config_is_iceoryx2_toml_with_the_prefix_and_reads_back() {
     let text = String::from_utf8_lossy(&out.stdout);
     let v: toml::Table = toml::from_str(&text).expect("TOML");
     assert_eq!(v["global"]["prefix"].as_str(), Some(prefix.as_str()));
+    // iceoryx2's service, node and event files go to the system's own folder on tmpfs.
+    assert_eq!(
+        v["global"]["root-path"].as_str(),
+        Some(format!("/dev/shm/{prefix}iox/").as_str()),
+        "{text}"
+    );
     // iceoryx2 itself reads it back as the configuration hng uses for the prefix.
     let dir = std::env::temp_dir().join(format!("hng-cliiox-{}", prefix.trim_end_matches('_')));
     std::fs::create_dir_all(&dir).expect("dir");
@@ -234,5 +240,41 @@ fn iox2_config_is_iceoryx2_toml_with_the_prefix_and_reads_back() {
         shm::prefix_files(&prefix).is_empty(),
         "printing creates nothing"
     );
+
+    // A prefix too long for iceoryx2's socket paths is refused, saying the limit, by a tool and
+    // by `hng run` before anything starts.
+    let long = format!(
+        "{prefix}{}",
+        "x".repeat(shm::MAX_PREFIX_LEN + 1 - prefix.len())
+    );
+    let launch = dir.join("sleeper.toml");
+    std::fs::write(
+        &launch,
+        "system = \"s\"\n\n[[module]]\nname = \"sleeper\"\ncommand = [\"/bin/sleep\", \"1000\"]\n",
+    )
+    .expect("write");
+    let run = [
+        "run".to_owned(),
+        "--no-rm".to_owned(),
+        "--no-gui".to_owned(),
+        launch.display().to_string(),
+    ];
+    for args in [vec!["iox2-config".to_owned()], run.to_vec()] {
+        let out = Command::new(HNG)
+            .args(&args)
+            .env("HNG_PREFIX", &long)
+            .output()
+            .expect("hng");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{args:?}: {err}");
+        assert!(
+            err.contains("25 bytes, longer than the 24 allowed") && err.contains("108 bytes"),
+            "{args:?}: {err}"
+        );
+        assert!(
+            shm::prefix_files(&long).is_empty(),
+            "{args:?} created files"
+        );
+    }
     let _ = std::fs::remove_dir_all(&dir);
 }

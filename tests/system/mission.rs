@@ -146,6 +146,10 @@ fn the_default_mission_reaches_every_goal_without_collision() {
     let text = stdout(&out);
     assert_eq!(text.matches("goal reached").count(), 3, "{text}");
     assert!(text.contains("mission SUCCEEDED"), "{text}");
+    // The end of the mission stops the system in order: nothing of it is left in /dev/shm,
+    // its iceoryx2 root folder included.
+    let left = shm::prefix_files(&m.prefix);
+    assert!(left.is_empty(), "left after the mission's end: {left:?}");
 }
 
 #[test]

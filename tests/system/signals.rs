@@ -553,6 +553,25 @@ fn a_sigkilled_supervisor_leaves_no_module_and_the_next_start_cleans_up() {
             .any(|p| p.to_string_lossy().ends_with("supervisor.lock")),
         "a SIGKILLed supervisor leaves its (unlocked) lock file: {stale:?}"
     );
+    // ... and its iceoryx2 root with its dead nodes' files in it.
+    let root = shm::iox_root(&prefix);
+    assert!(
+        stale
+            .iter()
+            .any(|p| p.starts_with(root.join("nodes")) && p.is_file()),
+        "a dead node's files in the root {}: {stale:?}",
+        root.display()
+    );
+    // A node of another system lives on meanwhile: nothing of it is touched below.
+    let other = shm::unique_prefix("sigkillother");
+    let other_node = Node::new(NodeOptions::new("other").prefix(&other)).expect("other node");
+    let other_pub = other_node
+        .publisher::<hng_runtime::msg::Twist>("other/cmd")
+        .expect("other publisher");
+    let other_sub = other_node
+        .subscriber::<hng_runtime::msg::Twist>("other/cmd")
+        .expect("other subscriber");
+    let other_files = shm::prefix_files(&other);
     // The next start on the prefix removes what the dead system left, runs, and stops clean.
     let mut events = Events::new(&prefix);
     let mut again = Run::start_on(&prefix, &["--no-rm", &path]);
@@ -566,6 +585,18 @@ fn a_sigkilled_supervisor_leaves_no_module_and_the_next_start_cleans_up() {
         log.contains("ended without an orderly stop"),
         "the second start says it cleaned up; log:\n{log}"
     );
+    assert!(!root.exists(), "the stale root {} is gone", root.display());
+    assert_eq!(
+        shm::prefix_files(&other),
+        other_files,
+        "the other system's files"
+    );
+    other_pub
+        .publish(hng_runtime::msg::Twist::default())
+        .expect("the other system still publishes");
+    assert!(other_sub.receive().expect("receive").is_some());
+    drop((other_sub, other_pub, other_node));
+    shm::remove_prefix_files(&other);
     drop(run);
 }
 
