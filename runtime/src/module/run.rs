@@ -313,6 +313,16 @@ impl StartPhases {
             return;
         }
         let total: Duration = self.marks.iter().map(|(_, d)| *d).sum();
+        // The process's own CPU time so far (the stages' wall times include waiting for a
+        // core on a loaded machine; this does not).
+        let cpu_ms = nix::sys::resource::getrusage(nix::sys::resource::UsageWho::RUSAGE_SELF)
+            .map(|u| {
+                let t = |v: nix::sys::time::TimeVal| {
+                    v.tv_sec() as f64 * 1e3 + v.tv_usec() as f64 * 1e-3
+                };
+                t(u.user_time()) + t(u.system_time())
+            })
+            .unwrap_or(f64::NAN);
         let stages: Vec<String> = self
             .marks
             .iter()
@@ -321,6 +331,7 @@ impl StartPhases {
         tracing::debug!(
             module,
             total_ms = total.as_secs_f64() * 1e3,
+            cpu_ms,
             "start-up stages (ms): {}",
             stages.join(", ")
         );
