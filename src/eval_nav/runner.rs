@@ -1,6 +1,7 @@
 //! One problem of `hng eval nav`: the whole system (`hng run`, every module its own process,
 //! lockstep) started at the problem's start, one goal, its summary read back; the CPU time of
-//! each module process sampled from /proc while it runs.
+//! each module process sampled from /proc while it runs (every 0.2 s, and when the summary
+//! appears, which is looked for every 5 ms).
 //!
 //! `hng run` writes its summary as soon as the mission ends, before it stops its modules
 //! (one after the other, about 2 s): the problem is done then, and its run goes on stopping
@@ -74,6 +75,14 @@ pub struct ProblemResult {
     /// CPU time of each module process (and `run`, the supervisor), s.
     pub cpu_s: BTreeMap<String, f64>,
 }
+
+/// How often the run's summary file and exit are looked for: the problem's wall time ends
+/// when the summary is seen, so this bounds what a problem is charged for the look (it was
+/// 200 ms, the CPU sampling period: about 0.1 s per problem on average).
+const SUMMARY_POLL: Duration = Duration::from_millis(5);
+
+/// How often each module process's CPU time is read from /proc (a walk of every process).
+const CPU_SAMPLE_PERIOD: Duration = Duration::from_millis(200);
 
 /// Clock ticks per second of /proc's CPU times: USER_HZ, 100 on every Linux architecture
 /// this runs on (the kernel's ABI constant, whatever its internal HZ).
@@ -256,17 +265,23 @@ pub fn run(p: &Problem, o: &RunOptions) -> Result<(ProblemResult, Option<Stoppin
     let wall_limit = Duration::from_secs_f64(60.0 + 4.0 * duration);
     // Set when the summary was written before `hng run` ended: it is still stopping.
     let mut finished = false;
+    let mut next_sample = started;
     let status = loop {
         if let Some(st) = child.try_wait()? {
             break Some(st);
         }
-        if summary_path.exists() {
+        let done = summary_path.exists();
+        // The CPU figures: every `CPU_SAMPLE_PERIOD`, and once more when the summary is there.
+        if done || Instant::now() >= next_sample {
+            sample_children(pid, &mut seen);
+            if let Some((_, t)) = proc_stat(pid) {
+                own_ticks = own_ticks.max(t);
+            }
+            next_sample = Instant::now() + CPU_SAMPLE_PERIOD;
+        }
+        if done {
             finished = true;
             break None;
-        }
-        sample_children(pid, &mut seen);
-        if let Some((_, t)) = proc_stat(pid) {
-            own_ticks = own_ticks.max(t);
         }
         if let Some(sig) = super::stop::requested() {
             // The eval is asked to stop: this run stops in order too (its modules in
@@ -278,7 +293,7 @@ pub fn run(p: &Problem, o: &RunOptions) -> Result<(ProblemResult, Option<Stoppin
             let _ = child.wait();
             break None;
         }
-        std::thread::sleep(Duration::from_millis(200));
+        std::thread::sleep(SUMMARY_POLL);
     };
     let wall_s = started.elapsed().as_secs_f64();
     if !finished {

@@ -281,7 +281,13 @@ fn supervise_inner(
 impl Runner {
     fn event_loop(&mut self, receiver: &Receiver, status_period: Duration) -> Result<()> {
         let mut sd = SdNotify::from_env();
+        let spawning = Instant::now();
         self.sup.start_all();
+        tracing::info!(
+            modules = self.sup.modules().count(),
+            ms = spawning.elapsed().as_secs_f64() * 1e3,
+            "every module spawned"
+        );
         let mut ready_sent = false;
         let mut next_status = Instant::now();
         loop {

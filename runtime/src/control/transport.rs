@@ -101,6 +101,7 @@ impl ControlPlane {
     /// every service's description, too costly to repeat periodically in every module; peers
     /// that start later are opened on first use.
     pub(super) fn discover_peers(&mut self, node: &Node) {
+        let started = std::time::Instant::now();
         let prefix = format!("{CONTROL_ROOT}/m");
         let own = inbox_channel(self.agent.id());
         let mut found = Vec::new();
@@ -128,6 +129,12 @@ impl ControlPlane {
                 Err(e) => tracing::debug!(module = %self.name, "peer {id}: {e}"),
             }
         }
+        tracing::debug!(
+            module = %self.name,
+            peers = self.to_modules.len(),
+            ms = started.elapsed().as_secs_f64() * 1e3,
+            "peers' inboxes opened"
+        );
     }
 
     pub(super) fn dispatch(&mut self, node: &Node, mut out: Vec<Outgoing>, now: Duration) {

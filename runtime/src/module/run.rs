@@ -53,6 +53,7 @@ fn run_module_env<M: Module>(wall_clock: bool) -> ExitCode {
 
 /// Runs module `M` with explicit options (tests, embedding); returns on a clean stop.
 pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
+    let mut phases = StartPhases::new();
     let config: M::Config = if opts.config_toml.trim().is_empty() {
         M::Config::default()
     } else {
@@ -70,6 +71,7 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
             .prefix(&opts.prefix)
             .clock(clock.clone()),
     )?;
+    phases.mark("node");
     let mut ctx = Context::new(node, opts.wait)?;
     if opts.catch_signals {
         ctx.waiter.catch_termination_signals()?;
@@ -83,6 +85,7 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
         None
     };
     let reports = ctx.node.publisher::<ModuleReport>(REPORT_CHANNEL)?;
+    phases.mark("clock_and_report");
     let store = opts
         .checkpoint_dir
         .as_deref()
@@ -94,13 +97,16 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
         source,
     };
     let mut module = M::configure(&mut ctx, config).map_err(|e| module_err("configure", e))?;
+    phases.mark("configure");
     if let Some(store) = &store {
         store
             .restore(&mut module, &opts.name)
             .map_err(|e| module_err("restore", e))?;
     }
+    phases.mark("restore");
     ctx.state = ModuleState::Running;
     module.start(&mut ctx).map_err(|e| module_err("start", e))?;
+    phases.mark("start");
     if let Some(h) = &opts.harness {
         h.serve(&mut module, &mut ctx);
     } else if ctx.contract_spec.declared() {
@@ -118,7 +124,9 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
 
     let report_ns = opts.report_period.as_nanos() as u64;
     let checkpoint_ns = opts.checkpoint_period.as_nanos() as u64;
+    phases.mark("contracts");
     let _ = reports.publish(ctx.report(report_ns));
+    phases.done(&opts.name);
     // The heartbeat, stretched while the module has nothing to do (module/beat.rs).
     let mut beat = Beat::new(
         report_ns,
@@ -276,5 +284,56 @@ fn poll_contracts<M: Module>(module: &mut M, ctx: &mut Context, name: &str) {
         if let Err(e) = r {
             tracing::warn!(module = %name, event = ?ev, "contract callback: {e}");
         }
+    }
+}
+
+/// Wall time of each stage of a module's start, up to its first report (the supervisor's
+/// "running"), logged at debug level: where a system's start-up goes (docs/navigation.md).
+struct StartPhases {
+    at: std::time::Instant,
+    marks: Vec<(&'static str, Duration)>,
+}
+
+impl StartPhases {
+    fn new() -> Self {
+        Self {
+            at: std::time::Instant::now(),
+            marks: Vec::new(),
+        }
+    }
+
+    fn mark(&mut self, stage: &'static str) {
+        let now = std::time::Instant::now();
+        self.marks.push((stage, now - self.at));
+        self.at = now;
+    }
+
+    fn done(&self, module: &str) {
+        if !tracing::enabled!(tracing::Level::DEBUG) {
+            return;
+        }
+        let total: Duration = self.marks.iter().map(|(_, d)| *d).sum();
+        // The process's own CPU time so far (the stages' wall times include waiting for a
+        // core on a loaded machine; this does not).
+        let cpu_ms = nix::sys::resource::getrusage(nix::sys::resource::UsageWho::RUSAGE_SELF)
+            .map(|u| {
+                let t = |v: nix::sys::time::TimeVal| {
+                    v.tv_sec() as f64 * 1e3 + v.tv_usec() as f64 * 1e-3
+                };
+                t(u.user_time()) + t(u.system_time())
+            })
+            .unwrap_or(f64::NAN);
+        let stages: Vec<String> = self
+            .marks
+            .iter()
+            .map(|(s, d)| format!("{s} {:.1}", d.as_secs_f64() * 1e3))
+            .collect();
+        tracing::debug!(
+            module,
+            total_ms = total.as_secs_f64() * 1e3,
+            cpu_ms,
+            "start-up stages (ms): {}",
+            stages.join(", ")
+        );
     }
 }
