@@ -146,11 +146,32 @@ config = {{ output = "bench/probe", period_s = 0.01 }}
 
     /// Drops what is queued, then waits for the live process's second message: it has
     /// restored its state and sent its first report (the supervisor's first heartbeat) by then.
+    /// Waits until the probe counts steadily (its second message since it started), following
+    /// any restart meanwhile: on a loaded machine a heartbeat can come late enough for the
+    /// supervisor to kill the probe as hung and restart it, and the next signal must go to the
+    /// new process, not to a pid that no longer exists (ESRCH).
     fn settle(&mut self) -> Result<()> {
         while self.count.receive()?.is_some() {}
-        while self.events.receive()?.is_some() {}
-        while self.message()?.1 < 2 {}
-        Ok(())
+        self.follow_restarts()?;
+        loop {
+            while self.message()?.1 < 2 {}
+            if !self.follow_restarts()? {
+                return Ok(());
+            }
+        }
+    }
+
+    /// Reads the supervisor's events so far; takes the pid of the probe's latest start. True
+    /// if it started again.
+    fn follow_restarts(&mut self) -> Result<bool> {
+        let mut restarted = false;
+        while let Some(e) = self.events.receive()? {
+            if e.kind() == Some(EventKind::Started) && e.module() == "probe" {
+                self.pid = e.pid;
+                restarted = true;
+            }
+        }
+        Ok(restarted)
     }
 
     fn signal(&self, sig: Signal) -> Result<u64> {
