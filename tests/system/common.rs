@@ -362,28 +362,19 @@ impl Watch {
             let module = t.module().to_string();
             let before = self.contracts.insert(module.clone(), *t);
             let stamp = t.header.stamp_ns as f64 * 1e-9;
-            let provider = |table: &ContractTable, need: u16| {
-                table
-                    .entries()
-                    .iter()
-                    .find(|e| e.role == ContractRole::Client as u8 && e.need == need)
-                    .map_or(0, |e| e.peer)
-            };
-            for e in t.entries() {
-                if e.role == ContractRole::Client as u8 {
-                    let was = before.as_ref().map_or(0, |b| provider(b, e.need));
-                    if was != e.peer {
-                        self.provider_changes
-                            .push((stamp, module.clone(), e.need, e.peer));
-                    }
-                }
-            }
-            if let Some(b) = &before {
-                for e in b.entries() {
-                    if e.role == ContractRole::Client as u8 && provider(&t, e.need) == 0 {
-                        self.provider_changes
-                            .push((stamp, module.clone(), e.need, 0));
-                    }
+            // Every need this table or the one before has a provider for.
+            let needs: std::collections::BTreeSet<u16> = t
+                .entries()
+                .iter()
+                .chain(before.iter().flat_map(|b| b.entries()))
+                .filter(|e| e.role == ContractRole::Client as u8)
+                .map(|e| e.need)
+                .collect();
+            for need in needs {
+                let now = client_provider(&t, need);
+                if before.as_ref().and_then(|b| client_provider(b, need)) != now {
+                    self.provider_changes
+                        .push((stamp, module.clone(), need, now.unwrap_or(0)));
                 }
             }
         }
@@ -498,20 +489,27 @@ impl Watch {
 
     /// The provider module's name of `need` of module `client` in the contract tables.
     pub(crate) fn provider_of(&self, client: &str, need: u16) -> Option<String> {
-        let t = self.contracts.get(client)?;
-        let e = t
-            .entries()
-            .iter()
-            .find(|e| e.role == ContractRole::Client as u8 && e.need == need)?;
+        let peer = client_provider(self.contracts.get(client)?, need)?;
         self.contracts
             .values()
-            .find(|m| m.module_id == e.peer)
+            .find(|m| m.module_id == peer)
             .map(|m| m.module().to_string())
     }
 
     pub(crate) fn collisions(&self) -> u64 {
         self.sim.map_or(0, |s| s.collisions)
     }
+}
+
+/// The id of the module that provides `need` to the module whose contract table is `table`
+/// (none: no client entry for it, or one without a peer).
+fn client_provider(table: &ContractTable, need: u16) -> Option<u32> {
+    table
+        .entries()
+        .iter()
+        .find(|e| e.role == ContractRole::Client as u8 && e.need == need)
+        .map(|e| e.peer)
+        .filter(|&peer| peer != 0)
 }
 
 pub(crate) fn dist(a: (f64, f64), b: (f64, f64)) -> f64 {
