@@ -528,8 +528,8 @@ impl Node {
     }
 
     /// Opens (or creates) a variable-size channel and returns a publisher whose samples may
-    /// hold up to `max_len` elements at first; a longer loan moves the publisher to a
-    /// segment twice as large or more (power-of-two steps), so every size can be sent.
+    /// hold up to `max_len` elements at first; a longer loan grows the publisher's segment
+    /// (power-of-two steps), so every size can be sent and no subscriber misses a sample.
     pub fn slice_publisher<H: SliceMessage>(
         &self,
         channel: &str,
@@ -547,8 +547,7 @@ impl Node {
             service,
             spare: Cell::new(None),
             last_len: Cell::new(0),
-            port: RefCell::new(Some(port)),
-            max_len: Cell::new(max_len),
+            port,
         };
         let (port, out) = self.outlet(channel, &name, H::KIND, port)?;
         Ok(SlicePublisher { port, out })

@@ -200,15 +200,19 @@ fn a_sample_the_waiter_saw_is_received_once_in_order() {
 }
 
 #[test]
-fn a_slice_publisher_grows_to_any_size_and_its_unread_samples_still_arrive_in_order() {
+fn a_slice_publisher_grows_to_any_size_and_every_subscriber_gets_every_sample_in_order() {
     let sys = TestSystem::new("grow");
     let node = Node::new(NodeOptions::new("grower").prefix(&sys.prefix)).expect("node");
-    let p = node
-        .slice_publisher::<BytesInfo>("test/grow", 8)
-        .expect("publisher");
+    // The subscriber exists before the publisher and does not look at its port until the
+    // segment has grown (as a module descheduled on a loaded machine): what was sent before
+    // the growth must still arrive. (With a publisher replaced by a larger one, as hng grew
+    // before, the first sample was lost here, uncounted.)
     let s = node
         .slice_subscriber::<BytesInfo>("test/grow")
         .expect("subscriber");
+    let p = node
+        .slice_publisher::<BytesInfo>("test/grow", 8)
+        .expect("publisher");
     let send = |len: usize| {
         p.loan_uninit(len)
             .expect("loan")
@@ -231,14 +235,12 @@ fn a_slice_publisher_grows_to_any_size_and_its_unread_samples_still_arrive_in_or
         }
         got
     };
-    // The second send does not fit: the publisher moves to a larger segment while the
-    // first sample is still unread.
+    // The second send does not fit: the segment grows while the first sample is unread
+    // (two samples: a bulk channel's subscriber buffer).
     send(8);
     send(100);
-    assert_eq!(p.capacity(), 128);
     assert_eq!(receive_all(), vec![(1, 8), (2, 100)]);
     send(1 << 20);
-    assert_eq!(p.capacity(), 1 << 20);
     send(10);
     assert_eq!(receive_all(), vec![(3, 1 << 20), (4, 10)]);
     let stats = s.stats();
@@ -309,7 +311,6 @@ fn the_spare_sample_a_publisher_loans_ahead_costs_no_loan_and_fits_any_length() 
             "content of sample {round}"
         );
     }
-    assert_eq!(p.capacity(), 512, "grew once, with a spare held");
     assert_eq!(s.stats().dropped, 0);
 }
 

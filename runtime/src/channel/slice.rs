@@ -1,28 +1,25 @@
 //! Slice channels' publishing side: a publisher of variable-length payloads (scans, images,
-//! maps) on a static segment that is replaced by a larger one when a loan does not fit.
+//! maps) on a segment that grows when a loan does not fit.
 
 use super::*;
 
-/// The port of a [`SlicePublisher`]: an iceoryx2 publisher with a static segment, replaced
-/// by one with a larger segment when a loan does not fit.
+/// The port of a [`SlicePublisher`]: an iceoryx2 publisher whose data segment grows in
+/// power-of-two steps when a loan does not fit (iceoryx2's `AllocationStrategy::PowerOfTwo`).
 ///
-/// iceoryx2's own growing segments (`AllocationStrategy::PowerOfTwo`) cost about 30 ns per
-/// message in translating offsets between segments (measured on this project's machine,
-/// publisher and subscriber together), on every message and not only after growing. A
-/// static segment has one offset base. The replaced publisher's unread samples are still
-/// delivered (iceoryx2 keeps a disconnected publisher's samples for its subscribers), and
-/// the sequence numbers go on, so subscribers see no gap.
+/// The publisher stays the same across a growth: iceoryx2 adds a larger segment and keeps
+/// the older one while samples in it are unread, so every subscriber gets every sample in
+/// order, including one that had not yet looked at its port when the segment grew. (hng used
+/// to grow by replacing a static publisher with a larger one, which lost what the replaced
+/// publisher had sent to a subscriber that had not yet connected to it, uncounted; the
+/// growing segment costs 5-15 ns per hop in `hng bench ipc` spin mode, docs/data-plane.md.)
 pub(super) struct SlicePort<H: SliceMessage> {
     pub(super) service: SliceService<H>,
     /// A sample loaned ahead for the next loan (see [`SlicePublisher`]); declared before
-    /// the port, and dropped before it is replaced, so that it never keeps an old
-    /// publisher alive.
+    /// the port so that it is dropped first.
     pub(super) spare: Cell<Option<SliceUninit<H>>>,
     /// Length of the last payload published.
     pub(super) last_len: Cell<usize>,
-    /// `None` only while being replaced.
-    pub(super) port: RefCell<Option<SliceIoxPublisher<H>>>,
-    pub(super) max_len: Cell<usize>,
+    pub(super) port: SliceIoxPublisher<H>,
 }
 
 impl<H: SliceMessage> SlicePort<H> {
@@ -34,7 +31,7 @@ impl<H: SliceMessage> SlicePort<H> {
         service
             .publisher_builder()
             .initial_max_slice_len(max_len)
-            .allocation_strategy(AllocationStrategy::Static)
+            .allocation_strategy(AllocationStrategy::PowerOfTwo)
             .create()
             .map_err(|e| Error::channel(channel, "create publisher", e))
     }
@@ -46,14 +43,8 @@ impl<H: SliceMessage> SlicePort<H> {
         {
             return Ok(spare);
         }
-        if len > self.max_len.get() {
-            self.grow(channel, len)?;
-        }
-        let port = self.port.borrow();
-        let port = port
-            .as_ref()
-            .ok_or_else(|| Error::channel(channel, "loan", "publisher lost while growing"))?;
-        port.loan_slice_uninit(len)
+        self.port
+            .loan_slice_uninit(len)
             .map_err(|e| Error::channel(channel, "loan", e))
     }
 
@@ -64,37 +55,11 @@ impl<H: SliceMessage> SlicePort<H> {
         if self.last_len.replace(len) != len {
             return;
         }
-        let spare = self.spare.take().or_else(|| {
-            let port = self.port.borrow();
-            port.as_ref()?.loan_slice_uninit(len).ok()
-        });
+        let spare = self
+            .spare
+            .take()
+            .or_else(|| self.port.loan_slice_uninit(len).ok());
         self.spare.set(spare);
-    }
-
-    #[cold]
-    fn grow(&self, channel: &str, len: usize) -> Result<(), Error> {
-        drop(self.spare.take());
-        let old = self.max_len.get();
-        let new = len.checked_next_power_of_two().unwrap_or(len);
-        let fresh = match Self::create(&self.service, channel, new) {
-            Ok(p) => p,
-            Err(_) => {
-                // No publisher slot to spare on the channel: give this one up first.
-                drop(self.port.borrow_mut().take());
-                match Self::create(&self.service, channel, new) {
-                    Ok(p) => p,
-                    Err(e) => {
-                        *self.port.borrow_mut() = Self::create(&self.service, channel, old).ok();
-                        return Err(e);
-                    }
-                }
-            }
-        };
-        let _ = fresh.update_connections();
-        *self.port.borrow_mut() = Some(fresh);
-        self.max_len.set(new);
-        tracing::debug!(channel, from = old, to = new, "slice publisher grew");
-        Ok(())
     }
 }
 
@@ -102,10 +67,7 @@ impl<H: SliceMessage> UpdateConnections for SlicePort<H> {
     fn update_connections(
         &self,
     ) -> Result<(), iceoryx2::port::update_connections::ConnectionFailure> {
-        match self.port.borrow().as_ref() {
-            Some(p) => p.update_connections(),
-            None => Ok(()),
-        }
+        self.port.update_connections()
     }
 }
 
@@ -151,11 +113,6 @@ impl<H: SliceMessage> SlicePublisher<H> {
     /// A subscriber of a process that died counts until iceoryx2 cleans it up.
     pub fn subscribers(&self) -> usize {
         self.port.service.dynamic_config().number_of_subscribers()
-    }
-
-    /// The longest payload that fits the current segment (it grows on demand).
-    pub fn capacity(&self) -> usize {
-        self.port.max_len.get()
     }
 
     /// Loans `len` uninitialised elements in shared memory.
