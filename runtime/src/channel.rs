@@ -43,7 +43,7 @@ use crate::clock::Clock;
 use crate::error::Error;
 use crate::msg::{Header, Message, SliceMessage, module_id};
 use crate::qos::{ChannelKind, Qos};
-use crate::wait::Waiter;
+use crate::wait::{WaitMode, Waiter};
 use crate::wake::WakeFlag;
 
 mod hanging;

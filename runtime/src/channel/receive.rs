@@ -204,11 +204,25 @@ impl<K: Kind> Receiver<K> {
     /// another module answered the same round before or after it.
     #[inline]
     pub fn receive(&self) -> Result<Option<K::Sample>, Error> {
+        self.receive_counted(true)
+    }
+
+    /// [`Receiver::receive`]; `counted`: read the channel's publish count first and skip the
+    /// port while nothing was published since it was last found empty. A spin leaves the
+    /// count out: reading it on every poll keeps its cache line moving between the
+    /// publisher's core and the spinning one, which the publisher's count update then waits
+    /// for, on the message's path (30 ns of a 64-byte hop in `hng bench ipc`, spin mode).
+    #[inline]
+    fn receive_counted(&self, counted: bool) -> Result<Option<K::Sample>, Error> {
         let r = &*self.reader;
         if r.held_ready() {
             return Ok(r.held.borrow_mut().pop_front());
         }
-        let (published, empty) = r.inlet.known_empty();
+        let (published, empty) = if counted {
+            r.inlet.known_empty()
+        } else {
+            (0, false)
+        };
         if empty {
             return Ok(None);
         }
@@ -216,10 +230,14 @@ impl<K: Kind> Receiver<K> {
             let next =
                 K::receive(&r.port).map_err(|e| Error::channel(&r.inlet.channel, "receive", e))?;
             let Some(s) = next else {
-                r.inlet.looked(published, true);
+                if counted {
+                    r.inlet.looked(published, true);
+                }
                 return Ok(None);
             };
-            r.inlet.looked(published, false);
+            if counted {
+                r.inlet.looked(published, false);
+            }
             r.inlet.account(K::header(&s));
             if r.inlet.is_current_round(K::header(&s)) {
                 r.held.borrow_mut().push_back(K::copied(s));
@@ -240,7 +258,8 @@ impl<K: Kind> Receiver<K> {
         waiter: &mut Waiter,
         timeout: std::time::Duration,
     ) -> Result<Option<K::Sample>, Error> {
-        waiter.wait_for(timeout, || self.receive())
+        let counted = waiter.mode() != WaitMode::Spin;
+        waiter.wait_for(timeout, || self.receive_counted(counted))
     }
 
     /// Drains the channel and returns only the newest message.
