@@ -546,9 +546,7 @@ pub fn run(prefix: &str, args: &TopArgs) -> Result<()> {
         );
     }
     let interval = Duration::from_secs_f64(args.interval);
-    let node =
-        Node::new(NodeOptions::new(&format!("hng-top-{}", std::process::id())).prefix(prefix))
-            .with_context(|| format!("opening the system under prefix {prefix:?}"))?;
+    let node = crate::tool::node(prefix, "top")?;
     let mut src = Sources::open(&node)?;
     let terminal = std::io::stdout().is_terminal();
     let live = !args.json && !args.text && !args.once && terminal;
