@@ -2,9 +2,11 @@
 
 use std::hint::black_box;
 
-use criterion::{Criterion, criterion_group, criterion_main};
+use criterion::measurement::WallTime;
+use criterion::{BenchmarkGroup, Criterion, criterion_group, criterion_main};
 use hng_modules::planning::{
-    FREE, GridPlanner, InflationConfig, OCCUPIED, OccupancyGrid, PlannerConfig, inflate, simplify,
+    FREE, GridPath, GridPlanner, InflationConfig, OCCUPIED, OccupancyGrid, PlannerConfig, inflate,
+    simplify,
 };
 
 /// Deterministic splitmix64, so the obstacle field is the same on every run.
@@ -64,51 +66,41 @@ fn serpentine() -> OccupancyGrid {
     g
 }
 
+/// Plans from corner to corner of `grid` once (printing the path's length and the cells
+/// expanded), then benchmarks that plan as `astar_NAME_corner_to_corner`.
+fn corner_to_corner(
+    grp: &mut BenchmarkGroup<'_, WallTime>,
+    planner: &mut GridPlanner,
+    name: &str,
+    grid: &OccupancyGrid,
+) -> GridPath {
+    let p = planner
+        .plan_cells(grid, (0, 0), (511, 511))
+        .unwrap_or_else(|e| panic!("{name}: no path corner to corner: {e}"));
+    println!(
+        "{name}: length {:.2} cells, {} expanded",
+        p.length_cells, p.expanded
+    );
+    grp.bench_function(format!("astar_{name}_corner_to_corner"), |b| {
+        b.iter(|| {
+            planner
+                .plan_cells(black_box(grid), (0, 0), (511, 511))
+                .expect("path")
+        })
+    });
+    p
+}
+
 fn benches(c: &mut Criterion) {
     let cfg = PlannerConfig::default();
     let mut planner = GridPlanner::new(cfg);
     let mut grp = c.benchmark_group("planning_512");
 
     let open = OccupancyGrid::new(512, 512, 0.05, [0.0, 0.0], FREE).expect("grid");
-    grp.bench_function("astar_open_corner_to_corner", |b| {
-        b.iter(|| {
-            planner
-                .plan_cells(black_box(&open), (0, 0), (511, 511))
-                .expect("path")
-        })
-    });
-
-    let field = random_field(0.25, 7);
-    let p = planner
-        .plan_cells(&field, (0, 0), (511, 511))
-        .expect("random field must be solvable");
-    println!(
-        "random 25% field: length {:.2} cells, {} expanded",
-        p.length_cells, p.expanded
-    );
-    grp.bench_function("astar_random25_corner_to_corner", |b| {
-        b.iter(|| {
-            planner
-                .plan_cells(black_box(&field), (0, 0), (511, 511))
-                .expect("path")
-        })
-    });
-
+    corner_to_corner(&mut grp, &mut planner, "open", &open);
+    corner_to_corner(&mut grp, &mut planner, "random25", &random_field(0.25, 7));
     let maze = serpentine();
-    let p = planner
-        .plan_cells(&maze, (0, 0), (511, 511))
-        .expect("serpentine solvable");
-    println!(
-        "serpentine: length {:.2} cells, {} expanded",
-        p.length_cells, p.expanded
-    );
-    grp.bench_function("astar_serpentine_corner_to_corner", |b| {
-        b.iter(|| {
-            planner
-                .plan_cells(black_box(&maze), (0, 0), (511, 511))
-                .expect("path")
-        })
-    });
+    let p = corner_to_corner(&mut grp, &mut planner, "serpentine", &maze);
     grp.bench_function("simplify_serpentine_path", |b| {
         b.iter(|| simplify(black_box(&maze), &cfg, black_box(&p)))
     });

@@ -139,21 +139,7 @@ fn scans() -> Vec<(Vec<Vector2<f64>>, Isometry2<f64>)> {
                             let d = Vector2::new(a.cos(), a.sin());
                             // Room [-5, 5] x [-4, 4] seen from `pose`.
                             let o = pose.translation.vector;
-                            let tx = if d.x > 1e-9 {
-                                (5.0 - o.x) / d.x
-                            } else if d.x < -1e-9 {
-                                (-5.0 - o.x) / d.x
-                            } else {
-                                f64::INFINITY
-                            };
-                            let ty = if d.y > 1e-9 {
-                                (4.0 - o.y) / d.y
-                            } else if d.y < -1e-9 {
-                                (-4.0 - o.y) / d.y
-                            } else {
-                                f64::INFINITY
-                            };
-                            let t = tx.min(ty);
+                            let t = wall_distance(o.x, d.x, 5.0).min(wall_distance(o.y, d.y, 4.0));
                             t.is_finite().then(|| d * t)
                         })
                         .collect();
@@ -226,4 +212,16 @@ fn main() {
     let mut c = Criterion::default().configure_from_args();
     benches(&mut c);
     c.final_summary();
+}
+
+/// Distance along a ray from `o` in direction `d` (one axis) to the wall at `±half`
+/// ahead of it (infinite for a ray parallel to the walls).
+fn wall_distance(o: f64, d: f64, half: f64) -> f64 {
+    if d > 1e-9 {
+        (half - o) / d
+    } else if d < -1e-9 {
+        (-half - o) / d
+    } else {
+        f64::INFINITY
+    }
 }

@@ -5,11 +5,9 @@
 use std::io::IsTerminal;
 use std::time::{Duration, Instant};
 
-use anyhow::{Context as _, Result, bail};
+use anyhow::{Result, bail};
 use clap::Args;
 use hng_runtime::msg::{BEHAVIOURS_CHANNEL, Behaviours, OrderKind};
-use hng_runtime::wait::{WaitMode, Waiter};
-use hng_runtime::{Node, NodeOptions};
 
 use hng_supervisor::doc::ensure_channel_exists;
 
@@ -69,15 +67,8 @@ pub fn run(prefix: &str, args: &BehavioursArgs) -> Result<()> {
         "Interface",
         "start a system with `hng run` or pass --prefix",
     )?;
-    let node = Node::new(
-        NodeOptions::new(&format!("hng-behaviours-{}", std::process::id())).prefix(prefix),
-    )
-    .context("creating a node")?;
-    let sub = node
-        .subscriber::<Behaviours>(BEHAVIOURS_CHANNEL)
-        .context("subscribing to the behaviours")?;
-    let mut waiter = Waiter::new(WaitMode::SLEEP)?;
-    waiter.attach(&sub)?;
+    let (_node, sub, mut waiter) =
+        crate::tool::reader::<Behaviours>(prefix, "behaviours", BEHAVIOURS_CHANNEL)?;
     let json = args.json || !std::io::stdout().is_terminal();
     let deadline = Instant::now() + Duration::from_secs_f64(args.timeout);
     loop {

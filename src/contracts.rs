@@ -6,12 +6,12 @@
 use std::collections::{BTreeMap, BTreeSet};
 use std::time::{Duration, Instant};
 
-use anyhow::{Context as _, Result, bail};
+use anyhow::{Result, bail};
 use hng_runtime::Node;
-use hng_runtime::channel::{NodeOptions, Subscriber};
+use hng_runtime::channel::Subscriber;
 use hng_runtime::control::TABLE_PERIOD;
 use hng_runtime::system::{CONTRACTS, ContractRole, ContractTable, SUPERVISOR_STATUS};
-use hng_runtime::wait::{WaitMode, Waiter};
+use hng_runtime::wait::Waiter;
 use serde::Serialize;
 
 /// Arguments of `hng contracts`.
@@ -72,16 +72,7 @@ struct View {
 /// A reader of the contract tables every module publishes: the node (keep it alive), its
 /// subscriber, and a waiter attached to it.
 pub(crate) fn table_reader(prefix: &str) -> Result<(Node, Subscriber<ContractTable>, Waiter)> {
-    let node = Node::new(
-        NodeOptions::new(&format!("hng-contracts-{}", std::process::id())).prefix(prefix),
-    )
-    .context("cannot join the system (is the prefix right?)")?;
-    let sub = node
-        .subscriber::<ContractTable>(CONTRACTS)
-        .context("cannot subscribe to the contract tables")?;
-    let mut waiter = Waiter::new(WaitMode::SLEEP)?;
-    waiter.attach(&sub)?;
-    Ok((node, sub, waiter))
+    crate::tool::reader(prefix, "contracts", CONTRACTS)
 }
 
 /// Collects the latest table of every module for `wait`.

@@ -37,6 +37,7 @@ mod recording;
 mod run;
 mod sim;
 mod teleop;
+mod tool;
 mod top;
 mod topic;
 mod topic_pub;

@@ -17,7 +17,7 @@ use hng_runtime::msg::{
     SIDE_LEFT, SIDE_RIGHT,
 };
 use hng_runtime::wait::{WaitMode, Waiter};
-use hng_runtime::{Node, NodeOptions, Publisher, Subscriber};
+use hng_runtime::{Node, Publisher, Subscriber};
 
 use hng_supervisor::doc::ensure_channel_exists;
 
@@ -188,9 +188,7 @@ impl OrderLink {
             "Interface",
             "start a system with `hng run` or pass --prefix",
         )?;
-        let node =
-            Node::new(NodeOptions::new(&format!("{tool}-{}", std::process::id())).prefix(prefix))
-                .context("creating a node")?;
+        let node = crate::tool::node(prefix, tool)?;
         let status = node
             .subscriber::<OrderStatus>(ORDER_STATUS_CHANNEL)
             .context("subscribing to the order status")?;
@@ -280,7 +278,7 @@ pub fn run(prefix: &str, cmd: OrderCommand) -> Result<()> {
     {
         bail!("order not sent: {why}");
     }
-    let mut link = OrderLink::open(prefix, "hng-order")?;
+    let mut link = OrderLink::open(prefix, "order")?;
     let Some(order) = order else {
         let s = link.current(ANSWER_TIMEOUT)?;
         return print_status(&s, out.json);

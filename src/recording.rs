@@ -166,13 +166,19 @@ pub fn record(prefix: &str, args: &RecordArgs) -> Result<()> {
     let stop = AtomicBool::new(false);
     let summary = hng_recorder::record(&opts, &stop, &Progress::default())
         .with_context(|| format!("recording to {}", args.output.display()))?;
-    if args.json {
-        println!("{}", serde_json::to_string(&summary)?);
-    } else {
-        print!("{summary}");
-    }
+    show(&summary, args.json)?;
     if let Some(e) = &summary.error {
         bail!("recording stopped early: {e}");
+    }
+    Ok(())
+}
+
+/// Prints `v` as one line of JSON (`--json`) or as text.
+fn show<T: serde::Serialize + std::fmt::Display>(v: &T, json: bool) -> Result<()> {
+    if json {
+        println!("{}", serde_json::to_string(v)?);
+    } else {
+        print!("{v}");
     }
     Ok(())
 }
@@ -195,11 +201,7 @@ pub fn foxglove(prefix: &str, args: &FoxgloveArgs) -> Result<()> {
 
 pub fn info(args: &InfoArgs) -> Result<()> {
     let info = hng_recorder::info::info(&args.file)?;
-    if args.json {
-        println!("{}", serde_json::to_string(&info)?);
-    } else {
-        print!("{info}");
-    }
+    show(&info, args.json)?;
     if let Some(d) = &info.damage {
         bail!("{d}");
     }

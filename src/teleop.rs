@@ -76,7 +76,7 @@ pub fn run(prefix: &str, args: &TeleopArgs) -> Result<()> {
     if !std::io::stdin().is_terminal() {
         bail!("hng teleop reads the keyboard: run it in a terminal");
     }
-    let mut link = OrderLink::open(prefix, "hng-teleop")?;
+    let mut link = OrderLink::open(prefix, "teleop")?;
     if !args.no_order {
         let s = link.send(Order::new(OrderKind::Teleop), Duration::from_secs(3))?;
         if s.accepted == 0 {

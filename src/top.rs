@@ -133,6 +133,54 @@ fn age_ms(stamp_ns: u64, now_ns: u64) -> f64 {
     now_ns.saturating_sub(stamp_ns) as f64 / 1e6
 }
 
+type Row = serde_json::Map<String, Value>;
+
+/// The fields of a module's row taken from the supervisor's status.
+const SUPERVISOR_FIELDS: &[&str] = &[
+    "state",
+    "pid",
+    "restarts",
+    "uptime_ms",
+    "last_exit_text",
+    "manager",
+];
+
+/// The fields of a module's row taken from the resource manager's status.
+const RM_FIELDS: &[&str] = &[
+    "cpu_percent",
+    "memory_bytes",
+    "rss_bytes",
+    "pss_bytes",
+    "major_faults",
+    "caps",
+    "over_limit",
+    "waiting_for_resources",
+    "R",
+    "R_eff",
+    "cgroup",
+];
+
+/// The `modules` list of a status document (empty without one).
+fn modules(doc: Option<&(u64, Value)>) -> Vec<Value> {
+    doc.and_then(|(_, v)| v.get("modules").and_then(Value::as_array).cloned())
+        .unwrap_or_default()
+}
+
+/// The row of the module `m` names (`None`: `m` has no name).
+fn row_of<'a>(rows: &'a mut BTreeMap<String, Row>, m: &Value) -> Option<&'a mut Row> {
+    let name = m.get("name").and_then(Value::as_str)?;
+    Some(rows.entry(name.to_owned()).or_default())
+}
+
+/// Copies the fields `keys` that `m` has into `row`.
+fn copy_fields(row: &mut Row, m: &Value, keys: &[&str]) {
+    for &k in keys {
+        if let Some(v) = m.get(k) {
+            row.insert(k.to_owned(), v.clone());
+        }
+    }
+}
+
 /// Merges the sources into one document: `{supervisor, rm, degraded, min_priority,
 /// costs, modules: [...]}`, one row per module name seen anywhere.
 fn snapshot<'a>(
@@ -142,54 +190,21 @@ fn snapshot<'a>(
     tables: impl Iterator<Item = &'a ContractTable>,
     now_ns: u64,
 ) -> Value {
-    let mut rows: BTreeMap<String, serde_json::Map<String, Value>> = BTreeMap::new();
-    let list = |doc: Option<&(u64, Value)>| -> Vec<Value> {
-        doc.and_then(|(_, v)| v.get("modules").and_then(Value::as_array).cloned())
-            .unwrap_or_default()
-    };
-    for m in list(supervisor) {
-        let Some(name) = m.get("name").and_then(Value::as_str) else {
+    let mut rows: BTreeMap<String, Row> = BTreeMap::new();
+    for m in modules(supervisor) {
+        let Some(row) = row_of(&mut rows, &m) else {
             continue;
         };
-        let row = rows.entry(name.to_owned()).or_default();
-        for k in [
-            "state",
-            "pid",
-            "restarts",
-            "uptime_ms",
-            "last_exit_text",
-            "manager",
-        ] {
-            if let Some(v) = m.get(k) {
-                row.insert(k.to_owned(), v.clone());
-            }
-        }
+        copy_fields(row, &m, SUPERVISOR_FIELDS);
         if let Some(r) = m.get("report").and_then(|r| r.get("state")) {
             row.insert("work".into(), r.clone());
         }
     }
-    for m in list(rm) {
-        let Some(name) = m.get("name").and_then(Value::as_str) else {
+    for m in modules(rm) {
+        let Some(row) = row_of(&mut rows, &m) else {
             continue;
         };
-        let row = rows.entry(name.to_owned()).or_default();
-        for k in [
-            "cpu_percent",
-            "memory_bytes",
-            "rss_bytes",
-            "pss_bytes",
-            "major_faults",
-            "caps",
-            "over_limit",
-            "waiting_for_resources",
-            "R",
-            "R_eff",
-            "cgroup",
-        ] {
-            if let Some(v) = m.get(k) {
-                row.insert(k.to_owned(), v.clone());
-            }
-        }
+        copy_fields(row, &m, RM_FIELDS);
         if !row.contains_key("pid")
             && let Some(p) = m.get("pid")
         {
@@ -531,9 +546,7 @@ pub fn run(prefix: &str, args: &TopArgs) -> Result<()> {
         );
     }
     let interval = Duration::from_secs_f64(args.interval);
-    let node =
-        Node::new(NodeOptions::new(&format!("hng-top-{}", std::process::id())).prefix(prefix))
-            .with_context(|| format!("opening the system under prefix {prefix:?}"))?;
+    let node = crate::tool::node(prefix, "top")?;
     let mut src = Sources::open(&node)?;
     let terminal = std::io::stdout().is_terminal();
     let live = !args.json && !args.text && !args.once && terminal;

@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context as _, Result, bail};
 use clap::Subcommand;
-use hng_runtime::channel::{Kind, Node, NodeOptions, Receiver, iceoryx_config};
+use hng_runtime::channel::{Kind, Node, Receiver, iceoryx_config};
 use hng_runtime::msg::{self, Message, SliceMessage};
 use hng_runtime::system;
 use hng_runtime::wait::{WaitMode, Waiter, Wake};
@@ -173,8 +173,7 @@ fn dispatch(prefix: &str, name: &str, mode: Mode) -> Result<()> {
     let Some(info) = list.iter().find(|c| c.name == name) else {
         bail!("no channel {name:?} under prefix {prefix:?} (see `hng topic list`)");
     };
-    let node =
-        Node::new(NodeOptions::new(&format!("hng-topic-{}", std::process::id())).prefix(prefix))?;
+    let node = crate::tool::node(prefix, "topic")?;
     macro_rules! fixed {
         ($($t:ty),*) => {$(
             if info.type_name == type_name::<$t>() {

@@ -9,9 +9,9 @@
 use std::time::{Duration, Instant};
 
 use anyhow::{Context as _, Result, bail};
+use hng_runtime::Node;
 use hng_runtime::msg::{Goal, Message, Twist};
 use hng_runtime::wait::{WaitMode, Waiter, Wake};
-use hng_runtime::{Node, NodeOptions};
 use serde_json::{Map, Value};
 
 /// Rewrites bare `NaN`, `Infinity`, `-Infinity`, `inf`, `-inf` outside strings as strings,
@@ -167,9 +167,7 @@ pub fn run(
             "no channel {name:?} under prefix {prefix:?} (see `hng topic list`): publish on a channel some module uses"
         );
     };
-    let node = Node::new(
-        NodeOptions::new(&format!("hng-topic-pub-{}", std::process::id())).prefix(prefix),
-    )?;
+    let node = crate::tool::node(prefix, "topic-pub")?;
     if info.type_name == type_name::<Twist>() {
         let msg = twist(obj)?;
         publish(&node, name, msg, rate, count)

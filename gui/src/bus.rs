@@ -285,11 +285,16 @@ pub struct BusOptions {
     pub channels: Channels,
 }
 
+/// A node of the operator page's process in the system under `prefix`, named `NAME-PID`.
+pub(crate) fn node(prefix: &str, name: &str) -> Result<Node, crate::Error> {
+    Ok(Node::new(
+        NodeOptions::new(&format!("{name}-{}", std::process::id())).prefix(prefix),
+    )?)
+}
+
 /// Runs until `stop` is set. Errors only when the node cannot be created.
 pub fn run(opts: &BusOptions, hub: &Arc<Hub>, stop: &AtomicBool) -> Result<(), crate::Error> {
-    let node = Node::new(
-        NodeOptions::new(&format!("hng-gui-{}", std::process::id())).prefix(&opts.prefix),
-    )?;
+    let node = node(&opts.prefix, "hng-gui")?;
     let mut w = Waiter::new(WaitMode::SLEEP)?;
     let c = &opts.channels;
     let mut src = Sources {

@@ -13,7 +13,6 @@ use hng_runtime::system::{
     CommandOp, JsonInfo, SUPERVISOR_COMMAND, SUPERVISOR_STATUS, SupervisorCommand,
 };
 use hng_runtime::wait::{WaitMode, Waiter};
-use hng_runtime::{Node, NodeOptions};
 
 use crate::orders::ModuleOp;
 
@@ -53,9 +52,7 @@ pub fn orders(
     rx: &Receiver<Outgoing>,
     stop: &AtomicBool,
 ) -> Result<(), crate::Error> {
-    let node = Node::new(
-        NodeOptions::new(&format!("hng-gui-orders-{}", std::process::id())).prefix(prefix),
-    )?;
+    let node = crate::bus::node(prefix, "hng-gui-orders")?;
     let order = node.publisher::<Order>(ORDER_CHANNEL)?;
     let teleop = node.publisher::<Twist>(TELEOP_CHANNEL)?;
     let designation = node.publisher::<Designation>(DESIGNATION_CHANNEL)?;
@@ -94,9 +91,7 @@ pub fn control(
     rx: &Receiver<ModuleCommand>,
     stop: &AtomicBool,
 ) -> Result<(), crate::Error> {
-    let node = Node::new(
-        NodeOptions::new(&format!("hng-gui-control-{}", std::process::id())).prefix(prefix),
-    )?;
+    let node = crate::bus::node(prefix, "hng-gui-control")?;
     let commands = node.publisher::<SupervisorCommand>(SUPERVISOR_COMMAND)?;
     let status = node.slice_subscriber::<JsonInfo>(SUPERVISOR_STATUS)?;
     let mut waiter = Waiter::new(WaitMode::SLEEP)?;

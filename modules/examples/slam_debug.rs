@@ -12,9 +12,25 @@
 //! `rerender_after`). Ends with the mean per-scan error.
 
 use std::path::PathBuf;
+use std::str::FromStr;
 
 use hng_modules::slam::{BackendConfig, LikelihoodField, Slam, SlamConfig, pose_from, read_log};
 use nalgebra::{Isometry2, Point2, Vector2};
+
+/// Sets `v` from the environment variable `name`, when it is set.
+fn env<T: FromStr>(name: &str, v: &mut T) -> Result<(), T::Err> {
+    if let Ok(s) = std::env::var(name) {
+        *v = s.parse()?;
+    }
+    Ok(())
+}
+
+/// Sets `v` from the environment variable `name` (`1`: true), when it is set.
+fn env_flag(name: &str, v: &mut bool) {
+    if let Ok(s) = std::env::var(name) {
+        *v = s == "1";
+    }
+}
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut args = std::env::args().skip(1);
@@ -26,44 +42,20 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     if let Some(w) = args.next() {
         cfg.wide_below_score = w.parse()?;
     }
-    if let Ok(v) = std::env::var("WIDE_WEIGHT") {
-        cfg.wide.weight = v.parse()?;
-    }
-    if let Ok(v) = std::env::var("MATCH_RANGE") {
-        cfg.match_max_range = v.parse()?;
-    }
-    if let Ok(v) = std::env::var("FUSE") {
-        cfg.fuse_odometry = v == "1";
-    }
-    if let Ok(v) = std::env::var("ODOM_NOISE") {
-        cfg.odom_trans_noise = v.parse()?;
-    }
-    if let Ok(v) = std::env::var("FUSE_SCALE") {
-        cfg.match_information_scale = v.parse()?;
-    }
-    if let Ok(v) = std::env::var("CV") {
-        cfg.constant_velocity_hypothesis = v == "1";
-    }
-    if let Ok(v) = std::env::var("FREE") {
-        cfg.free_space_penalty = v.parse()?;
-    }
-    if let Ok(v) = std::env::var("CANDS") {
-        cfg.wide.candidates = v.parse()?;
-    }
-    if let Ok(v) = std::env::var("LOCAL") {
-        cfg.local_map_scans = v.parse()?;
-    }
-    if let Ok(v) = std::env::var("SIGMA") {
-        cfg.matcher.sigma = v.parse()?;
-    }
-    if let Ok(v) = std::env::var("UNKNOWN_FLOOR") {
-        cfg.wide.unknown_floor = v == "1";
-    }
+    env("WIDE_WEIGHT", &mut cfg.wide.weight)?;
+    env("MATCH_RANGE", &mut cfg.match_max_range)?;
+    env_flag("FUSE", &mut cfg.fuse_odometry);
+    env("ODOM_NOISE", &mut cfg.odom_trans_noise)?;
+    env("FUSE_SCALE", &mut cfg.match_information_scale)?;
+    env_flag("CV", &mut cfg.constant_velocity_hypothesis);
+    env("FREE", &mut cfg.free_space_penalty)?;
+    env("CANDS", &mut cfg.wide.candidates)?;
+    env("LOCAL", &mut cfg.local_map_scans)?;
+    env("SIGMA", &mut cfg.matcher.sigma)?;
+    env_flag("UNKNOWN_FLOOR", &mut cfg.wide.unknown_floor);
     let loop_closure = std::env::var("LC").is_ok_and(|v| v == "1");
-    if let Ok(v) = std::env::var("TW") {
-        cfg.matcher.translation_weight = v.parse()?;
-        cfg.matcher.rotation_weight = v.parse()?;
-    }
+    env("TW", &mut cfg.matcher.translation_weight)?;
+    env("TW", &mut cfg.matcher.rotation_weight)?;
     let thresh: f64 = args.next().map(|s| s.parse()).transpose()?.unwrap_or(0.1);
     let log = read_log(&log)?;
     let scans: Vec<_> = log.scans().collect();

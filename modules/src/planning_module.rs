@@ -395,6 +395,14 @@ pub(crate) mod tests {
         }
     }
 
+    /// A planner with the default parameters in [`room`], given goal 1 at (`x`, `y`).
+    fn in_room(x: f64, y: f64) -> PlanningCore {
+        let mut p = PlanningCore::new(PlanningParams::default());
+        p.set_map(&room());
+        p.set_goal(goal(1, x, y));
+        p
+    }
+
     fn at(x: f64, y: f64) -> Pose2D {
         Pose2D { x, y, theta: 0.0 }
     }
@@ -451,9 +459,7 @@ pub(crate) mod tests {
 
     #[test]
     fn plans_around_the_wall_and_gives_a_carrot_ahead() {
-        let mut p = PlanningCore::new(PlanningParams::default());
-        p.set_map(&room());
-        p.set_goal(goal(1, 8.0, 1.0));
+        let mut p = in_room(8.0, 1.0);
         let s = p.update(&at(2.0, 1.0));
         assert!(s.replanned && s.refused.is_none(), "{s:?}");
         let w = s.waypoint.unwrap();
@@ -478,9 +484,7 @@ pub(crate) mod tests {
 
     #[test]
     fn replans_when_the_robot_strays_or_the_map_changes() {
-        let mut p = PlanningCore::new(PlanningParams::default());
-        p.set_map(&room());
-        p.set_goal(goal(1, 8.0, 1.0));
+        let mut p = in_room(8.0, 1.0);
         assert!(p.update(&at(2.0, 1.0)).replanned);
         assert!(!p.update(&at(2.1, 1.0)).replanned);
         assert!(p.update(&at(2.0, 3.0)).replanned, "1.9 m off the path");
@@ -490,9 +494,7 @@ pub(crate) mod tests {
 
     #[test]
     fn planner_refuses_out_of_map_inside_obstacle_and_unreachable_goals() {
-        let mut p = PlanningCore::new(PlanningParams::default());
-        p.set_map(&room());
-        p.set_goal(goal(1, 12.0, 1.0));
+        let mut p = in_room(12.0, 1.0);
         let s = p.update(&at(2.0, 1.0));
         let why = s.refused.unwrap();
         assert!(why.contains("outside the map"), "{why}");

@@ -85,14 +85,6 @@ pub struct ServoCore {
     reached: Option<u32>,
 }
 
-fn twist(v: f64, w: f64) -> Twist {
-    Twist {
-        linear_x: v,
-        angular_z: w,
-        ..Default::default()
-    }
-}
-
 impl ServoCore {
     /// A controller with `params`.
     pub fn new(params: ServoParams) -> ServoCore {
@@ -132,12 +124,12 @@ impl ServoCore {
         }
         if wp.speed < 0.0 {
             // Backing up (Planning's recovery, `planning::progress`): straight back.
-            out.cmd = Some(twist(wp.speed.max(-p.max_speed), 0.0));
+            out.cmd = Some(Twist::new(wp.speed.max(-p.max_speed), 0.0));
             return out;
         }
         if bearing.abs() > p.rotate_in_place_rad {
             let w = (p.heading_gain * bearing).clamp(-p.max_angular, p.max_angular);
-            out.cmd = Some(twist(0.0, w));
+            out.cmd = Some(Twist::new(0.0, w));
             return out;
         }
         let mut v = p.max_speed;
@@ -157,7 +149,7 @@ impl ServoCore {
             v = p.max_angular / k.abs();
             w = p.max_angular * w.signum();
         }
-        out.cmd = Some(twist(v, w));
+        out.cmd = Some(Twist::new(v, w));
         out
     }
 }

@@ -65,7 +65,9 @@ fn write_stderr(bytes: &[u8]) {
 }
 
 /// Formats `n` in decimal into `buf` without allocating; returns the digits.
-fn decimal(mut n: u64, buf: &mut [u8; 20]) -> &[u8] {
+/// Async-signal-safe: for signal handlers and pre-exec hooks.
+#[must_use]
+pub fn decimal(mut n: u64, buf: &mut [u8; 20]) -> &[u8] {
     let mut i = buf.len();
     loop {
         i -= 1;

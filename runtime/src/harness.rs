@@ -440,13 +440,6 @@ mod tests {
         follow_needs!(1 => input, 2 => out);
     }
 
-    fn twist(x: f64) -> Twist {
-        Twist {
-            linear_x: x,
-            ..Default::default()
-        }
-    }
-
     #[test]
     fn without_providers_the_module_reads_and_writes_its_fallback_channels() {
         let prefix;
@@ -457,7 +450,7 @@ mod tests {
             let mut out = h.output::<Twist>("echo/out").unwrap();
             h.start::<Echo>("").unwrap();
             let t0 = Instant::now();
-            input.publish(twist(1.5)).unwrap();
+            input.publish(Twist::new(1.5, 0.0)).unwrap();
             let got = h
                 .wait_for(&mut out, Duration::from_secs(5), |_| true)
                 .unwrap();
@@ -482,8 +475,8 @@ mod tests {
         let foreign = other.publisher::<Twist>("prov/data").unwrap();
         h.provider(1, "prov/data").provider(2, "prov/sink");
         h.start::<Echo>("").unwrap();
-        fallback.publish(twist(100.0)).unwrap(); // the fallback is left: not read
-        data.publish(twist(2.0)).unwrap();
+        fallback.publish(Twist::new(100.0, 0.0)).unwrap(); // the fallback is left: not read
+        data.publish(Twist::new(2.0, 0.0)).unwrap();
         let got = h
             .wait_for(&mut sink, Duration::from_secs(5), |_| true)
             .unwrap();
@@ -492,11 +485,11 @@ mod tests {
         // is skipped and counted. The module reads each publisher's samples in turn, so the
         // count shows on one of the provider's next echoes.
         foreign.update_connections();
-        foreign.publish(twist(7.0)).unwrap();
+        foreign.publish(Twist::new(7.0, 0.0)).unwrap();
         let deadline = Instant::now() + Duration::from_secs(5);
         let mut next = 3.0;
         let counted = loop {
-            data.publish(twist(next)).unwrap();
+            data.publish(Twist::new(next, 0.0)).unwrap();
             let got = h
                 .wait_for(&mut sink, Duration::from_secs(5), |t| {
                     t.linear_x == next * 2.0

@@ -259,6 +259,19 @@ pub struct Twist {
 }
 crate::impl_message!(Twist, ChannelKind::Command);
 
+impl Twist {
+    /// A command of forward speed `linear_x` (m/s) and turn rate `angular_z` (rad/s), with
+    /// an empty header and no sideways speed.
+    #[must_use]
+    pub fn new(linear_x: f64, angular_z: f64) -> Twist {
+        Twist {
+            linear_x,
+            angular_z,
+            ..Twist::default()
+        }
+    }
+}
+
 /// Odometry (ROS `nav_msgs/Odometry`, planar): pose in `odom`, twist in `base_link`.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize)]

@@ -150,13 +150,7 @@ pub fn validate(events: &[WorldEvent], zones: &[LightingZone]) -> Result<()> {
                     &format!("{f}.name"),
                     &format!("a box named {:?} is already there", b.name),
                 )?;
-                check_finite(&b.center, &format!("{f}.center"))?;
-                check(
-                    b.size.iter().all(|s| s.is_finite() && *s > 0.0),
-                    &format!("{f}.size"),
-                    "both sizes must be finite and > 0",
-                )?;
-                check_finite(&[b.angle], &format!("{f}.angle"))?;
+                b.obstacle().validate(&f)?;
                 present.push(&b.name);
             }
             Some(WorldChange::RemoveBox(n)) => {

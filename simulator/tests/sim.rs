@@ -432,12 +432,19 @@ fn gps_quality_depends_on_the_zone() -> Result<()> {
     Ok(())
 }
 
-#[test]
-fn nan_and_infinite_commands_are_rejected_and_counted() -> Result<()> {
+/// A simulator of an empty world whose robot was driven at `linear` m/s and `angular`
+/// rad/s for 0.4 s, and is moving.
+fn moving(linear: f64, angular: f64) -> Result<Simulator> {
     let mut sim = Simulator::new(World::empty(Pose2D::new(0.0, 0.0, 0.0)))?;
-    sim.set_cmd_vel(1.0, 0.0)?;
+    sim.set_cmd_vel(linear, angular)?;
     sim.run_until(secs_to_ns(0.4));
     assert!(sim.ground_truth().linear_x > 0.5);
+    Ok(sim)
+}
+
+#[test]
+fn nan_and_infinite_commands_are_rejected_and_counted() -> Result<()> {
+    let mut sim = moving(1.0, 0.0)?;
     assert!(matches!(
         sim.set_cmd_vel(f64::NAN, 0.0),
         Err(SimError::RejectedCommand { .. })
@@ -457,10 +464,7 @@ fn nan_and_infinite_commands_are_rejected_and_counted() -> Result<()> {
 
 #[test]
 fn robot_stops_when_commands_stop_arriving() -> Result<()> {
-    let mut sim = Simulator::new(World::empty(Pose2D::new(0.0, 0.0, 0.0)))?;
-    sim.set_cmd_vel(1.0, 0.5)?;
-    sim.run_until(secs_to_ns(0.4));
-    assert!(sim.ground_truth().linear_x > 0.5);
+    let mut sim = moving(1.0, 0.5)?;
     sim.run_until(secs_to_ns(2.0)); // timeout 0.5 s, then decelerate at 2 m/s²
     assert!(sim.ground_truth().linear_x.abs() < 1e-6);
     assert_eq!(sim.stats().command_timeouts, 1);

@@ -161,15 +161,22 @@ impl Watchers {
             events,
             scans_at_start: Vec::new(),
         };
-        let e = w
-            .events
-            .recv_timeout(Duration::from_secs(120))
-            .context("the browsers did not start within 120 s")?;
-        if e["event"] != "watching" {
-            bail!("the browsers did not start: {e}");
-        }
+        let e = w.next_event("watching", Duration::from_secs(120), "start")?;
         w.scans_at_start = scans(&e);
         Ok(w)
+    }
+
+    /// The driver's next event, which must be `event` and come within `timeout` (`what`: the
+    /// step it ends, for the errors).
+    fn next_event(&self, event: &str, timeout: Duration, what: &str) -> Result<Value> {
+        let e = self
+            .events
+            .recv_timeout(timeout)
+            .with_context(|| format!("the browsers did not {what} within {timeout:?}"))?;
+        if e["event"] != event {
+            bail!("the browsers did not {what}: {e}");
+        }
+        Ok(e)
     }
 
     /// Closes the browsers; returns the scan frames each page received while watching.
@@ -177,13 +184,7 @@ impl Watchers {
         if let Some(mut s) = self.stdin.take() {
             let _ = writeln!(s, "stop");
         }
-        let e = self
-            .events
-            .recv_timeout(Duration::from_secs(60))
-            .context("the browsers did not answer")?;
-        if e["event"] != "done" {
-            bail!("the browsers failed: {e}");
-        }
+        let e = self.next_event("done", Duration::from_secs(60), "stop")?;
         let end = scans(&e);
         Ok(end
             .iter()

@@ -294,27 +294,16 @@ give_up_window_s = 60.0
         let _ = writeln!(s, "seed = {seed}");
     }
     let modules = mission_modules(opts.fusion);
+    let list = modules
+        .iter()
+        .map(|m| quoted(m))
+        .collect::<Vec<_>>()
+        .join(", ");
     // Paused start: simulated time waits until every module is up.
-    let _ = writeln!(
-        s,
-        "wait_for = [{}]",
-        modules
-            .iter()
-            .map(|m| quoted(m))
-            .collect::<Vec<_>>()
-            .join(", ")
-    );
+    let _ = writeln!(s, "wait_for = [{list}]");
     // Lockstep: simulated time advances only when every module has handled the last step,
     // so the mission gives the same result at any speed.
-    let _ = writeln!(
-        s,
-        "lockstep = [{}]",
-        modules
-            .iter()
-            .map(|m| quoted(m))
-            .collect::<Vec<_>>()
-            .join(", ")
-    );
+    let _ = writeln!(s, "lockstep = [{list}]");
     let _ = writeln!(s);
     for (name, cmd) in [
         ("laser", "laser"),

@@ -5,7 +5,7 @@
 //! anything starts, with the file's line and field.
 
 use std::io::Read as _;
-use std::process::{Command, Stdio};
+use std::process::{Command, Output, Stdio};
 use std::time::Duration;
 
 use hng_runtime::shm;
@@ -13,6 +13,15 @@ use hng_runtime::shm;
 use crate::common::TestSystem;
 
 const HNG: &str = env!("CARGO_BIN_EXE_hng");
+
+/// Runs `hng ARGS` on `prefix` to its end.
+fn hng<S: AsRef<std::ffi::OsStr>>(prefix: &str, args: &[S]) -> Output {
+    Command::new(HNG)
+        .args(args)
+        .env("HNG_PREFIX", prefix)
+        .output()
+        .expect("hng")
+}
 
 /// Runs `hng ARGS` on `prefix` with its stdout a pipe that this side closes after reading
 /// `keep` bytes; returns the exit status and stderr.
@@ -51,11 +60,7 @@ fn a_closed_pipe_ends_topic_list_and_echo_quietly() {
     // The counter's channel exists once it runs.
     let deadline = std::time::Instant::now() + Duration::from_secs(30);
     loop {
-        let out = Command::new(HNG)
-            .args(["topic", "list"])
-            .env("HNG_PREFIX", &sys.prefix)
-            .output()
-            .expect("hng topic list");
+        let out = hng(&sys.prefix, &["topic", "list"]);
         if String::from_utf8_lossy(&out.stdout).contains("test/count") {
             break;
         }
@@ -95,11 +100,7 @@ fn read_only_tools_without_a_system_fail_clearly_and_leave_no_file() {
         vec!["topic", "echo", "sim/scan", "--count", "1"],
         vec!["topic", "pub", "hng/teleop", "{\"linear_x\": 0.1}"],
     ] {
-        let out = Command::new(HNG)
-            .args(&args)
-            .env("HNG_PREFIX", &prefix)
-            .output()
-            .expect("hng");
+        let out = hng(&prefix, &args);
         let err = String::from_utf8_lossy(&out.stderr);
         assert_eq!(out.status.code(), Some(1), "{args:?}: {err}");
         assert!(err.contains(&prefix), "{args:?} names the prefix: {err}");
@@ -118,11 +119,7 @@ fn a_client_removes_system_files_left_on_a_prefix_where_no_system_runs() {
     let prefix = shm::unique_prefix("clileft");
     let wake = std::path::Path::new("/dev/shm").join(format!("{prefix}hngwake_0123456789abcdef"));
     std::fs::write(&wake, [0u8; 64]).expect("a wake segment");
-    let out = Command::new(HNG)
-        .args(["kill", "camera"])
-        .env("HNG_PREFIX", &prefix)
-        .output()
-        .expect("hng");
+    let out = hng(&prefix, &["kill", "camera"]);
     assert_eq!(out.status.code(), Some(1), "no system: {out:?}");
     let files = shm::prefix_files(&prefix);
     assert!(files.is_empty(), "left {files:?}");
@@ -131,11 +128,7 @@ fn a_client_removes_system_files_left_on_a_prefix_where_no_system_runs() {
     let node = std::path::Path::new("/dev/shm").join(format!("{prefix}some_node_file"));
     std::fs::write(&wake, [0u8; 64]).expect("a wake segment");
     std::fs::write(&node, [0u8; 8]).expect("a node's file");
-    let _ = Command::new(HNG)
-        .args(["ps"])
-        .env("HNG_PREFIX", &prefix)
-        .output()
-        .expect("hng");
+    let _ = hng(&prefix, &["ps"]);
     assert!(wake.exists(), "a living system's wake segment was removed");
     shm::remove_prefix_files(&prefix);
 }
@@ -211,11 +204,7 @@ fn built_in_module_names_configs_and_bad_or_old_durations_are_checked_before_any
 #[test]
 fn iox2_config_is_iceoryx2_toml_with_the_prefix_and_reads_back() {
     let prefix = shm::unique_prefix("cliiox");
-    let out = Command::new(HNG)
-        .args(["iox2-config"])
-        .env("HNG_PREFIX", &prefix)
-        .output()
-        .expect("hng iox2-config");
+    let out = hng(&prefix, &["iox2-config"]);
     assert!(out.status.success());
     let text = String::from_utf8_lossy(&out.stdout);
     let v: toml::Table = toml::from_str(&text).expect("TOML");
@@ -260,11 +249,7 @@ fn iox2_config_is_iceoryx2_toml_with_the_prefix_and_reads_back() {
         launch.display().to_string(),
     ];
     for args in [vec!["iox2-config".to_owned()], run.to_vec()] {
-        let out = Command::new(HNG)
-            .args(&args)
-            .env("HNG_PREFIX", &long)
-            .output()
-            .expect("hng");
+        let out = hng(&long, &args);
         let err = String::from_utf8_lossy(&out.stderr);
         assert_eq!(out.status.code(), Some(1), "{args:?}: {err}");
         assert!(

@@ -19,6 +19,15 @@ fn hng(args: &[&str]) -> Output {
         .expect("run hng")
 }
 
+/// A file `name` holding `text` in a new scratch directory (removed when the directory
+/// is dropped).
+fn scratch_file(name: &str, text: &str) -> (tempfile::TempDir, PathBuf) {
+    let dir = tempfile::tempdir().expect("scratch dir");
+    let path = dir.path().join(name);
+    std::fs::write(&path, text).expect("write the scratch file");
+    (dir, path)
+}
+
 fn json(out: &Output) -> serde_json::Value {
     assert!(
         out.status.success(),
@@ -56,13 +65,10 @@ fn eval_planner_finds_every_optimal_length_on_arena() {
 #[test]
 fn eval_planner_errors_name_file_line_and_field() {
     let map = repo_data("movingai/arena.map");
-    let dir = tempfile::tempdir().expect("scratch dir");
-    let scen = dir.path().join("bad.scen");
-    std::fs::write(
-        &scen,
+    let (_dir, scen) = scratch_file(
+        "bad.scen",
         "version 1\n0\tarena.map\t49\t49\t1\t11\t1\t12\t1\n0\tarena.map\t49\t49\t1\tx\t1\t12\t1\n",
-    )
-    .expect("write scen");
+    );
     let out = hng(&[
         "eval",
         "planner",
@@ -87,13 +93,10 @@ fn eval_slam_errors_name_the_file_and_line() {
     let out = hng(&["eval", "slam", "/nonexistent/log.clf", "--json"]);
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("/nonexistent/log.clf"));
-    let dir = tempfile::tempdir().expect("scratch dir");
-    let log = dir.path().join("short.log");
-    std::fs::write(
-        &log,
+    let (_dir, log) = scratch_file(
+        "short.log",
         "ODOM 0 0 0 0 0 0 1 h 1\nFLASER 3 1.0 2.0 3.0 0 0 0 0 0 0 2 h 2\nFLASER 3 1.0 2.0\n",
-    )
-    .expect("write log");
+    );
     let out = hng(&["eval", "slam", &log.to_string_lossy()]);
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);

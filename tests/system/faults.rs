@@ -107,68 +107,68 @@ impl RunningSystem {
         std::fs::read_to_string(self.dir.join("run.log")).unwrap_or_default()
     }
 
-    /// Waits for an event of `kind` about `module`; other events are skipped (their
-    /// Started pids recorded).
-    fn wait_event(&mut self, module: &str, kind: EventKind) -> ModuleEvent {
+    /// Polls `poll` until it gives a value, waiting for input in between; fails after
+    /// [`TIMEOUT`] with what `poll` last said was missing, and the run's log.
+    fn until<T>(&mut self, mut poll: impl FnMut(&mut Self) -> Result<T, String>) -> T {
         let deadline = Instant::now() + TIMEOUT;
         loop {
-            while let Some(e) = self.obs().events.receive().expect("receive event") {
-                let e = *e;
-                if e.kind() == Some(EventKind::Started) {
-                    self.pids.push(e.pid);
-                }
-                if e.module() == module && e.kind() == Some(kind) {
-                    return e;
-                }
-            }
-            self.drain_counts();
+            let missing = match poll(self) {
+                Ok(v) => return v,
+                Err(missing) => missing,
+            };
             let left = deadline.saturating_duration_since(Instant::now());
             assert!(
                 !left.is_zero(),
-                "no {kind:?} event for {module} within {TIMEOUT:?}; log:\n{}",
+                "{missing} within {TIMEOUT:?}; log:\n{}",
                 self.log()
             );
             self.obs().waiter.wait(Some(left)).expect("wait");
         }
+    }
+
+    /// Waits for an event of `kind` about `module`; other events are skipped (their
+    /// Started pids recorded).
+    fn wait_event(&mut self, module: &str, kind: EventKind) -> ModuleEvent {
+        self.until(|f| {
+            while let Some(e) = f.obs().events.receive().expect("receive event") {
+                let e = *e;
+                if e.kind() == Some(EventKind::Started) {
+                    f.pids.push(e.pid);
+                }
+                if e.module() == module && e.kind() == Some(kind) {
+                    return Ok(e);
+                }
+            }
+            f.drain_counts();
+            Err(format!("no {kind:?} event for {module}"))
+        })
     }
 
     /// Waits for a status document that satisfies `pred`.
     fn status_where(&mut self, what: &str, mut pred: impl FnMut(&Value) -> bool) -> Value {
-        let deadline = Instant::now() + TIMEOUT;
         let mut last = Value::Null;
-        loop {
-            while let Some(s) = self.obs().status.receive().expect("receive status") {
+        self.until(|f| {
+            while let Some(s) = f.obs().status.receive().expect("receive status") {
                 let doc: Value = serde_json::from_slice(s.data()).expect("status is JSON");
                 if pred(&doc) {
-                    return doc;
+                    return Ok(doc);
                 }
                 last = doc;
             }
-            let left = deadline.saturating_duration_since(Instant::now());
-            assert!(
-                !left.is_zero(),
-                "no status with {what} within {TIMEOUT:?}; last: {last:#}\nlog:\n{}",
-                self.log()
-            );
-            self.obs().waiter.wait(Some(left)).expect("wait");
-        }
+            Err(format!("no status with {what} (last: {last:#})"))
+        })
     }
 
     /// The next count message.
     fn next_count(&mut self) -> Goal {
-        let deadline = Instant::now() + TIMEOUT;
-        loop {
-            if let Some(g) = self.obs().count.receive().expect("receive count") {
-                return *g;
-            }
-            let left = deadline.saturating_duration_since(Instant::now());
-            assert!(
-                !left.is_zero(),
-                "the counter published nothing within {TIMEOUT:?}; log:\n{}",
-                self.log()
-            );
-            self.obs().waiter.wait(Some(left)).expect("wait");
-        }
+        self.until(|f| {
+            f.obs()
+                .count
+                .receive()
+                .expect("receive count")
+                .map(|g| *g)
+                .ok_or_else(|| "the counter published nothing".to_owned())
+        })
     }
 
     /// Reads counts until one reaches `n`; returns the last message and the largest

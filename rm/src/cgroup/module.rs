@@ -425,7 +425,7 @@ impl Placement {
 
     /// Moves `pid` into the module's cgroups (also async-signal-safe).
     pub fn place(&self, pid: i32) -> std::io::Result<()> {
-        let mut buf = [0u8; 16];
+        let mut buf = [0u8; 20];
         let text = format_pid(pid, &mut buf);
         for fd in &self.fds {
             // SAFETY: fd is an open descriptor owned by self; text points to
@@ -444,16 +444,6 @@ impl Placement {
 
 /// Formats a non-negative pid into `buf` without allocating; a negative pid gives "0"
 /// (which the kernel reads as "the writing process").
-pub(super) fn format_pid(pid: i32, buf: &mut [u8; 16]) -> &[u8] {
-    let mut v = u32::try_from(pid).unwrap_or(0);
-    let mut i = buf.len();
-    loop {
-        i -= 1;
-        buf[i] = b'0' + (v % 10) as u8;
-        v /= 10;
-        if v == 0 || i == 0 {
-            break;
-        }
-    }
-    &buf[i..]
+pub(super) fn format_pid(pid: i32, buf: &mut [u8; 20]) -> &[u8] {
+    hng_runtime::fatal::decimal(u64::try_from(pid).unwrap_or(0), buf)
 }

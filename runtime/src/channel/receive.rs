@@ -316,13 +316,6 @@ mod tests {
     use crate::msg::{GridInfo, Twist};
     use crate::shm;
 
-    fn twist(x: f64) -> Twist {
-        Twist {
-            linear_x: x,
-            ..Twist::default()
-        }
-    }
-
     #[test]
     fn in_lockstep_a_message_sent_in_the_current_round_waits_for_the_next() {
         let prefix = shm::unique_prefix("holdround");
@@ -334,7 +327,7 @@ mod tests {
         let grid_sub = b.slice_subscriber::<GridInfo>("t/grid").expect("grid sub");
 
         // Outside lockstep nothing is held.
-        publisher.publish(twist(1.0)).expect("publish");
+        publisher.publish(Twist::new(1.0, 0.0)).expect("publish");
         assert_eq!(
             subscriber.receive().expect("rx").expect("outside").linear_x,
             1.0
@@ -342,11 +335,11 @@ mod tests {
 
         // Round 5: `a` sends one message before the round (4) and two in it.
         a.set_lockstep_round(4);
-        publisher.publish(twist(2.0)).expect("publish");
+        publisher.publish(Twist::new(2.0, 0.0)).expect("publish");
         a.set_lockstep_round(5);
         b.set_lockstep_round(5);
-        publisher.publish(twist(3.0)).expect("publish");
-        publisher.publish(twist(4.0)).expect("publish");
+        publisher.publish(Twist::new(3.0, 0.0)).expect("publish");
+        publisher.publish(Twist::new(4.0, 0.0)).expect("publish");
         grids
             .publish_copy(GridInfo::default(), &[7, 8, 9])
             .expect("grid");
@@ -369,7 +362,7 @@ mod tests {
         // (more of them than the subscriber may borrow at once).
         b.set_lockstep_round(6);
         a.set_lockstep_round(6);
-        publisher.publish(twist(5.0)).expect("publish");
+        publisher.publish(Twist::new(5.0, 0.0)).expect("publish");
         assert!(subscriber.has_samples());
         let x: Vec<f64> = std::iter::from_fn(|| subscriber.receive().expect("rx"))
             .map(|s| s.linear_x)

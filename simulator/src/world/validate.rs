@@ -27,13 +27,7 @@ impl World {
             check_pos(w.thickness, &format!("walls[{i}].thickness"))?;
         }
         for (i, b) in self.boxes.iter().enumerate() {
-            check_finite(&[b.center[0], b.center[1]], &format!("boxes[{i}].center"))?;
-            check(
-                b.size.iter().all(|s| s.is_finite() && *s > 0.0),
-                &format!("boxes[{i}].size"),
-                "both sizes must be finite and > 0",
-            )?;
-            check_finite(&[b.angle], &format!("boxes[{i}].angle"))?;
+            b.validate(&format!("boxes[{i}]"))?;
         }
         for (i, b) in self.beacons.iter().enumerate() {
             check_finite(
@@ -145,6 +139,19 @@ impl World {
         }
         check_rate(s.ground_truth.rate, "sensors.ground_truth.rate")?;
         crate::script::validate(&self.events, &self.lighting_zones)
+    }
+}
+
+impl BoxObstacle {
+    /// Checks the box's geometry; errors name `field`'s members.
+    pub(crate) fn validate(&self, field: &str) -> Result<()> {
+        check_finite(&self.center, &format!("{field}.center"))?;
+        check(
+            self.size.iter().all(|s| s.is_finite() && *s > 0.0),
+            &format!("{field}.size"),
+            "both sizes must be finite and > 0",
+        )?;
+        check_finite(&[self.angle], &format!("{field}.angle"))
     }
 }
 

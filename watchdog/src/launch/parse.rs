@@ -315,18 +315,11 @@ impl Cx<'_> {
                 .map(|a| a.get_ref().clone())
                 .collect();
             spec.manager = raw.manager.as_ref().is_some_and(|m| *m.get_ref());
-            spec.needs = raw
-                .needs
-                .iter()
-                .flatten()
-                .map(|s| s.get_ref().clone())
-                .collect();
-            spec.provides = raw
-                .provides
-                .iter()
-                .flatten()
-                .map(|s| s.get_ref().clone())
-                .collect();
+            let names = |list: &Option<Vec<S<String>>>| -> Vec<String> {
+                list.iter().flatten().map(|s| s.get_ref().clone()).collect()
+            };
+            spec.needs = names(&raw.needs);
+            spec.provides = names(&raw.provides);
             self.apply_settings(&merged, &mut spec);
             if let Some(cfg) = &raw.config {
                 match toml::to_string(cfg.get_ref()) {
@@ -391,29 +384,18 @@ impl Cx<'_> {
             return None;
         };
         let program = first.get_ref();
-        let missing = |reason: String| LaunchErrorKind::MissingBinary {
-            program: program.clone(),
-            reason,
-        };
+        // The program's path, or why it is missing.
         let candidate = if program == "hng" || program == "@hng" {
-            match self_exe {
-                Some(p) => p.to_owned(),
-                None => {
-                    self.err(
-                        first.span(),
-                        field,
-                        missing("the path of the running executable is unknown".to_owned()),
-                    );
-                    return None;
-                }
-            }
+            self_exe
+                .map(Path::to_owned)
+                .ok_or_else(|| "the path of the running executable is unknown".to_owned())
         } else if program.contains('/') {
             let p = Path::new(program);
-            if p.is_absolute() {
+            Ok(if p.is_absolute() {
                 p.to_owned()
             } else {
                 self.file.parent().unwrap_or_else(|| Path::new(".")).join(p)
-            }
+            })
         } else {
             let path = opts
                 .path
@@ -424,29 +406,31 @@ impl Cx<'_> {
                 .map(|dir| dir.join(program))
                 .find(|p| is_executable(p).is_ok());
             match found {
-                Some(p) => p,
-                None if !opts.check_binaries => PathBuf::from(program),
-                None => {
-                    self.err(
-                        first.span(),
-                        field,
-                        missing("not found in PATH (or not executable there)".to_owned()),
-                    );
-                    return None;
-                }
+                Some(p) => Ok(p),
+                None if !opts.check_binaries => Ok(PathBuf::from(program)),
+                None => Err("not found in PATH (or not executable there)".to_owned()),
             }
         };
-        if opts.check_binaries
-            && let Err(reason) = is_executable(&candidate)
-        {
-            self.err(
-                first.span(),
-                field,
-                missing(format!("{}: {reason}", candidate.display())),
-            );
-            return None;
+        let checked = candidate.and_then(|c| {
+            if opts.check_binaries {
+                is_executable(&c).map_err(|reason| format!("{}: {reason}", c.display()))?;
+            }
+            Ok(c)
+        });
+        match checked {
+            Ok(c) => Some(c),
+            Err(reason) => {
+                self.err(
+                    first.span(),
+                    field,
+                    LaunchErrorKind::MissingBinary {
+                        program: program.clone(),
+                        reason,
+                    },
+                );
+                None
+            }
         }
-        Some(candidate)
     }
 
     pub(crate) fn validate_settings_alone(&mut self, d: &RawSettings) {

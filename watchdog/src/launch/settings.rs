@@ -68,8 +68,8 @@ impl Cx<'_> {
         if let Some(Some(d)) = dur(pick!(s, backoff_reset_after_s), false, &mut errs) {
             spec.backoff_reset_after = d;
         }
-        // A zero here would switch a safety mechanism off without saying so.
-        let zero = |f: &Option<(&S<Scalar>, String)>, why: &str, errs: &mut Errs| {
+        // An error for the value of `f` (when set and reported here).
+        let invalid = |f: &Option<(&S<Scalar>, String)>, why: &str, errs: &mut Errs| {
             if let Some((v, field)) = f
                 && report(field)
             {
@@ -80,35 +80,37 @@ impl Cx<'_> {
                 ));
             }
         };
-        let f = pick!(s, give_up_window_s);
-        match dur(f.clone(), false, &mut errs) {
-            Some(Some(d)) if d.is_zero() => zero(
-                &f,
-                "give_up_window_s = 0 would never count a restart, so a crash loop would never be stopped: give a window such as 60",
-                &mut errs,
-            ),
-            Some(Some(d)) => spec.give_up_window = d,
-            _ => {}
+        // A duration that must not be zero (a zero would switch a safety mechanism off
+        // without saying so): `None`, and an error, for a zero.
+        let nonzero = |f: Option<(&S<Scalar>, String)>, why: &str, errs: &mut Errs| {
+            let d = dur(f.clone(), false, errs)??;
+            if d.is_zero() {
+                invalid(&f, why, errs);
+                None
+            } else {
+                Some(d)
+            }
+        };
+        if let Some(d) = nonzero(
+            pick!(s, give_up_window_s),
+            "give_up_window_s = 0 would never count a restart, so a crash loop would never be stopped: give a window such as 60",
+            &mut errs,
+        ) {
+            spec.give_up_window = d;
         }
-        let f = pick!(s, start_timeout_s);
-        match dur(f.clone(), false, &mut errs) {
-            Some(Some(d)) if d.is_zero() => zero(
-                &f,
-                "start_timeout_s = 0 would count every start as a hang: give the time a module may take to its first heartbeat, such as 5",
-                &mut errs,
-            ),
-            Some(Some(d)) => spec.start_timeout = d,
-            _ => {}
+        if let Some(d) = nonzero(
+            pick!(s, start_timeout_s),
+            "start_timeout_s = 0 would count every start as a hang: give the time a module may take to its first heartbeat, such as 5",
+            &mut errs,
+        ) {
+            spec.start_timeout = d;
         }
-        let f = pick!(s, stop_timeout_s);
-        match dur(f.clone(), false, &mut errs) {
-            Some(Some(d)) if d.is_zero() => zero(
-                &f,
-                "stop_timeout_s = 0 would SIGKILL every module without letting it stop (no final checkpoint): give a time such as 5",
-                &mut errs,
-            ),
-            Some(Some(d)) => spec.stop_timeout = d,
-            _ => {}
+        if let Some(d) = nonzero(
+            pick!(s, stop_timeout_s),
+            "stop_timeout_s = 0 would SIGKILL every module without letting it stop (no final checkpoint): give a time such as 5",
+            &mut errs,
+        ) {
+            spec.stop_timeout = d;
         }
         if let Some(d) = dur(pick!(s, checkpoint_period_s), true, &mut errs) {
             spec.checkpoint_period = d.filter(|d| !d.is_zero());
@@ -116,7 +118,7 @@ impl Cx<'_> {
         let period_field = pick!(s, heartbeat_period_s);
         let period = dur(period_field.clone(), true, &mut errs).flatten();
         if period.is_some_and(|p| p.is_zero()) {
-            zero(
+            invalid(
                 &period_field,
                 "heartbeat_period_s = 0 would switch hang detection off without saying so: give a period such as 0.1, or write \"off\"",
                 &mut errs,
@@ -127,19 +129,16 @@ impl Cx<'_> {
         match (period, timeout, timeout_field) {
             (Some(p), t, tf) if !p.is_zero() => {
                 let t = t.unwrap_or(p * DEFAULT_HEARTBEAT_TIMEOUT_PERIODS);
-                if t <= p
-                    && let Some((v, f)) = tf
-                    && report(&f)
-                {
-                    errs.push((
-                        v.span(),
-                        f,
-                        LaunchErrorKind::InvalidValue(format!(
+                if t <= p {
+                    invalid(
+                        &tf,
+                        &format!(
                             "heartbeat_timeout_s ({}) must be longer than heartbeat_period_s ({}); 3 periods is usual",
                             t.as_secs_f64(),
                             p.as_secs_f64()
-                        )),
-                    ));
+                        ),
+                        &mut errs,
+                    );
                 }
                 spec.heartbeat = Some(HeartbeatSpec {
                     period: p,
@@ -159,19 +158,16 @@ impl Cx<'_> {
             )),
             _ => spec.heartbeat = None,
         }
-        if spec.backoff_initial > spec.backoff_max
-            && let Some((v, f)) = backoff_max_field
-            && report(&f)
-        {
-            errs.push((
-                v.span(),
-                f,
-                LaunchErrorKind::InvalidValue(format!(
+        if spec.backoff_initial > spec.backoff_max {
+            invalid(
+                &backoff_max_field,
+                &format!(
                     "backoff_max_s ({}) is smaller than backoff_initial_s ({})",
                     spec.backoff_max.as_secs_f64(),
                     spec.backoff_initial.as_secs_f64()
-                )),
-            ));
+                ),
+                &mut errs,
+            );
         }
         if let Some((v, f)) = pick!(s, give_up_failures) {
             match u32::try_from(*v.get_ref()) {
