@@ -117,6 +117,18 @@ mod tests {
     }
 
     #[test]
+    fn with_slack_a_report_may_wait_for_another_wake_up_and_announces_the_slack() {
+        let mut b = Beat::new(200 * MS, 1000 * MS, 0).with_slack(100 * MS);
+        // The loop need not wake before 300 ms, but a wake-up from 200 ms on reports.
+        assert_eq!(b.next_ns(), 300 * MS);
+        assert_eq!(b.due(199 * MS), None);
+        b.work(150 * MS);
+        assert_eq!(b.due(250 * MS), Some(300 * MS), "period + slack announced");
+        assert_eq!(b.next_ns(), 550 * MS);
+        assert_eq!(b.normal_ns(), 300 * MS);
+    }
+
+    #[test]
     fn a_busy_heartbeat_keeps_its_period_and_an_idle_limit_below_it_is_raised() {
         let mut b = Beat::new(100 * MS, 10 * MS, 0);
         assert_eq!(b.due(100 * MS), Some(100 * MS));

@@ -123,3 +123,33 @@ pub(super) fn save_checkpoint<M: Module>(
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_unchanged_checkpoint_is_not_written_again() {
+        let dir = std::env::temp_dir().join(format!("hng-ckpts-same-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let store = Checkpoints::open(&dir, "m").expect("checkpoints");
+        let prev = dir.join("m.prev.ckpt");
+        store.save(1, b"state a").expect("save");
+        assert!(store.latest.path().exists());
+        assert!(!prev.exists());
+        // The same state again: nothing moves (a write would first move the latest aside).
+        store.save(1, b"state a").expect("save");
+        assert!(!prev.exists(), "an identical checkpoint was written again");
+        // Another version of the same bytes, then other bytes: written.
+        store.save(2, b"state a").expect("save");
+        assert!(prev.exists());
+        std::fs::remove_file(&prev).expect("remove");
+        store.save(2, b"state b").expect("save");
+        assert!(prev.exists());
+        assert_eq!(
+            store.latest.load(2).expect("load").as_deref(),
+            Some(&b"state b"[..])
+        );
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}
