@@ -99,6 +99,64 @@ impl WakeFlag {
 /// One sample in the publish count (the word's high half).
 const PUBLISHED_ONE: u64 = 1 << 32;
 
+/// The answers a lockstep round still waits for, shared by the simulator and its
+/// participants: only the answer that completes the round wakes the simulator
+/// ([`crate::clock::lockstep`], "one wake-up per round").
+///
+/// One word: the round (its low 32 bits) in the high half, the answers outstanding in the
+/// low half. The simulator arms it before it calls the round's members; a participant
+/// counts its answer down after publishing it, and notifies only when the count reaches
+/// zero, when it was zero already, or when the word names another round (a simulator that
+/// does not count, a restarted one, a late answer). So the last answer of a round always
+/// notifies; an answer that does not is seen by the simulator when the last one wakes it
+/// (it was published first), or at once if the simulator was not asleep.
+pub(crate) struct Countdown {
+    segment: Segment,
+}
+
+impl Countdown {
+    pub(crate) fn open(prefix: &str, channel: &str) -> Result<Countdown, Error> {
+        let name = format!(
+            "/{prefix}{WAKE_TAG}{:016x}",
+            fnv64(&format!("{channel}#countdown"))
+        );
+        let segment = Segment::open(&name, SEGMENT_LEN, &format!("countdown of {channel:?}"))?;
+        Ok(Countdown { segment })
+    }
+
+    #[inline]
+    fn word(&self) -> &AtomicU64 {
+        // SAFETY: as WakeFlag::word.
+        unsafe { self.segment.get() }
+    }
+
+    /// Simulator side: round `round` waits for `answers` answers.
+    pub(crate) fn arm(&self, round: u64, answers: u32) {
+        self.word().store(
+            ((round as u32 as u64) << 32) | u64::from(answers),
+            Ordering::SeqCst,
+        );
+    }
+
+    /// Participant side, after publishing its answer to `round`: should it notify?
+    pub(crate) fn answered(&self, round: u64) -> bool {
+        let round = round as u32;
+        let mut notify = true;
+        let _ = self
+            .word()
+            .fetch_update(Ordering::SeqCst, Ordering::SeqCst, |v| {
+                let left = v as u32;
+                if (v >> 32) as u32 != round || left == 0 {
+                    notify = true;
+                    return None;
+                }
+                notify = left == 1;
+                Some(v - 1)
+            });
+        notify
+    }
+}
+
 #[inline]
 fn waiters(word: u64) -> u32 {
     word as u32
@@ -124,6 +182,28 @@ mod tests {
         assert_eq!(flag.published(), before.wrapping_add(2));
         assert!(!flag.published_has_waiters());
         drop(flag);
+        crate::shm::remove_prefix_files(&prefix);
+    }
+
+    #[test]
+    fn only_the_answer_that_completes_a_round_notifies() {
+        let prefix = crate::shm::unique_prefix("countdown");
+        let sim = Countdown::open(&prefix, "t/ack").expect("open");
+        let module = Countdown::open(&prefix, "t/ack").expect("open");
+        // Never armed (zeros): every answer notifies.
+        assert!(module.answered(1));
+        sim.arm(7, 3);
+        assert!(!module.answered(7));
+        assert!(module.answered(6), "an answer to another round notifies");
+        assert!(!module.answered(7));
+        assert!(module.answered(7), "the third answer completes the round");
+        assert!(
+            module.answered(7),
+            "an extra answer (a left-out member) notifies"
+        );
+        sim.arm(8, 0);
+        assert!(module.answered(8));
+        drop((sim, module));
         crate::shm::remove_prefix_files(&prefix);
     }
 }

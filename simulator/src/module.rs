@@ -160,6 +160,10 @@ impl Module for SimulatorModule {
         let lockstep = if cfg.lockstep.is_empty() {
             None
         } else {
+            // In lockstep the commands are read when a round closes quiet, before the next
+            // step (`lockstep_advance`): a command does not need to wake us (the robot sends
+            // up to three per odometry step, each a wake-up for nothing).
+            ctx.unsubscribe(cmd.id())?;
             node.track_writes(true);
             Some(Lockstep::new(
                 ctx,

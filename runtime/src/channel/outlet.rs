@@ -40,9 +40,20 @@ impl Outlet {
 
     #[inline]
     pub(super) fn sent(&self) -> Result<(), Error> {
+        self.sent_gated(|| true)
+    }
+
+    /// [`Outlet::sent`], notifying a sleeping subscriber only if `gate` says so. The gate
+    /// runs after the send and before the wake flag is read (whether anyone sleeps or not):
+    /// when gates of several publishers agree on which of them notifies (a countdown), the
+    /// samples of the others were sent before that one reads the flag, so a subscriber that
+    /// it does not notify (it was not asleep yet) sees them all when it looks.
+    #[inline]
+    pub(super) fn sent_gated(&self, gate: impl FnOnce() -> bool) -> Result<(), Error> {
         Counters::add(&self.counters.msgs_out, 1);
         self.writes.note(self.key);
-        if self.wake.published_has_waiters() {
+        let notify = gate();
+        if self.wake.published_has_waiters() && notify {
             self.notified.set(self.notified.get() + 1);
             Counters::add(&self.counters.wakeups, 1);
             self.notifier

@@ -63,13 +63,33 @@ impl<T: Message> Publisher<T> {
         }
     }
 
+    /// [`Publisher::publish`], waking a sleeping subscriber only if `gate` (called once the
+    /// sample is out) says so: lockstep answers wake the simulator once per round.
+    pub(crate) fn publish_gated(
+        &self,
+        mut msg: T,
+        gate: impl FnOnce() -> bool,
+    ) -> Result<(), Error> {
+        self.out.stamp(msg.header_mut());
+        self.send_gated(self.uninit()?.write_payload(msg), gate)
+    }
+
     /// Sends a stamped sample, then loans the next spare.
     #[inline]
     fn send(&self, sample: SampleMut<Service, T, ()>) -> Result<(), Error> {
+        self.send_gated(sample, || true)
+    }
+
+    #[inline]
+    fn send_gated(
+        &self,
+        sample: SampleMut<Service, T, ()>,
+        gate: impl FnOnce() -> bool,
+    ) -> Result<(), Error> {
         sample
             .send()
             .map_err(|e| Error::channel(&self.out.channel, "send", e))?;
-        let sent = self.out.sent();
+        let sent = self.out.sent_gated(gate);
         let spare = self.spare.take();
         self.spare
             .set(spare.or_else(|| self.port.loan_uninit().ok()));

@@ -74,6 +74,7 @@ use crate::clock::CLOCK_CHANNEL;
 use crate::error::Error;
 use crate::msg::{self, Header, MODULE_NAME_LEN};
 use crate::qos::ChannelKind;
+use crate::wake::Countdown;
 
 mod barrier;
 pub use barrier::{Barrier, Verdict};
@@ -168,9 +169,34 @@ fn put_keys(out: &mut [u64; MAX_KEYS], keys: &[u64]) -> u16 {
     }
 }
 
+/// The answers a round still waits for, shared by the simulator ([`RoundCountdown::arm`]
+/// when it opens a round) and the participants ([`Acker`]): only the answer that completes
+/// the round wakes the simulator, instead of one wake-up per answer (see [`super`]).
+pub struct RoundCountdown(Countdown);
+
+impl std::fmt::Debug for RoundCountdown {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RoundCountdown").finish_non_exhaustive()
+    }
+}
+
+impl RoundCountdown {
+    /// Opens the countdown of `node`'s system.
+    pub fn open(node: &Node) -> Result<RoundCountdown, Error> {
+        Ok(RoundCountdown(Countdown::open(node.prefix(), ACK_CHANNEL)?))
+    }
+
+    /// Round `round` waits for `answers` answers (call before calling its members).
+    pub fn arm(&self, round: u64, answers: usize) {
+        self.0
+            .arm(round, u32::try_from(answers).unwrap_or(u32::MAX));
+    }
+}
+
 /// The module side: acknowledges each new round once the executor has handled its inputs.
 pub struct Acker {
     publisher: Publisher<ClockAck>,
+    countdown: RoundCountdown,
     name: String,
     acked_round: u64,
     busy: bool,
@@ -201,6 +227,7 @@ impl Acker {
         let _ = node.take_written();
         Ok(Acker {
             publisher: node.publisher(ACK_CHANNEL)?,
+            countdown: RoundCountdown::open(node)?,
             name: node.name().to_owned(),
             acked_round: 0,
             busy: false,
@@ -277,7 +304,9 @@ impl Acker {
             ack.inputs_len = put_keys(&mut ack.inputs, inputs);
         }
         ack.written_len = put_keys(&mut ack.written, &self.written);
-        self.publisher.publish(ack)?;
+        // Only the answer that completes the round wakes the simulator.
+        self.publisher
+            .publish_gated(ack, || self.countdown.0.answered(round))?;
         let _ = node.take_written();
         self.written.clear();
         self.out_seen = node.counters().msgs_out.get();

@@ -8,6 +8,12 @@
 //! module with a stretched period reports at once with the normal period, before handling
 //! it: a callback that then hangs is detected within the configured timeout. The stretch
 //! only ever covers time the module spends blocked in its wait.
+//!
+//! **Slack** ([`Beat::with_slack`]): a module called to lockstep rounds wakes often anyway,
+//! so a report due between two rounds need not wake it on its own: it waits up to `slack`
+//! past the due time and sends the report with the next round it handles. Each report then
+//! announces its period plus the slack, so the watchdog's hang deadline moves with it
+//! (the same margin as configured). Without slack (every other module) nothing changes.
 
 /// See the [module documentation](self).
 #[derive(Debug, Clone)]
@@ -17,6 +23,8 @@ pub(super) struct Beat {
     period_ns: u64,
     next_ns: u64,
     worked: bool,
+    /// How late a report may go out, waiting for a wake-up that comes anyway.
+    slack_ns: u64,
 }
 
 impl Beat {
@@ -30,17 +38,24 @@ impl Beat {
             period_ns: normal_ns,
             next_ns: now_ns.saturating_add(normal_ns),
             worked: false,
+            slack_ns: 0,
         }
     }
 
-    /// When the next report is due (monotonic ns).
-    pub(super) fn next_ns(&self) -> u64 {
-        self.next_ns
+    /// Reports may go out up to `slack_ns` late, with a wake-up that comes anyway.
+    pub(super) fn with_slack(mut self, slack_ns: u64) -> Beat {
+        self.slack_ns = slack_ns;
+        self
     }
 
-    /// The normal period.
+    /// When the loop must wake at the latest to send the next report (monotonic ns).
+    pub(super) fn next_ns(&self) -> u64 {
+        self.next_ns.saturating_add(self.slack_ns)
+    }
+
+    /// The normal period, as a report announces it (with the slack).
     pub(super) fn normal_ns(&self) -> u64 {
-        self.normal_ns
+        self.normal_ns.saturating_add(self.slack_ns)
     }
 
     /// The loop woke for something else than the report: the module is not idle. Returns
@@ -51,7 +66,7 @@ impl Beat {
         if self.period_ns > self.normal_ns {
             self.period_ns = self.normal_ns;
             self.next_ns = now_ns.saturating_add(self.normal_ns);
-            Some(self.normal_ns)
+            Some(self.normal_ns())
         } else {
             None
         }
@@ -69,7 +84,7 @@ impl Beat {
         };
         self.worked = false;
         self.next_ns = now_ns.saturating_add(self.period_ns);
-        Some(self.period_ns)
+        Some(self.period_ns.saturating_add(self.slack_ns))
     }
 }
 
@@ -99,6 +114,18 @@ mod tests {
         assert_eq!(b.work(now + 20 * MS), None);
         // The period with work keeps the normal period.
         assert_eq!(b.due(now + 110 * MS), Some(100 * MS));
+    }
+
+    #[test]
+    fn with_slack_a_report_may_wait_for_another_wake_up_and_announces_the_slack() {
+        let mut b = Beat::new(200 * MS, 1000 * MS, 0).with_slack(100 * MS);
+        // The loop need not wake before 300 ms, but a wake-up from 200 ms on reports.
+        assert_eq!(b.next_ns(), 300 * MS);
+        assert_eq!(b.due(199 * MS), None);
+        b.work(150 * MS);
+        assert_eq!(b.due(250 * MS), Some(300 * MS), "period + slack announced");
+        assert_eq!(b.next_ns(), 550 * MS);
+        assert_eq!(b.normal_ns(), 300 * MS);
     }
 
     #[test]

@@ -7,6 +7,10 @@
 //! simulator: the world would start again and its clock go back) sets
 //! [`Module::CLEAN_START_AFTER_BAD_CHECKPOINT`] to false and then refuses to start when
 //! neither checkpoint is usable.
+//!
+//! A checkpoint identical to the one this process last wrote is not written again (a module
+//! whose state did not change, such as Maps or the laser driver, would otherwise pay a
+//! rename, two `fsync`s and a directory scan every period for nothing).
 
 use std::path::Path;
 
@@ -18,6 +22,8 @@ use crate::checkpoint::CheckpointStore;
 pub(super) struct Checkpoints {
     latest: CheckpointStore,
     previous: Option<CheckpointStore>,
+    /// What this process last wrote (state version and bytes).
+    written: std::cell::RefCell<Option<(u32, Vec<u8>)>>,
 }
 
 impl Checkpoints {
@@ -28,6 +34,7 @@ impl Checkpoints {
             Ok(latest) => Some(Checkpoints {
                 latest,
                 previous: CheckpointStore::new(dir, &format!("{name}.prev")).ok(),
+                written: std::cell::RefCell::new(None),
             }),
             Err(e) => {
                 tracing::warn!(module = %name, "checkpoints disabled: {e}");
@@ -82,13 +89,23 @@ impl Checkpoints {
         state_version: u32,
         bytes: &[u8],
     ) -> Result<(), crate::checkpoint::CheckpointError> {
+        if self
+            .written
+            .borrow()
+            .as_ref()
+            .is_some_and(|(v, b)| *v == state_version && b.as_slice() == bytes)
+        {
+            return Ok(()); // on disk already
+        }
         if let Some(prev) = &self.previous
             && self.latest.path().exists()
             && let Err(e) = std::fs::rename(self.latest.path(), prev.path())
         {
             tracing::debug!("keeping the previous checkpoint: {e}");
         }
-        self.latest.save(state_version, bytes)
+        let saved = self.latest.save(state_version, bytes);
+        *self.written.borrow_mut() = saved.is_ok().then(|| (state_version, bytes.to_vec()));
+        saved
     }
 }
 
@@ -104,5 +121,35 @@ pub(super) fn save_checkpoint<M: Module>(
             Ok(()) => ctx.checkpoints += 1,
             Err(e) => tracing::warn!(module = %name, "checkpoint not written: {e}"),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_unchanged_checkpoint_is_not_written_again() {
+        let dir = std::env::temp_dir().join(format!("hng-ckpts-same-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let store = Checkpoints::open(&dir, "m").expect("checkpoints");
+        let prev = dir.join("m.prev.ckpt");
+        store.save(1, b"state a").expect("save");
+        assert!(store.latest.path().exists());
+        assert!(!prev.exists());
+        // The same state again: nothing moves (a write would first move the latest aside).
+        store.save(1, b"state a").expect("save");
+        assert!(!prev.exists(), "an identical checkpoint was written again");
+        // Another version of the same bytes, then other bytes: written.
+        store.save(2, b"state a").expect("save");
+        assert!(prev.exists());
+        std::fs::remove_file(&prev).expect("remove");
+        store.save(2, b"state b").expect("save");
+        assert!(prev.exists());
+        assert_eq!(
+            store.latest.load(2).expect("load").as_deref(),
+            Some(&b"state b"[..])
+        );
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }

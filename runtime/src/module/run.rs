@@ -127,12 +127,18 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
     phases.mark("contracts");
     let _ = reports.publish(ctx.report(report_ns));
     phases.done(&opts.name);
-    // The heartbeat, stretched while the module has nothing to do (module/beat.rs).
+    // The heartbeat, stretched while the module has nothing to do (module/beat.rs). A
+    // module on the simulation clock is woken by rounds (or clock samples) anyway: its
+    // report and its checkpoint wait up to half their period for one of those wake-ups
+    // instead of waking it on their own.
+    let slack = |period_ns: u64| if clock.is_sim() { period_ns / 2 } else { 0 };
     let mut beat = Beat::new(
         report_ns,
         opts.idle_report_period.as_nanos() as u64,
         monotonic_ns(),
-    );
+    )
+    .with_slack(slack(report_ns));
+    let checkpoint_slack_ns = slack(checkpoint_ns);
     let mut next_checkpoint = monotonic_ns().saturating_add(checkpoint_ns);
     let clock_id = rounds.as_ref().map(|r| r.common.id());
     while !ctx.stop_requested && !opts.harness.as_ref().is_some_and(Hooks::stopped) {
@@ -141,7 +147,7 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
         let wall_now = monotonic_ns();
         let mut wake_at = beat.next_ns();
         if store.is_some() {
-            wake_at = wake_at.min(next_checkpoint);
+            wake_at = wake_at.min(next_checkpoint.saturating_add(checkpoint_slack_ns));
         }
         // When a timer or an input deadline is due (wall clock): work, not idleness.
         let mut work_at = u64::MAX;

@@ -5,7 +5,9 @@
 use std::time::{Duration, Instant};
 
 use hng_runtime::channel::{InputId, Node, Publisher};
-use hng_runtime::clock::lockstep::{ACK_CHANNEL, Barrier, ClockAck, Verdict, round_channel};
+use hng_runtime::clock::lockstep::{
+    ACK_CHANNEL, Barrier, ClockAck, RoundCountdown, Verdict, round_channel,
+};
 use hng_runtime::clock::monotonic_ns;
 use hng_runtime::system::{EventKind, ModuleEvent, SUPERVISOR_EVENTS};
 use hng_runtime::{Context, ModuleResult, Subscriber, msg};
@@ -19,6 +21,8 @@ pub(super) struct Lockstep {
     events: Subscriber<ModuleEvent>,
     /// Each participant's own round channel, by name.
     calls: Vec<(String, Publisher<msg::Clock>)>,
+    /// The answers the open round waits for: only the last one wakes us.
+    countdown: RoundCountdown,
     /// Members called to the rounds so far (summed over the rounds).
     pub(super) members: u64,
     /// Rounds opened, and of them those opened again at the same time (someone was busy).
@@ -58,6 +62,7 @@ impl Lockstep {
             acks: ctx.subscribe(ACK_CHANNEL, None)?,
             events: ctx.subscribe(SUPERVISOR_EVENTS, None)?,
             calls,
+            countdown: RoundCountdown::open(node)?,
             members: 0,
             rounds: 0,
             extra_rounds: 0,
@@ -84,7 +89,10 @@ impl Lockstep {
             self.same_time = 0;
         }
         let round = self.barrier.open_at(monotonic_ns(), sim_ns, again);
-        self.members += self.barrier.members() as u64;
+        let members = self.barrier.members();
+        self.members += members as u64;
+        // Armed before the calls go out: the member whose answer completes the round wakes us.
+        self.countdown.arm(round, members);
         let called: Vec<&str> = self.barrier.called().collect();
         tracing::trace!(round, sim_ns, again, ?called, "lockstep: round opened");
         for (name, publisher) in &self.calls {
