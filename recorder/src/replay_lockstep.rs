@@ -10,7 +10,7 @@ use std::time::Duration;
 
 use hng_runtime::channel::{Node, Publisher, Subscriber};
 use hng_runtime::clock::CLOCK_CHANNEL;
-use hng_runtime::clock::lockstep::{ACK_CHANNEL, Barrier, ClockAck, Verdict};
+use hng_runtime::clock::lockstep::{ACK_CHANNEL, Barrier, ClockAck, RoundCountdown, Verdict};
 use hng_runtime::clock::monotonic_ns;
 use hng_runtime::msg;
 use hng_runtime::wait::{WaitMode, Waiter};
@@ -24,6 +24,8 @@ pub(crate) struct Driver {
     acks: Subscriber<ClockAck>,
     waiter: Waiter,
     barrier: Barrier,
+    /// The answers the open round waits for: only the last one wakes the replay.
+    countdown: RoundCountdown,
     /// Rounds opened.
     pub(crate) rounds: u64,
     /// Participants left out after not answering within the timeout (logged).
@@ -46,6 +48,7 @@ impl Driver {
             acks,
             waiter,
             barrier: Barrier::new(participants, timeout),
+            countdown: RoundCountdown::open(node)?,
             rounds: 0,
             left_out: 0,
         })
@@ -59,6 +62,10 @@ impl Driver {
             detail,
         })?;
         c.round = self.barrier.open(monotonic_ns());
+        // Armed before the round goes out, as the simulator does: the participant whose
+        // answer completes it wakes the replay (a count left by an earlier system on this
+        // prefix would otherwise hold that answer back until the wait's timeout).
+        self.countdown.arm(c.round, self.barrier.members());
         self.rounds += 1;
         self.clock.publish_recorded(c)?;
         loop {
