@@ -1,5 +1,5 @@
 //! Planning keeps its heartbeat while it computes: a 4000 x 4000 map (16 M cells to read,
-//! inflate and search) takes far longer than the 100 ms heartbeat timeout of this test, and
+//! inflate and search) takes far longer than the 200 ms heartbeat timeout of this test, and
 //! Planning must not be killed as hung (before, a 20000 x 20000 map got it SIGKILLed ten
 //! times). The test also checks that the computation did outlast the timeout, so that it
 //! shows something.
@@ -27,7 +27,7 @@ fn planning_keeps_its_heartbeat_through_a_long_computation() {
     let file = dir.join("plan.toml");
     std::fs::write(
         &file,
-        "system = \"longplan\"\n\n[defaults]\nheartbeat_period_s = 0.03\nheartbeat_timeout_s = 0.1\n\
+        "system = \"longplan\"\n\n[defaults]\nheartbeat_period_s = 0.06\nheartbeat_timeout_s = 0.2\n\
          start_timeout_s = 10.0\n\n[[module]]\nname = \"planning\"\ncommand = [\"hng\", \"module\", \"planning\"]\n\
          [module.config]\nmap = \"test/map\"\npose = \"test/pose\"\ngoal = \"test/goal\"\n",
     )
@@ -134,9 +134,11 @@ fn planning_keeps_its_heartbeat_through_a_long_computation() {
         answer.goal_state()
     );
     assert_eq!(answer.goal_state(), GoalState::Active, "a path was found");
+    // 0.7 s in a quiet debug build. (The timeout was 0.1 s: once, at load 8, a report came
+    // 138 ms after the last one and the module was killed as hung.)
     assert!(
-        took > Duration::from_millis(300),
-        "the computation ({took:?}) did not outlast 3 heartbeat timeouts: the test shows nothing"
+        took > Duration::from_millis(400),
+        "the computation ({took:?}) did not outlast 2 heartbeat timeouts: the test shows nothing"
     );
     drop((events, status, map, pose, goal, waiter, node));
     run.signal(Signal::SIGTERM);
