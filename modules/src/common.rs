@@ -179,16 +179,7 @@ impl CommandMux {
     }
 }
 
-/// Wraps an angle to (-π, π].
-pub fn wrap_angle(a: f64) -> f64 {
-    let mut a = a % std::f64::consts::TAU;
-    if a > std::f64::consts::PI {
-        a -= std::f64::consts::TAU;
-    } else if a <= -std::f64::consts::PI {
-        a += std::f64::consts::TAU;
-    }
-    a
-}
+pub use hng_runtime::msg::wrap_angle;
 
 /// `a ⊕ b`: `b` (expressed in `a`'s frame) composed onto `a`.
 pub fn compose(a: &Pose2D, b: &Pose2D) -> Pose2D {

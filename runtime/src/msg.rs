@@ -231,6 +231,14 @@ impl Pose2D {
     }
 }
 
+/// Wraps an angle (radians) to (-π, π].
+#[must_use]
+pub fn wrap_angle(a: f64) -> f64 {
+    use std::f64::consts::{PI, TAU};
+    let w = (a + PI).rem_euclid(TAU) - PI;
+    if w <= -PI { w + TAU } else { w }
+}
+
 /// A planar velocity in the body frame: m/s and rad/s.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize, Deserialize)]
@@ -665,6 +673,30 @@ mod tests {
         // SAFETY: only unsafe because implementors may lie; this one is derived.
         let name = unsafe { <ImageInfo as iceoryx2::prelude::ZeroCopySend>::type_name() };
         assert_eq!(name, IMAGE_INFO_TYPE);
+    }
+
+    #[test]
+    fn angles_wrap_to_minus_pi_exclusive_pi_inclusive() {
+        use std::f64::consts::{PI, TAU};
+        for (a, want) in [
+            (0.0, 0.0),
+            (PI, PI),
+            (-PI, PI),
+            (3.0 * PI, PI),
+            (TAU + 0.25, 0.25),
+            (-TAU - 0.25, -0.25),
+            (-1e-3, -1e-3),
+        ] {
+            let got = wrap_angle(a);
+            assert!(
+                (got - want).abs() < 1e-12,
+                "wrap_angle({a}) = {got}, want {want}"
+            );
+            assert!(
+                got > -PI && got <= PI,
+                "wrap_angle({a}) = {got} outside (-π, π]"
+            );
+        }
     }
 
     #[test]

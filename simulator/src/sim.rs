@@ -1,6 +1,6 @@
 //! The simulator: a differential-drive robot in a rapier2d world, stepped explicitly.
 
-use std::f64::consts::{PI, TAU};
+use std::f64::consts::TAU;
 
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -45,12 +45,7 @@ pub fn secs_to_ns(secs: f64) -> u64 {
     }
 }
 
-/// Wraps an angle to (-π, π].
-#[must_use]
-pub fn wrap_angle(a: f64) -> f64 {
-    let w = (a + PI).rem_euclid(TAU) - PI;
-    if w <= -PI { w + TAU } else { w }
-}
+pub use hng_runtime::msg::wrap_angle;
 
 /// Fires at a fixed period on the simulated clock.
 #[derive(Debug, Clone)]
