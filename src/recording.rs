@@ -295,11 +295,7 @@ pub fn replay(prefix: &str, args: &ReplayArgs) -> Result<()> {
 
 pub fn eval_replay(args: &EvalReplayArgs) -> Result<()> {
     let c = hng_recorder::compare::compare(&args.a, &args.b, &args.channel)?;
-    if args.json {
-        println!("{}", serde_json::to_string(&c)?);
-    } else {
-        print!("{c}");
-    }
+    show(&c, args.json)?;
     if c.pairs == 0 {
         bail!("no poses to compare on {}", args.channel);
     }

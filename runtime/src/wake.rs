@@ -52,10 +52,16 @@ fn fnv64(s: &str) -> u64 {
     h
 }
 
+/// Opens (or creates) the wake segment of `key` under `prefix`; `what` names it in errors.
+/// Every wake segment carries [`WAKE_TAG`], by which the prefix's clean-up finds it.
+fn open_segment(prefix: &str, key: &str, what: &str) -> Result<Segment, Error> {
+    let name = format!("/{prefix}{WAKE_TAG}{:016x}", fnv64(key));
+    Segment::open(&name, SEGMENT_LEN, what)
+}
+
 impl WakeFlag {
     pub(crate) fn open(prefix: &str, channel: &str) -> Result<WakeFlag, Error> {
-        let name = format!("/{prefix}{WAKE_TAG}{:016x}", fnv64(channel));
-        let segment = Segment::open(&name, SEGMENT_LEN, &format!("channel {channel:?}"))?;
+        let segment = open_segment(prefix, channel, &format!("channel {channel:?}"))?;
         Ok(WakeFlag { segment })
     }
 
@@ -116,11 +122,11 @@ pub(crate) struct Countdown {
 
 impl Countdown {
     pub(crate) fn open(prefix: &str, channel: &str) -> Result<Countdown, Error> {
-        let name = format!(
-            "/{prefix}{WAKE_TAG}{:016x}",
-            fnv64(&format!("{channel}#countdown"))
-        );
-        let segment = Segment::open(&name, SEGMENT_LEN, &format!("countdown of {channel:?}"))?;
+        let segment = open_segment(
+            prefix,
+            &format!("{channel}#countdown"),
+            &format!("countdown of {channel:?}"),
+        )?;
         Ok(Countdown { segment })
     }
 

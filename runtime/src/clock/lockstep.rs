@@ -191,6 +191,11 @@ impl RoundCountdown {
         self.0
             .arm(round, u32::try_from(answers).unwrap_or(u32::MAX));
     }
+
+    /// A participant answered `round` (its answer is out): should it wake the simulator?
+    fn answered(&self, round: u64) -> bool {
+        self.0.answered(round)
+    }
 }
 
 /// The module side: acknowledges each new round once the executor has handled its inputs.
@@ -306,7 +311,7 @@ impl Acker {
         ack.written_len = put_keys(&mut ack.written, &self.written);
         // Only the answer that completes the round wakes the simulator.
         self.publisher
-            .publish_gated(ack, || self.countdown.0.answered(round))?;
+            .publish_gated(ack, || self.countdown.answered(round))?;
         let _ = node.take_written();
         self.written.clear();
         self.out_seen = node.counters().msgs_out.get();
