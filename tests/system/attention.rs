@@ -10,8 +10,6 @@
 //! the contract from it to `maps` before the goal is given.
 
 use hng_runtime::msg::OrderKind;
-use hng_runtime::shm;
-use nix::sys::signal::Signal;
 
 use crate::common::{Watch, dist, goal};
 use crate::orders::{launch, write_map};
@@ -22,9 +20,7 @@ const TESTMOD: &str = env!("CARGO_BIN_EXE_hng-testmod");
 #[test]
 fn a_lying_localization_loses_its_contract_through_the_servos_feedback() {
     let _heavy = crate::common::heavy();
-    let prefix = shm::unique_prefix("feedback");
-    let dir = crate::signals::test_dir(&prefix);
-    std::fs::create_dir_all(&dir).expect("dir");
+    let (prefix, dir) = crate::signals::prefix_and_dir("feedback");
     let map = write_map(&dir, None);
     let wrong = shifted_map(&map, 1.5);
     // The true map claims a little less (Q 0.95, an older survey, within the contracts'
@@ -91,10 +87,7 @@ fn a_lying_localization_loses_its_contract_through_the_servos_feedback() {
     assert!(t_planning - t_move <= 3.5, "{:.2} s", t_planning - t_move);
 
     drop(watch);
-    run.signal(Signal::SIGTERM);
-    let status = run.wait();
-    run.assert_left_nothing();
-    assert_eq!(status.code(), Some(0));
+    run.stop_ok();
 }
 
 /// A copy of the map_server map `yaml` with its origin moved by `d` m in x and y (the same

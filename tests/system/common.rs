@@ -44,6 +44,21 @@ pub(crate) fn launch_file(
     s
 }
 
+/// The world-file walls (`[[walls]]` tables) of a closed `width` x `height` m room with a
+/// corner at the origin, axis-aligned.
+pub(crate) fn room_walls(width: f64, height: f64) -> String {
+    let corners = [(0.0, 0.0), (width, 0.0), (width, height), (0.0, height)];
+    let mut s = String::new();
+    for (i, a) in corners.iter().enumerate() {
+        let b = corners[(i + 1) % 4];
+        s.push_str(&format!(
+            "\n[[walls]]\nfrom = [{:?}, {:?}]\nto = [{:?}, {:?}]\n",
+            a.0, a.1, b.0, b.1
+        ));
+    }
+    s
+}
+
 /// Generous: a whole robot in accelerated simulation on two loaded cores.
 pub(crate) const TIMEOUT: Duration = Duration::from_secs(150);
 
@@ -211,6 +226,34 @@ pub(crate) fn terminate(child: &mut Child, timeout: Duration) -> Option<std::pro
         nix::sys::signal::Signal::SIGTERM,
     );
     wait_exit(child, timeout)
+}
+
+/// A child process killed (SIGKILL) and reaped on drop: a test that fails never leaves a
+/// process behind (the modules of an `hng run` follow it by their parent-death signal).
+pub(crate) struct Reaped(pub(crate) Child);
+
+impl Reaped {
+    /// Waits for the child to end: its exit status, stdout and stderr (each empty unless
+    /// piped).
+    pub(crate) fn finish(&mut self) -> (std::process::ExitStatus, String, String) {
+        use std::io::Read as _;
+        let mut out = String::new();
+        let mut err = String::new();
+        if let Some(mut o) = self.0.stdout.take() {
+            o.read_to_string(&mut out).expect("stdout");
+        }
+        if let Some(mut e) = self.0.stderr.take() {
+            e.read_to_string(&mut err).expect("stderr");
+        }
+        (self.0.wait().expect("wait"), out, err)
+    }
+}
+
+impl Drop for Reaped {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
 }
 
 /// Tests that load the machine (a whole robot in accelerated simulation, CPU-share

@@ -12,7 +12,6 @@ use hng_runtime::shm;
 use hng_runtime::system::{EventKind, JsonInfo, ModuleEvent, SUPERVISOR_EVENTS, SUPERVISOR_STATUS};
 use hng_runtime::wait::{WaitMode, Waiter};
 use hng_runtime::{Node, NodeOptions, SliceSubscriber, Subscriber};
-use nix::sys::signal::Signal;
 use serde_json::Value;
 
 use crate::signals::{Run, test_dir};
@@ -213,10 +212,7 @@ fn fault_matrix_every_signal_to_every_kind_of_module() {
         }
     }
     drop(obs);
-    run.signal(Signal::SIGTERM);
-    let status = run.wait();
-    run.assert_left_nothing();
-    assert_eq!(status.code(), Some(0));
+    run.stop_ok();
     assert!(
         failures.is_empty(),
         "fault matrix:\n{}",

@@ -3,36 +3,15 @@
 //! the mission's 0.3 m of the true pose, and when it dies its clients go to another provider
 //! and come back after its restart.
 
-use std::io::Read as _;
-use std::process::{Child, Stdio};
+use std::process::Stdio;
 use std::time::{Duration, Instant};
 
+use crate::common::Reaped;
 use crate::mission::{MissionRun, hng};
-
-/// Kills the mission if the test ends early.
-struct Mission(Child);
-
-impl Drop for Mission {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-impl Mission {
-    /// Waits for the end: stdout and exit status.
-    fn finish(&mut self) -> (String, std::process::ExitStatus) {
-        let mut text = String::new();
-        if let Some(mut out) = self.0.stdout.take() {
-            out.read_to_string(&mut text).expect("stdout");
-        }
-        (text, self.0.wait().expect("wait"))
-    }
-}
 
 /// Polls `hng contracts` until both clients follow the fused localization (true) or the
 /// mission ends (false).
-fn fused_serves_both_clients(m: &MissionRun, run: &mut Mission) -> bool {
+fn fused_serves_both_clients(m: &MissionRun, run: &mut Reaped) -> bool {
     let deadline = Instant::now() + Duration::from_secs(120);
     while Instant::now() < deadline {
         if run.0.try_wait().expect("try_wait").is_some() {
@@ -72,14 +51,14 @@ fn check_goals(s: &serde_json::Value, text: &str) {
 fn the_fused_localization_serves_and_every_goal_ends_within_0_3_m_of_the_truth() {
     let _heavy = crate::common::heavy();
     let m = MissionRun::new("loc_fused");
-    let mut run = Mission(
+    let mut run = Reaped(
         m.command(&["--speed", "10", "--no-gui"])
             .stdout(Stdio::piped())
             .spawn()
             .expect("hng run"),
     );
     let serving = fused_serves_both_clients(&m, &mut run);
-    let (text, status) = run.finish();
+    let (status, text, _) = run.finish();
     assert!(
         serving,
         "the fused localization never served Servo and Planning\n{text}"
@@ -94,7 +73,7 @@ fn the_fused_localization_serves_and_every_goal_ends_within_0_3_m_of_the_truth()
 fn when_the_fused_localization_dies_its_clients_switch_away_and_back_after_its_restart() {
     let _heavy = crate::common::heavy();
     let m = MissionRun::new("loc_killed");
-    let mut run = Mission(
+    let mut run = Reaped(
         m.command(&["--speed", "5", "--no-gui"])
             .stdout(Stdio::piped())
             .spawn()
@@ -107,7 +86,7 @@ fn when_the_fused_localization_dies_its_clients_switch_away_and_back_after_its_r
         .status()
         .expect("hng kill");
     assert!(killed.success());
-    let (text, _status) = run.finish();
+    let (_, text, _) = run.finish();
     for client in ["servo", "planning"] {
         let away = format!("contract switch: {client} Localization: localization -> ");
         let back = format!("contract switch: {client} Localization: ");

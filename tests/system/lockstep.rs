@@ -3,8 +3,7 @@
 //! (each must succeed, and both give the same summary), a corrupted simulator checkpoint, and
 //! goals added outside the map.
 
-use std::io::Read as _;
-use std::process::{Child, Output, Stdio};
+use std::process::{Output, Stdio};
 use std::time::{Duration, Instant};
 
 use hng_runtime::clock::CLOCK_CHANNEL;
@@ -13,32 +12,8 @@ use hng_runtime::wait::{WaitMode, Waiter};
 use hng_runtime::{Node, NodeOptions};
 use hng_simulator::module::SimStatus;
 
+use crate::common::Reaped;
 use crate::mission::{MissionRun as Run, hng};
-
-/// Kills `hng run` (its modules follow by their parent-death signal) if the test ends early.
-struct KillOnDrop(Child);
-
-impl Drop for KillOnDrop {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-impl KillOnDrop {
-    /// Waits for the run to end; its exit status, stdout and stderr.
-    fn finish(&mut self) -> (std::process::ExitStatus, String, String) {
-        let mut out = String::new();
-        let mut err = String::new();
-        if let Some(mut o) = self.0.stdout.take() {
-            o.read_to_string(&mut out).expect("stdout");
-        }
-        if let Some(mut e) = self.0.stderr.take() {
-            e.read_to_string(&mut err).expect("stderr");
-        }
-        (self.0.wait().expect("wait"), out, err)
-    }
-}
 
 fn goals(s: &serde_json::Value) -> &Vec<serde_json::Value> {
     s["goals"].as_array().expect("goals list")
@@ -124,7 +99,7 @@ fn pid_of(prefix: &str, module: &str) -> Option<i32> {
 fn a_corrupted_simulator_checkpoint_never_makes_simulated_time_go_back() {
     let _heavy = crate::common::heavy();
     let r = Run::new("lockstep_ckpt");
-    let mut run = KillOnDrop(
+    let mut run = Reaped(
         r.command(&["--speed", "5", "--no-rm"])
             .stdout(Stdio::piped())
             .stderr(Stdio::piped())
@@ -213,7 +188,7 @@ fn a_corrupted_simulator_checkpoint_never_makes_simulated_time_go_back() {
 fn an_added_goal_outside_the_map_fails_the_run_and_is_listed() {
     let _heavy = crate::common::heavy();
     let r = Run::new("lockstep_added");
-    let mut run = KillOnDrop(
+    let mut run = Reaped(
         r.command(&["--speed", "5", "--no-rm"])
             .stdout(Stdio::piped())
             .stderr(Stdio::null())

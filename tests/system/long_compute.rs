@@ -11,7 +11,6 @@ use hng_runtime::msg::{FrameId, Goal, GridInfo, Header, Pose2D, PoseWithCovarian
 use hng_runtime::system::{EventKind, ModuleEvent, SUPERVISOR_EVENTS};
 use hng_runtime::wait::{WaitMode, Waiter};
 use hng_runtime::{Node, NodeOptions, shm};
-use nix::sys::signal::Signal;
 
 use crate::signals::{Run, test_dir};
 
@@ -141,10 +140,7 @@ fn planning_keeps_its_heartbeat_through_a_long_computation() {
         "the computation ({took:?}) did not outlast 2 heartbeat timeouts: the test shows nothing"
     );
     drop((events, status, map, pose, goal, waiter, node));
-    run.signal(Signal::SIGTERM);
-    let exit = run.wait();
-    let log = run.assert_left_nothing();
-    assert_eq!(exit.code(), Some(0));
+    let log = run.stop_ok();
     assert!(
         !log.contains("hang detected"),
         "no hang was detected; log:\n{log}"

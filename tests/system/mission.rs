@@ -233,22 +233,11 @@ fn a_goal_in_a_map_server_world_is_reached() {
     assert_success(&out, &s);
 }
 
-/// Kills `hng run` (and with it, by their parent-death signal, its modules) if the test ends
-/// early.
-struct KillOnDrop(std::process::Child);
-
-impl Drop for KillOnDrop {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
 #[test]
 fn the_mission_succeeds_while_slam_planning_and_servo_are_killed() {
     let _heavy = crate::common::heavy();
     let m = MissionRun::new("mission_faults");
-    let mut run = KillOnDrop(
+    let mut run = crate::common::Reaped(
         m.command(&["--speed", "5"])
             .stdout(Stdio::piped())
             .spawn()
@@ -311,7 +300,7 @@ fn the_mission_succeeds_while_slam_planning_and_servo_are_killed() {
     drop(events);
     drop(status);
     drop(node);
-    let KillOnDrop(child) = &mut run;
+    let crate::common::Reaped(child) = &mut run;
     let mut text = String::new();
     if let Some(mut out) = child.stdout.take() {
         std::io::Read::read_to_string(&mut out, &mut text).expect("stdout");

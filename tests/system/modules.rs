@@ -25,40 +25,32 @@ use hng_simulator::SimStatus;
 
 use crate::common::TestSystem;
 
-const WORLD: &str = r#"
+/// The world: a 4.5 x 3 m room, the robot facing its east wall.
+fn world_file() -> String {
+    format!(
+        r#"
 name = "wall-ahead"
 seed = 11
 dt_s = 0.01
 
 [robot]
-start = { x = 1.0, y = 1.5, theta = 0.0 }
+start = {{ x = 1.0, y = 1.5, theta = 0.0 }}
 radius = 0.2
 max_linear_speed = 1.0
 max_linear_accel = 2.0
 cmd_timeout_s = 0.5
 
-[[walls]]
-from = [0.0, 0.0]
-to = [4.5, 0.0]
-
-[[walls]]
-from = [4.5, 0.0]
-to = [4.5, 3.0]
-
-[[walls]]
-from = [4.5, 3.0]
-to = [0.0, 3.0]
-
-[[walls]]
-from = [0.0, 3.0]
-to = [0.0, 0.0]
+{walls}
 
 [sensors.gps]
 enabled = false
 
 [sensors.camera]
 enabled = false
-"#;
+"#,
+        walls = crate::common::room_walls(4.5, 3.0)
+    )
+}
 
 /// The modules of the test, all lockstep participants.
 const MODULES: [&str; 5] = ["robot", "laser", "security", "interface", "manager"];
@@ -143,7 +135,7 @@ fn security_stops_a_robot_teleoperated_straight_at_a_wall() {
     let dir = std::env::temp_dir().join(format!("{}world", sys.prefix));
     std::fs::create_dir_all(&dir).expect("world dir");
     let world = dir.join("wall.toml");
-    std::fs::write(&world, WORLD).expect("write world");
+    std::fs::write(&world, world_file()).expect("write world");
     let mut p = Procs {
         children: Vec::new(),
         sys,

@@ -17,23 +17,11 @@ seed = 5
 [robot]
 start = {{ x = {}, y = {}, theta = {} }}
 
-[[walls]]
-from = [0.0, 0.0]
-to = [12.0, 0.0]
-
-[[walls]]
-from = [12.0, 0.0]
-to = [12.0, 2.0]
-
-[[walls]]
-from = [12.0, 2.0]
-to = [0.0, 2.0]
-
-[[walls]]
-from = [0.0, 2.0]
-to = [0.0, 0.0]
-{extra}"#,
-        start.0, start.1, start.2
+{walls}{extra}"#,
+        start.0,
+        start.1,
+        start.2,
+        walls = crate::common::room_walls(12.0, 2.0)
     );
     let path = dir.join("corridor.toml");
     std::fs::write(&path, world).expect("world file");

@@ -6,8 +6,6 @@
 //! `hng behaviours` against the running system.
 
 use hng_runtime::msg::{Order, OrderKind, Twist};
-use hng_runtime::shm;
-use nix::sys::signal::Signal;
 
 use crate::common::{Watch, dist, goal, launch_file};
 use crate::signals::Run;
@@ -87,9 +85,7 @@ fn forward(v: f64) -> Twist {
 #[test]
 fn orders_of_every_level_do_what_they_say_and_bad_ones_move_nothing() {
     let _heavy = crate::common::heavy();
-    let prefix = shm::unique_prefix("orders");
-    let dir = crate::signals::test_dir(&prefix);
-    std::fs::create_dir_all(&dir).expect("dir");
+    let (prefix, dir) = crate::signals::prefix_and_dir("orders");
     let map = write_map(&dir, None);
     let file = dir.join("orders.toml");
     std::fs::write(&file, launch(&map, None, (2.0, 2.0, 0.0), &[])).expect("launch");
@@ -301,8 +297,5 @@ fn orders_of_every_level_do_what_they_say_and_bad_ones_move_nothing() {
     );
 
     drop(watch);
-    run.signal(Signal::SIGTERM);
-    let status = run.wait();
-    run.assert_left_nothing();
-    assert_eq!(status.code(), Some(0));
+    run.stop_ok();
 }

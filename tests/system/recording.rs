@@ -10,6 +10,8 @@ use std::sync::OnceLock;
 
 use hng_runtime::msg::{ModuleReport, Twist};
 use hng_runtime::{Node, NodeOptions, shm};
+
+use crate::common::Reaped;
 use serde_json::Value;
 
 /// Largest 95th percentile of the distance between the recorded SLAM poses and those of
@@ -459,16 +461,6 @@ fn replay_into_a_channel_of_another_type_is_refused_naming_both_types() {
         }
     }
     shm::remove_prefix_files(&prefix);
-}
-
-/// Kills a child on drop (a test that fails must not leave processes behind).
-struct Reaped(Child);
-
-impl Drop for Reaped {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
 }
 
 fn terminate(c: &mut Child) -> std::process::ExitStatus {

@@ -18,36 +18,25 @@ use hng_runtime::wait::{WaitMode, Waiter};
 use hng_runtime::{Node, NodeOptions, SliceSubscriber, Subscriber, shm};
 use serde_json::Value;
 
-use crate::common::TestSystem;
+use crate::common::{Reaped, TestSystem};
 
 const HNG: &str = env!("CARGO_BIN_EXE_hng");
 const TESTMOD: &str = env!("CARGO_BIN_EXE_hng-testmod");
 const TIMEOUT: Duration = Duration::from_secs(15);
 
-/// `hng module rm` under a test's prefix; killed on drop.
-struct RmProcess(Child);
-
-impl RmProcess {
-    fn start(prefix: &str, config: &str) -> RmProcess {
-        let child = Command::new(HNG)
-            .args(["module", "rm"])
-            .env("HNG_PREFIX", prefix)
-            .env("HNG_MODULE_NAME", "rm")
-            .env("HNG_MODULE_CONFIG", config)
-            .env("HNG_LOG", "warn")
-            .env_remove("HNG_CGROUP_RUN")
-            .stdin(Stdio::null())
-            .spawn()
-            .expect("spawn hng module rm");
-        RmProcess(child)
-    }
-}
-
-impl Drop for RmProcess {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
+/// Starts `hng module rm` under a test's prefix; killed on drop.
+fn start_rm(prefix: &str, config: &str) -> Reaped {
+    let child = Command::new(HNG)
+        .args(["module", "rm"])
+        .env("HNG_PREFIX", prefix)
+        .env("HNG_MODULE_NAME", "rm")
+        .env("HNG_MODULE_CONFIG", config)
+        .env("HNG_LOG", "warn")
+        .env_remove("HNG_CGROUP_RUN")
+        .stdin(Stdio::null())
+        .spawn()
+        .expect("spawn hng module rm");
+    Reaped(child)
 }
 
 /// The test's ports on the system channels.
@@ -165,7 +154,7 @@ fn rm_measures_a_burning_module_within_5_points() {
     let mut sys = TestSystem::new("rmcpu");
     let mut obs = Observer::new(&sys.prefix);
     let pid = sys.spawn_testmod("burn", "burner", "fraction = 0.3");
-    let _rm = RmProcess::start(&sys.prefix, "rate_hz = 10");
+    let _rm = start_rm(&sys.prefix, "rate_hz = 10");
     // Warm up: the burner has caught up and the RM has two samples.
     obs.status_where("burner's cpu_percent", |d| {
         module(d, "burner")["cpu_percent"].is_number()
@@ -209,7 +198,7 @@ fn memory_hog_over_its_limit_is_sent_over_limit() {
     let mut obs = Observer::new(&sys.prefix);
     sys.spawn_testmod("hog", "hog", "step_mb = 8\nperiod_s = 0.05\nmax_mb = 160");
     sys.spawn_testmod("counter", "calm", "");
-    let _rm = RmProcess::start(
+    let _rm = start_rm(
         &sys.prefix,
         "rate_hz = 10\ncgroups = false\n[limits.hog]\nmemory_max = \"48MiB\"\n[limits.calm]\nmemory_max = \"48MiB\"\n",
     );
@@ -259,7 +248,7 @@ fn degraded_mode_stops_least_important_first_and_recovers() {
     }
     // Only the wait-for-resources reports make resources scarce here (the machine running
     // the tests may be busy or not).
-    let _rm = RmProcess::start(
+    let _rm = start_rm(
         &sys.prefix,
         "rate_hz = 20\ncpu_free_threshold = 0.0\nmemory_free_threshold = 0.0\ncomm_delay_threshold_s = 5.0\ndegraded_enter_after = 2\ndegraded_step_after = 4\ndegraded_recover_after = 4\n",
     );

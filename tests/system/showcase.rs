@@ -25,7 +25,6 @@ use hng_runtime::msg::{
     SIDE_RIGHT, TRACK_SEEN, Twist, module_id,
 };
 use hng_runtime::{Node, NodeOptions, shm};
-use nix::sys::signal::Signal;
 
 use hng_modules::interface::{FOLLOW_WALL_NEED, REACH_BEACON_NEED, REACH_GOAL_NEED};
 use hng_modules::reacher_module::{REACH_REACHED, ReachStatus, TRACK_NEED};
@@ -451,8 +450,5 @@ fn the_showcase_switches_orders_of_every_kind_while_the_robot_moves() {
     assert_eq!(watch.collisions(), collisions, "a collision on the run");
 
     drop(watch);
-    run.signal(Signal::SIGTERM);
-    let status = run.wait();
-    run.assert_left_nothing();
-    assert_eq!(status.code(), Some(0));
+    run.stop_ok();
 }

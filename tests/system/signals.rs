@@ -168,6 +168,16 @@ impl Run {
             .expect("run hng")
     }
 
+    /// Stops `hng run` with SIGTERM: it must exit 0 and leave nothing behind
+    /// ([`Run::assert_left_nothing`]). Returns the log.
+    pub fn stop_ok(&mut self) -> String {
+        self.signal(Signal::SIGTERM);
+        let status = self.wait();
+        let log = self.assert_left_nothing();
+        assert_eq!(status.code(), Some(0), "log tail:\n{}", tail(&log));
+        log
+    }
+
     /// After `hng run` ended: no process of the prefix, no file of it, and the modules
     /// stopped in the reverse of their start order. Returns the log.
     pub fn assert_left_nothing(&self) -> String {
@@ -215,6 +225,15 @@ impl Drop for Run {
 /// The folder of a test's runs on `prefix`: run directory, launch files, logs.
 pub fn test_dir(prefix: &str) -> PathBuf {
     std::env::temp_dir().join(format!("hng-sig-{}", prefix.trim_end_matches('_')))
+}
+
+/// A new prefix for a test tagged `tag`, and its [`test_dir`], created (a [`Run`] on the
+/// prefix removes it).
+pub fn prefix_and_dir(tag: &str) -> (String, PathBuf) {
+    let prefix = shm::unique_prefix(tag);
+    let dir = test_dir(&prefix);
+    std::fs::create_dir_all(&dir).expect("test dir");
+    (prefix, dir)
 }
 
 fn tail(log: &str) -> String {
@@ -577,10 +596,7 @@ fn a_sigkilled_supervisor_leaves_no_module_and_the_next_start_cleans_up() {
     let mut again = Run::start_on(&prefix, &["--no-rm", &path]);
     events.wait("counter", EventKind::Started, &log);
     drop(events);
-    again.signal(Signal::SIGTERM);
-    let status = again.wait();
-    let log = again.assert_left_nothing();
-    assert_eq!(status.code(), Some(0), "log:\n{log}");
+    let log = again.stop_ok();
     assert!(
         log.contains("ended without an orderly stop"),
         "the second start says it cleaned up; log:\n{log}"
@@ -657,10 +673,7 @@ fn a_sigkilled_supervisor_takes_its_operator_page_with_it() {
     let mut again = Run::start_on(&prefix, &["--no-rm", &path]);
     events.wait("sleeper", EventKind::Started, &log);
     drop(events);
-    again.signal(Signal::SIGTERM);
-    let status = again.wait();
-    let log = again.assert_left_nothing();
-    assert_eq!(status.code(), Some(0), "log:\n{log}");
+    again.stop_ok();
     drop(run);
 }
 
@@ -764,10 +777,7 @@ fn a_sent_sigsegv_kills_a_module_on_the_first_delivery() {
         serde_json::from_slice(&top.stdout).expect("hng top into a pipe prints JSON");
     assert_eq!(snap["supervisor"]["system"], "segv", "{snap:#}");
     drop(events);
-    run.signal(Signal::SIGTERM);
-    let status = run.wait();
-    run.assert_left_nothing();
-    assert_eq!(status.code(), Some(0));
+    run.stop_ok();
     assert!(
         run_log(&dir).contains("fatal signal SIGSEGV sent by pid"),
         "the crash handler says what happened"

@@ -4,7 +4,6 @@
 
 use std::process::{Child, Command, Stdio};
 
-use hng_runtime::shm;
 use nix::sys::signal::Signal;
 
 use crate::common::{Watch, dist};
@@ -53,9 +52,7 @@ fn stop(mut c: Child) {
 #[test]
 fn non_finite_teleop_commands_never_move_the_robot_and_are_counted() {
     let _heavy = crate::common::heavy();
-    let prefix = shm::unique_prefix("teleop");
-    let dir = crate::signals::test_dir(&prefix);
-    std::fs::create_dir_all(&dir).expect("dir");
+    let (prefix, dir) = crate::signals::prefix_and_dir("teleop");
     let file = dir.join("teleop.toml");
     std::fs::write(&file, launch()).expect("launch file");
     let mut watch = Watch::new(&prefix);
@@ -105,8 +102,5 @@ fn non_finite_teleop_commands_never_move_the_robot_and_are_counted() {
     );
 
     drop(watch);
-    run.signal(Signal::SIGTERM);
-    let status = run.wait();
-    run.assert_left_nothing();
-    assert_eq!(status.code(), Some(0));
+    run.stop_ok();
 }

@@ -6,36 +6,18 @@
 //! short of it by Security.
 
 use hng_runtime::msg::{Order, OrderKind, SIDE_RIGHT, Twist};
-use hng_runtime::shm;
-use nix::sys::signal::Signal;
 
 use crate::common::Watch;
 use crate::orders::{launch, write_map};
 use crate::signals::Run;
 
 /// A 20 x 10 m room (walls only).
-const ROOM: &str = r#"name = "wall-room"
-seed = 5
-
-[robot]
-start = { x = 2.0, y = 2.2, theta = 0.0 }
-
-[[walls]]
-from = [0.0, 0.0]
-to = [20.0, 0.0]
-
-[[walls]]
-from = [20.0, 0.0]
-to = [20.0, 10.0]
-
-[[walls]]
-from = [20.0, 10.0]
-to = [0.0, 10.0]
-
-[[walls]]
-from = [0.0, 10.0]
-to = [0.0, 0.0]
-"#;
+fn room() -> String {
+    format!(
+        "name = \"wall-room\"\nseed = 5\n\n[robot]\nstart = {{ x = 2.0, y = 2.2, theta = 0.0 }}\n{}",
+        crate::common::room_walls(20.0, 10.0)
+    )
+}
 
 /// Distance from (x, y) to the segment a-b.
 fn seg_dist(p: (f64, f64), a: (f64, f64), b: (f64, f64)) -> f64 {
@@ -60,11 +42,9 @@ fn offers_follow_right(w: &Watch) -> bool {
 #[test]
 fn the_robot_follows_a_wall_round_a_corner_and_attention_offers_it_only_near_one() {
     let _heavy = crate::common::heavy();
-    let prefix = shm::unique_prefix("walls");
-    let dir = crate::signals::test_dir(&prefix);
-    std::fs::create_dir_all(&dir).expect("dir");
+    let (prefix, dir) = crate::signals::prefix_and_dir("walls");
     let world = dir.join("room.toml");
-    std::fs::write(&world, ROOM).expect("world");
+    std::fs::write(&world, room()).expect("world");
     let world = world.to_str().expect("path").to_owned();
     let map = write_map(&dir, Some(&world));
     let file = dir.join("walls.toml");
@@ -196,8 +176,5 @@ fn the_robot_follows_a_wall_round_a_corner_and_attention_offers_it_only_near_one
     assert!(gap > 0.25, "centre {gap:.2} m from the wall (radius 0.2 m)");
 
     drop(watch);
-    run.signal(Signal::SIGTERM);
-    let status = run.wait();
-    run.assert_left_nothing();
-    assert_eq!(status.code(), Some(0));
+    run.stop_ok();
 }
