@@ -211,6 +211,7 @@ fn dispatch(prefix: &str, name: &str, mode: Mode) -> Result<()> {
         system::ContractTable,
         hng_simulator::module::SimStatus,
         hng_simulator::module::SimCollision,
+        hng_simulator::module::SimTeleport,
         hng_modules::msgs::GoalStatus,
         hng_modules::msgs::Mission,
         hng_modules::msgs::MissionStatus,

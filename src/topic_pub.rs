@@ -10,8 +10,9 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context as _, Result, bail};
 use hng_runtime::Node;
-use hng_runtime::msg::{Goal, Message, Twist};
+use hng_runtime::msg::{FrameId, Goal, Header, Message, PoseWithCovariance, Twist};
 use hng_runtime::wait::{WaitMode, Waiter, Wake};
+use hng_simulator::module::SimTeleport;
 use serde_json::{Map, Value};
 
 /// Rewrites bare `NaN`, `Infinity`, `-Infinity`, `inf`, `-inf` outside strings as strings,
@@ -138,6 +139,31 @@ pub fn goal(obj: &Map<String, Value>) -> Result<Goal> {
     Ok(g)
 }
 
+/// A pose in `map` from `{"x", "y", "theta", "sigma_m", "sigma_rad"}` (σ of x and y, and of
+/// the heading; 0 or absent: the receiver's default).
+pub fn pose(obj: &Map<String, Value>) -> Result<PoseWithCovariance> {
+    let obj = fields(
+        obj,
+        &["x", "y", "theta", "sigma_m", "sigma_rad"],
+        "hng/PoseWithCovariance/v1",
+    )?;
+    let mut p = PoseWithCovariance {
+        header: Header {
+            frame_id: FrameId::MAP,
+            ..Header::default()
+        },
+        ..PoseWithCovariance::default()
+    };
+    p.pose.x = get(obj, "x")?;
+    p.pose.y = get(obj, "y")?;
+    p.pose.theta = get(obj, "theta")?;
+    let (s, r) = (get(obj, "sigma_m")?, get(obj, "sigma_rad")?);
+    p.covariance[0] = s * s;
+    p.covariance[4] = s * s;
+    p.covariance[8] = r * r;
+    Ok(p)
+}
+
 fn type_name<T: iceoryx2::prelude::ZeroCopySend>() -> String {
     // SAFETY: only unsafe because implementors may lie; hng's are derived.
     unsafe { <T as iceoryx2::prelude::ZeroCopySend>::type_name() }.to_string()
@@ -174,9 +200,19 @@ pub fn run(
     } else if info.type_name == type_name::<Goal>() {
         let msg = goal(obj)?;
         publish(&node, name, msg, rate, count)
+    } else if info.type_name == type_name::<PoseWithCovariance>() {
+        let msg = pose(obj)?;
+        publish(&node, name, msg, rate, count)
+    } else if info.type_name == type_name::<SimTeleport>() {
+        let p = pose(obj)?;
+        let msg = SimTeleport {
+            pose: p.pose,
+            ..SimTeleport::default()
+        };
+        publish(&node, name, msg, rate, count)
     } else {
         bail!(
-            "channel {name:?} carries {}; `hng topic pub` writes hng/Twist/v1 and hng/Goal/v1",
+            "channel {name:?} carries {}; `hng topic pub` writes hng/Twist/v1, hng/Goal/v1, hng/PoseWithCovariance/v1 and hng-simulator/SimTeleport/v1 (x, y, theta)",
             info.type_name
         )
     }
@@ -254,5 +290,11 @@ mod tests {
         let v: Value = serde_json::from_str(r#"{"id": 3, "x": 1, "y": 2}"#).expect("json");
         let g = goal(v.as_object().expect("object")).expect("goal");
         assert_eq!((g.id, g.pose.x, g.pose.y), (3, 1.0, 2.0));
+        let v: Value = serde_json::from_str(r#"{"x": 1, "y": 2, "theta": 0.5, "sigma_m": 0.2}"#)
+            .expect("json");
+        let p = pose(v.as_object().expect("object")).expect("pose");
+        assert_eq!((p.pose.x, p.pose.y, p.pose.theta), (1.0, 2.0, 0.5));
+        assert_eq!(p.header.frame_id, FrameId::MAP);
+        assert!((p.covariance[0] - 0.04).abs() < 1e-12 && p.covariance[8] == 0.0);
     }
 }

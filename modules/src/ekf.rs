@@ -207,6 +207,13 @@ impl Ekf {
         self.rejected_in_a_row = 0;
     }
 
+    /// Restarts the filter at `pose` with covariance `cov` (row-major x, y, θ), keeping the
+    /// odometry scale learnt so far: an estimate known to be better than the filter's (the
+    /// operator's, see [`crate::initial_pose`]).
+    pub fn restart_at(&mut self, pose: Pose2D, cov: &[f64; 9]) {
+        self.start_at(&Vector3::new(pose.x, pose.y, pose.theta), &to_matrix(cov));
+    }
+
     /// The mean pose (`None` before the first fix).
     pub fn pose(&self) -> Option<Pose2D> {
         self.x.map(|x| Pose2D::new(x[0], x[1], x[2]))

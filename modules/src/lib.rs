@@ -17,6 +17,7 @@ pub mod feedback;
 pub mod footprint;
 pub mod gps;
 pub mod heartbeat;
+pub mod initial_pose;
 pub mod interface;
 pub mod laser;
 pub mod localization;

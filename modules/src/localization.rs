@@ -16,8 +16,13 @@
 //! after `fix_timeout_s` without a fused fix aptitude is 0 as well (dead reckoning is not
 //! trusted for longer).
 //!
+//! The operator's pose estimate ([`crate::initial_pose`], `initial_pose_in`): the filter
+//! restarts there, keeping the odometry scale it learnt (as a far fix would only after
+//! `max_rejections` fixes gated out).
+//!
 //! Checkpoint: the filter's mean, covariance and the odometry reading it goes with, so a
-//! restarted module goes on from where it was plus the odometry since.
+//! restarted module goes on from where it was plus the odometry since, and the estimate
+//! applied last, so a restart does not apply it again.
 
 use std::time::Duration;
 
@@ -32,6 +37,7 @@ use smart_default::SmartDefault;
 use crate::common::{field_error, non_negative, positive, seconds};
 use crate::ekf::{Ekf, EkfParams, EkfState, FixOutcome};
 use crate::gps::gps_quality;
+use crate::initial_pose::{EstimateId, INITIAL_POSE_CHANNEL, InitialPoseInput};
 
 /// Configuration of `hng module localization`.
 #[derive(Debug, Clone, Deserialize, SmartDefault)]
@@ -61,6 +67,10 @@ pub struct LocalizationConfig {
     /// Noise and gate of the filter.
     #[default(EkfParams::default())]
     pub filter: EkfParams,
+    /// The operator's pose estimates: the filter restarts at each (default
+    /// `operator/initial_pose`; empty: none taken). See [`crate::initial_pose`].
+    #[default(INITIAL_POSE_CHANNEL.into())]
+    pub initial_pose_in: String,
 }
 
 /// Rank of the "Odometry" need.
@@ -71,6 +81,8 @@ struct LocState {
     filter: EkfState,
     fused: u64,
     rejected: u64,
+    /// The operator's estimate applied last (not applied again after a restart).
+    estimate: Option<EstimateId>,
 }
 
 /// The localization module.
@@ -80,6 +92,7 @@ pub struct LocalizationModule {
     params: EkfParams,
     odom: ProviderInput<Odometry>,
     fix_in: Subscriber<PoseWithCovariance>,
+    initial_pose: Option<InitialPoseInput>,
     pose_out: Publisher<PoseWithCovariance>,
     good: f64,
     bad: f64,
@@ -130,6 +143,8 @@ impl LocalizationModule {
 
 impl Module for LocalizationModule {
     type Config = LocalizationConfig;
+    /// 2: the checkpoint names the operator's estimate applied last.
+    const STATE_VERSION: u32 = 2;
 
     fn configure(ctx: &mut Context, cfg: LocalizationConfig) -> ModuleResult<Self> {
         let odom_timeout = seconds("odom_timeout_s", cfg.odom_timeout_s)?;
@@ -168,6 +183,7 @@ impl Module for LocalizationModule {
                 .with_deadline(Some(odom_timeout))
                 .with_fallback(ctx, &cfg.odom)?,
             fix_in: ctx.subscribe(&cfg.fix_in, None)?,
+            initial_pose: InitialPoseInput::new(ctx, &cfg.initial_pose_in)?,
             pose_out: ctx.publisher(&cfg.pose_out)?,
             good: cfg.sigma_good_m,
             bad: cfg.sigma_bad_m,
@@ -228,6 +244,23 @@ impl Module for LocalizationModule {
             if got {
                 self.publish()?;
             }
+        } else if let Some(ip) = &mut self.initial_pose
+            && ip.is(input)
+            && let Some(p) = ip.take(ctx.name())?
+        {
+            // The operator knows better: the filter restarts there (keeping the odometry
+            // scale it learnt), and the next fixes are fused from there.
+            self.ekf.restart_at(p.pose, &p.covariance);
+            self.last_fix_ns = self.last_odom_ns.or(Some(0));
+            tracing::info!(
+                module = ctx.name(),
+                x = p.pose.x,
+                y = p.pose.y,
+                theta = p.pose.theta,
+                "filter restarted at the operator's pose estimate"
+            );
+            self.rate(ctx);
+            self.publish()?;
         }
         Ok(())
     }
@@ -253,13 +286,106 @@ impl LocalizationModule {
     fn save_state(&self) -> LocState {
         LocState {
             filter: self.ekf.state(),
+            estimate: self
+                .initial_pose
+                .as_ref()
+                .and_then(InitialPoseInput::applied),
             ..self.state
         }
     }
 
     fn load_state(&mut self, s: LocState) -> ModuleResult {
         self.ekf = Ekf::resume(self.params, &s.filter);
+        if let Some(ip) = &mut self.initial_pose {
+            ip.restore(s.estimate);
+        }
         self.state = s;
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use hng_runtime::harness::Harness;
+    use hng_runtime::msg::Pose2D;
+
+    fn near(p: &PoseWithCovariance, x: f64, y: f64) -> bool {
+        (p.pose.x - x).hypot(p.pose.y - y) < 0.05
+    }
+
+    fn estimate(x: f64, y: f64, theta: f64, frame_id: FrameId) -> PoseWithCovariance {
+        PoseWithCovariance {
+            header: Header {
+                frame_id,
+                ..Header::default()
+            },
+            pose: Pose2D::new(x, y, theta),
+            covariance: [0.0; 9],
+        }
+    }
+
+    /// The module's own loop (in-process harness): it starts at the first fix, restarts at
+    /// the operator's pose estimate far from it (beyond the fixes' gate), and refuses an
+    /// estimate that is not in the map frame.
+    #[test]
+    fn the_filter_restarts_at_the_operators_estimate_and_refuses_one_outside_the_map_frame() {
+        let mut h = Harness::new("localization").unwrap();
+        let odom = h.input::<Odometry>("robot/odom").unwrap();
+        let fix = h.input::<PoseWithCovariance>("gps/pose").unwrap();
+        let initial = h.input::<PoseWithCovariance>(INITIAL_POSE_CHANNEL).unwrap();
+        let mut pose = h.output::<PoseWithCovariance>("localization/pose").unwrap();
+        h.start::<LocalizationModule>("").unwrap();
+        let mut stamp = 0;
+        // Odometry of a robot standing still, again until the module answers as `pred` says.
+        let mut wait = |h: &Harness,
+                        pose: &mut hng_runtime::harness::Output<PoseWithCovariance>,
+                        pred: &dyn Fn(&PoseWithCovariance) -> bool| {
+            for _ in 0..100 {
+                stamp += 20_000_000;
+                odom.publish(Odometry {
+                    header: Header {
+                        stamp_ns: stamp,
+                        frame_id: FrameId::ODOM,
+                        ..Header::default()
+                    },
+                    ..Odometry::default()
+                })
+                .unwrap();
+                if let Ok(p) = h.wait_for(pose, Duration::from_millis(50), pred) {
+                    return p;
+                }
+            }
+            panic!("no such pose: {:?}", pose.samples.last());
+        };
+        let mut first = estimate(1.0, 1.0, 0.0, FrameId::MAP);
+        first.covariance = [0.09, 0.0, 0.0, 0.0, 0.09, 0.0, 0.0, 0.0, 0.01];
+        fix.publish(first).unwrap();
+        wait(&h, &mut pose, &|p| near(p, 1.0, 1.0));
+
+        initial
+            .publish(estimate(10.0, 5.0, 1.0, FrameId::MAP))
+            .unwrap();
+        let p = wait(&h, &mut pose, &|p| near(p, 10.0, 5.0));
+        assert!((p.pose.theta - 1.0).abs() < 1e-6, "{p:?}");
+        assert!(
+            (p.covariance[0] - 0.01).abs() < 1e-3,
+            "the default σ of 0.1 m: {p:?}"
+        );
+
+        // Not in the map frame: refused; the pose stays.
+        initial
+            .publish(estimate(0.0, 0.0, 0.0, FrameId::ODOM))
+            .unwrap();
+        let n = pose.samples.len();
+        for _ in 0..5 {
+            wait(&h, &mut pose, &|_| true);
+        }
+        assert!(
+            pose.samples[n..].iter().all(|c| near(&c.msg, 10.0, 5.0)),
+            "{:?}",
+            pose.samples.last()
+        );
+        h.finish().unwrap();
     }
 }

@@ -29,6 +29,9 @@
 //! the scans it matches, at a fraction of the CPU ([`IdleRate`]). From the first scan after
 //! a contract is made it matches every scan again.
 //!
+//! The operator's pose estimate ([`crate::initial_pose`], `initial_pose_in`): a new map starts
+//! there (the tracker is anchored at the estimate and the odometry of now, as after a restart).
+//!
 //! Checkpoint: the pose, the odometry reading it goes with, and the number of scans. After a
 //! restart the tracker is anchored there: its first pose is the checkpointed pose plus the
 //! odometry motion since the checkpoint, so the motion during the downtime (and since the last
@@ -48,6 +51,7 @@ use serde::{Deserialize, Serialize};
 use smart_default::SmartDefault;
 
 use crate::common::{compose, relative, seconds};
+use crate::initial_pose::{EstimateId, INITIAL_POSE_CHANNEL, InitialPoseInput};
 use crate::slam::{BackendConfig, EstimateSource, LaserConfig, Slam, SlamConfig};
 
 /// SLAM's contract Q is its smoothed match quality times this: at most 0.4, below the Q of a
@@ -240,6 +244,10 @@ pub struct SlamModuleConfig {
     /// The robot's pose in the map frame at start (default the origin).
     #[default(Pose2D::default())]
     pub initial_pose: Pose2D,
+    /// The operator's pose estimates: a new map starts at each (default
+    /// `operator/initial_pose`; empty: none taken). See [`crate::initial_pose`].
+    #[default(INITIAL_POSE_CHANNEL.into())]
+    pub initial_pose_in: String,
     /// Input silence that makes the module inapt, s (default 0.5).
     #[default(0.5)]
     pub input_timeout_s: f64,
@@ -294,6 +302,8 @@ struct SlamState {
     /// The odometry reading at `pose` (`None` before any odometry).
     odom: Option<Pose2D>,
     scans: u64,
+    /// The operator's estimate applied last (not applied again after a restart).
+    estimate: Option<EstimateId>,
 }
 
 /// Rank of SLAM's "Odometry" need.
@@ -309,6 +319,7 @@ pub struct SlamModule {
     odom: ProviderInput<Odometry>,
     pose_out: Publisher<PoseWithCovariance>,
     map_out: Option<SlicePublisher<GridInfo>>,
+    initial_pose: Option<InitialPoseInput>,
     restored_scans: u64,
     idle: IdleRate,
 }
@@ -329,8 +340,9 @@ impl SlamModule {
 
 impl Module for SlamModule {
     type Config = SlamModuleConfig;
-    /// 2: the checkpoint carries the odometry reading of its pose.
-    const STATE_VERSION: u32 = 2;
+    /// 2: the checkpoint carries the odometry reading of its pose; 3: and the operator's
+    /// estimate applied last.
+    const STATE_VERSION: u32 = 3;
 
     fn configure(ctx: &mut Context, cfg: SlamModuleConfig) -> ModuleResult<Self> {
         let timeout = seconds("input_timeout_s", cfg.input_timeout_s)?;
@@ -374,6 +386,7 @@ impl Module for SlamModule {
                 .with_fallback(ctx, &cfg.odom)?,
             pose_out: ctx.publisher(&cfg.pose_out)?,
             map_out,
+            initial_pose: InitialPoseInput::new(ctx, &cfg.initial_pose_in)?,
             restored_scans: 0,
             idle: IdleRate::new(cfg.idle_scan_every),
         })
@@ -405,6 +418,24 @@ impl Module for SlamModule {
                 ctx.set_quality(true, (SLAM_Q_SCALE * r.smoothed_quality) as f32);
                 self.publish_pose()?;
             }
+        } else if let Some(ip) = &mut self.initial_pose
+            && ip.is(input)
+            && let Some(p) = ip.take(ctx.name())?
+        {
+            // A new map starts at the operator's estimate, from the odometry reading of now
+            // (as after a restart from a checkpoint: the local map is rebuilt from the next
+            // scans).
+            let (_, odom) = self.tracker.anchor();
+            self.restored_scans += self.tracker.scans();
+            self.tracker = SlamTracker::resume(self.tracker.cfg, p.pose, odom);
+            tracing::info!(
+                module = ctx.name(),
+                x = p.pose.x,
+                y = p.pose.y,
+                theta = p.pose.theta,
+                "new map from the operator's pose estimate"
+            );
+            self.publish_pose()?;
         }
         Ok(())
     }
@@ -439,12 +470,19 @@ impl SlamModule {
             pose,
             odom,
             scans: self.restored_scans + self.tracker.scans(),
+            estimate: self
+                .initial_pose
+                .as_ref()
+                .and_then(InitialPoseInput::applied),
         }
     }
 
     fn load_state(&mut self, s: SlamState) -> ModuleResult {
         self.tracker = SlamTracker::resume(self.tracker.cfg, s.pose, s.odom);
         self.restored_scans = s.scans;
+        if let Some(ip) = &mut self.initial_pose {
+            ip.restore(s.estimate);
+        }
         Ok(())
     }
 }
@@ -593,5 +631,50 @@ mod tests {
             (s.pose.x - truth.x).hypot(s.pose.y - truth.y) < 0.05,
             "{s:?}"
         );
+    }
+
+    /// The module's own loop (in-process harness): an operator's estimate moves the pose
+    /// there at once (a new map from it), and an estimate with a NaN is refused.
+    #[test]
+    fn the_module_starts_a_new_map_at_the_operators_estimate() {
+        use hng_runtime::harness::Harness;
+        let mut h = Harness::new("slam").unwrap();
+        let odom = h.input::<Odometry>("robot/odom").unwrap();
+        let initial = h.input::<PoseWithCovariance>(INITIAL_POSE_CHANNEL).unwrap();
+        let mut pose = h.output::<PoseWithCovariance>("slam/pose").unwrap();
+        h.start::<SlamModule>("map_out = \"\"").unwrap();
+        let estimate = |x: f64| PoseWithCovariance {
+            header: Header {
+                frame_id: FrameId::MAP,
+                ..Header::default()
+            },
+            pose: Pose2D::new(x, 4.0, -1.0),
+            covariance: [0.0; 9],
+        };
+        let at = |p: &PoseWithCovariance, x: f64| (p.pose.x - x).hypot(p.pose.y - 4.0) < 1e-6;
+        let mut got = None;
+        for i in 0..100 {
+            odom.publish(Odometry {
+                header: Header {
+                    stamp_ns: i * 20_000_000,
+                    frame_id: FrameId::ODOM,
+                    ..Header::default()
+                },
+                pose: Pose2D::new(2.0, 0.0, 0.5),
+                ..Odometry::default()
+            })
+            .unwrap();
+            if i == 1 {
+                initial.publish(estimate(f64::NAN)).unwrap();
+                initial.publish(estimate(7.0)).unwrap();
+            }
+            if let Ok(p) = h.wait_for(&mut pose, Duration::from_millis(50), |p| at(p, 7.0)) {
+                got = Some(p);
+                break;
+            }
+        }
+        let p = got.expect("a pose at the estimate");
+        assert!((p.pose.theta + 1.0).abs() < 1e-6, "{p:?}");
+        h.finish().unwrap();
     }
 }

@@ -224,6 +224,7 @@ json_fixed!(
     msg::Designation,
     hng_modules::reacher_module::ReachStatus,
     hng_simulator::module::SimLighting,
+    hng_simulator::module::SimTeleport,
 );
 
 /// JSON-encoded fixed-size types without a serde form: the header and the bytes only.
@@ -298,6 +299,7 @@ pub fn registry() -> Vec<TypeEntry> {
         fixed::<msg::Designation>(),
         fixed::<hng_modules::reacher_module::ReachStatus>(),
         fixed::<hng_simulator::module::SimLighting>(),
+        fixed::<hng_simulator::module::SimTeleport>(),
         fixed::<msg::FollowWallRequest>(),
         fixed::<hng_modules::planning::progress::NavProgress>(),
         fixed::<msg::Walls>(),

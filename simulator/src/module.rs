@@ -5,6 +5,13 @@
 //! output on its channel stamped with simulated time, drives the simulation clock
 //! ([`CLOCK_CHANNEL`]) and takes velocity commands from `sim/cmd_vel`.
 //!
+//! Teleport: a [`SimTeleport`] on `sim/teleport` puts the robot elsewhere at rest, between two
+//! steps (to start another scenario in the same world without restarting the system: `hng
+//! eval nav`'s problems, a test). The odometry does not see the jump (tell Localization and
+//! SLAM with an operator pose estimate, `operator/initial_pose`), the true path does not
+//! count it, and the least clearance in [`SimStatus`] counts again from the new place. A pose
+//! that is not finite or overlaps an obstacle is refused, logged and counted.
+//!
 //! Stepping: a timer of one wall-clock step period (`dt / speed`; 1 ns at `max`) calls
 //! [`Module::on_tick`], which takes every step that is due, at most `max_steps_per_tick` of them
 //! and for at most 2 ms of wall time. Between ticks the executor handles commands and SIGTERM,
@@ -35,7 +42,7 @@ use std::time::{Duration, Instant};
 use hng_runtime::channel::InputId;
 use hng_runtime::clock::{CLOCK_CHANNEL, Clock, ClockMode};
 use hng_runtime::module::REPORT_CHANNEL;
-use hng_runtime::msg::{self, ModuleReport, Twist};
+use hng_runtime::msg::{self, ModuleReport, Pose2D, Twist};
 use hng_runtime::{
     Context, Module, ModuleResult, Node, NodeOptions, Publisher, RunOptions, Subscriber, TimerId,
     run_module_with,
@@ -57,7 +64,7 @@ pub use camera::SimLighting;
 use config::config_error;
 pub use config::{Channels, SensorSwitches, SimModuleConfig};
 use lockstep::Lockstep;
-pub use messages::{SimCollision, SimStatus};
+pub use messages::{SimCollision, SimStatus, SimTeleport};
 use outputs::Outputs;
 
 /// Longest a tick keeps stepping before it returns to the executor.
@@ -89,6 +96,9 @@ pub struct SimulatorModule {
     last_status: Instant,
     last_status_sim_ns: u64,
     cmd: Subscriber<Twist>,
+    teleport: Option<Subscriber<SimTeleport>>,
+    /// Teleports refused (not finite, or into an obstacle).
+    teleports_refused: u64,
     /// Paused start: the modules not heard from yet, their reports, and the wall deadline.
     waiting: Option<(BTreeSet<String>, Subscriber<ModuleReport>, Instant)>,
     /// Modules on the simulation clock (waited for or in lockstep): their reports carry their
@@ -157,6 +167,11 @@ impl Module for SimulatorModule {
         let ch = &cfg.channels;
         let outputs = Outputs::open(ctx, &node, &sim, ch, map_grid.as_ref())?;
         let cmd = ctx.subscribe::<Twist>(&ch.cmd_vel, None)?;
+        let teleport = if ch.teleport.is_empty() {
+            None
+        } else {
+            Some(ctx.subscribe::<SimTeleport>(&ch.teleport, None)?)
+        };
         let lockstep = if cfg.lockstep.is_empty() {
             None
         } else {
@@ -215,6 +230,8 @@ impl Module for SimulatorModule {
             last_status: Instant::now(),
             last_status_sim_ns: 0,
             cmd,
+            teleport,
+            teleports_refused: 0,
             waiting,
             followers,
             followers_ns: 0,
@@ -285,6 +302,9 @@ impl Module for SimulatorModule {
         {
             l.read(ctx)?;
             return self.lockstep_advance(ctx);
+        }
+        if self.teleport.as_ref().is_some_and(|t| t.id() == input) {
+            return self.read_teleports(ctx);
         }
         if let (Some(l), Some(cam)) = (&self.outputs.lighting, &mut self.outputs.image)
             && l.id() == input
@@ -465,6 +485,58 @@ impl SimulatorModule {
             }
         }
         if rejected {
+            self.publish_status(ctx)?;
+        }
+        Ok(())
+    }
+
+    /// Moves the robot as each [`SimTeleport`] says (between two steps: in lockstep, between
+    /// two rounds); a refused one is logged and counted.
+    fn read_teleports(&mut self, ctx: &mut Context) -> ModuleResult {
+        let Some(sub) = &self.teleport else {
+            return Ok(());
+        };
+        let mut moved = false;
+        while let Some(t) = sub.receive()? {
+            let before = self.sim.ground_truth();
+            let refused = match self.sim.teleport(t.pose) {
+                Err(e) => Some(e.to_string()),
+                Ok(()) if self.sim.clearance() <= 0.0 => {
+                    // Into an obstacle: back where it was.
+                    self.sim
+                        .teleport(Pose2D::new(before.x, before.y, before.theta))?;
+                    Some(format!(
+                        "({:.2}, {:.2}) overlaps an obstacle",
+                        t.pose.x, t.pose.y
+                    ))
+                }
+                Ok(()) => None,
+            };
+            match refused {
+                Some(why) => {
+                    self.teleports_refused += 1;
+                    tracing::warn!(
+                        module = ctx.name(),
+                        refused = self.teleports_refused,
+                        "teleport refused: {why}"
+                    );
+                }
+                None => {
+                    moved = true;
+                    self.sim.reset_min_clearance();
+                    tracing::info!(
+                        module = ctx.name(),
+                        x = t.pose.x,
+                        y = t.pose.y,
+                        theta = t.pose.theta,
+                        "robot teleported"
+                    );
+                }
+            }
+        }
+        if moved {
+            // The jump is not a path.
+            self.last_true = None;
             self.publish_status(ctx)?;
         }
         Ok(())

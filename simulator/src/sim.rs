@@ -367,6 +367,12 @@ impl Simulator {
         Ok(())
     }
 
+    /// The least clearance counts again from the robot's clearance now (after a teleport:
+    /// the old trajectory's close passes are not the new one's).
+    pub fn reset_min_clearance(&mut self) {
+        self.stats.min_clearance = self.last_clearance;
+    }
+
     /// The restorable state now (see [`SimSnapshot`] for what is and is not kept).
     #[must_use]
     pub fn snapshot(&self) -> SimSnapshot {

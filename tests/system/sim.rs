@@ -316,6 +316,60 @@ fn cmd_vel_moves_the_robot_and_a_nan_command_is_rejected_and_stops_it() {
 }
 
 #[test]
+fn a_teleport_moves_the_robot_without_counting_the_jump_and_one_into_a_pillar_is_refused() {
+    use hng_simulator::module::SimTeleport;
+    let mut s = SimSystem::new("simteleport");
+    let mut truth = s.watch::<PoseWithCovariance>("sim/ground_truth");
+    let mut status = s.watch::<SimStatus>("sim/status");
+    let teleport = s
+        .node()
+        .publisher::<SimTeleport>("sim/teleport")
+        .expect("publisher");
+    s.spawn_sim(r#"speed = 10"#, &[]);
+    let to = |x: f64, y: f64, theta: f64| SimTeleport {
+        pose: msg::Pose2D::new(x, y, theta),
+        ..SimTeleport::default()
+    };
+    let start = truth.next(deadline(), "ground truth");
+    assert!((start.pose.x - 2.0).abs() < 0.01, "{start:?}");
+
+    // Into the south room, 8.5 m away.
+    teleport.publish(to(10.0, 5.0, 1.0)).expect("publish");
+    let there = truth.until(deadline(), "the robot at (10, 5)", |m| {
+        (m.pose.x - 10.0).hypot(m.pose.y - 5.0) < 0.01
+    });
+    let there = there.last().expect("ground truth");
+    assert!((there.pose.theta - 1.0).abs() < 0.01, "{there:?}");
+    let t = there.header.stamp_ns;
+    let st = status.until(deadline(), "status after the teleport", |st| {
+        st.header.stamp_ns >= t
+    });
+    let st = st.last().expect("status");
+    assert!(
+        st.path_length_m < 0.1,
+        "the jump is not a path: {} m",
+        st.path_length_m
+    );
+
+    // Into the pillar at (4, 5), and a NaN: refused, the robot stays; then (11, 6): it goes
+    // there, and no step between shows it anywhere else (ground truth comes every step).
+    teleport.publish(to(4.0, 5.0, 0.0)).expect("publish");
+    teleport.publish(to(f64::NAN, 5.0, 0.0)).expect("publish");
+    teleport.publish(to(11.0, 6.0, 0.0)).expect("publish");
+    let later = truth.until(deadline(), "the robot at (11, 6)", |m| {
+        (m.pose.x - 11.0).hypot(m.pose.y - 6.0) < 0.01
+    });
+    for m in &later {
+        let at = |x: f64, y: f64| (m.pose.x - x).hypot(m.pose.y - y) < 0.01;
+        assert!(
+            at(10.0, 5.0) || at(11.0, 6.0),
+            "only at (10, 5) or (11, 6): {m:?}"
+        );
+    }
+    assert_clean_exit(&s.stop_sims());
+}
+
+#[test]
 fn a_switched_off_sensor_leaves_its_channel_to_another_driver() {
     let mut s = SimSystem::new("simhyb");
     let scans = s.watch::<LaserScan>("sim/scan");

@@ -19,6 +19,10 @@ pub const ORDER_CHANNEL: &str = "operator/order";
 pub const ORDER_STATUS_CHANNEL: &str = "operator/order_status";
 /// The beacon the operator designated (the trackers' "Designation").
 pub const DESIGNATION_CHANNEL: &str = "operator/designation";
+/// The operator's estimate of the robot's pose (ROS `/initialpose`: a
+/// [`super::PoseWithCovariance`] in `map`): Localization restarts its filter there, SLAM
+/// starts a new map there.
+pub const INITIAL_POSE_CHANNEL: &str = "operator/initial_pose";
 /// The behaviours attention offers now.
 pub const BEHAVIOURS_CHANNEL: &str = "hng/behaviours";
 

@@ -62,6 +62,9 @@ pub struct Channels {
     /// Counters, [`SimStatus`] (default `sim/status`).
     #[default("sim/status".into())]
     pub status: String,
+    /// Teleport commands in, [`super::SimTeleport`] (default `sim/teleport`; empty: none).
+    #[default("sim/teleport".into())]
+    pub teleport: String,
     /// Velocity commands in, `Twist` (default `sim/cmd_vel`).
     #[default("sim/cmd_vel".into())]
     pub cmd_vel: String,

@@ -1,6 +1,6 @@
-//! The simulator module's own messages: [`SimStatus`] and [`SimCollision`].
+//! The simulator module's own messages: [`SimStatus`], [`SimCollision`] and [`SimTeleport`].
 
-use hng_runtime::msg::Header;
+use hng_runtime::msg::{Header, Pose2D};
 use hng_runtime::qos::ChannelKind;
 use iceoryx2::prelude::ZeroCopySend;
 use serde::Serialize;
@@ -66,3 +66,20 @@ pub struct SimCollision {
 }
 
 hng_runtime::impl_message!(SimCollision, ChannelKind::Sensor);
+
+/// Moves the simulated robot (published on `sim/teleport`; Gazebo's `set_pose`, Stage's
+/// `setpose`): it is put at `pose` at rest, the odometry does not see the jump, the true path
+/// does not count it, and the least clearance starts again from there. One-shot (a command
+/// channel: a simulator that starts later does not see it). A pose that is not finite, or
+/// whose disc overlaps an obstacle, is refused, logged and counted.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize)]
+#[type_name("hng-simulator/SimTeleport/v1")]
+pub struct SimTeleport {
+    /// Header.
+    pub header: Header,
+    /// Where the robot goes, `map` frame.
+    pub pose: Pose2D,
+}
+
+hng_runtime::impl_message!(SimTeleport, ChannelKind::Command);
