@@ -87,8 +87,13 @@ impl InitialPoseInput {
     }
 
     /// The newest valid estimate that was not applied yet (it counts as applied from now
-    /// on); invalid ones are refused, logged and counted.
-    pub fn take(&mut self, module: &str) -> ModuleResult<Option<PoseWithCovariance>> {
+    /// on, and is logged with `applied`: what the module does with it); invalid ones are
+    /// refused, logged and counted.
+    pub fn take(
+        &mut self,
+        module: &str,
+        applied: &str,
+    ) -> ModuleResult<Option<PoseWithCovariance>> {
         let mut newest = None;
         while let Some(s) = self.sub.receive()? {
             let id = EstimateId {
@@ -112,6 +117,13 @@ impl InitialPoseInput {
         }
         Ok(newest.map(|(id, p)| {
             self.applied = Some(id);
+            tracing::info!(
+                module,
+                x = p.pose.x,
+                y = p.pose.y,
+                theta = p.pose.theta,
+                "{applied}"
+            );
             p
         }))
     }

@@ -246,19 +246,15 @@ impl Module for LocalizationModule {
             }
         } else if let Some(ip) = &mut self.initial_pose
             && ip.is(input)
-            && let Some(p) = ip.take(ctx.name())?
+            && let Some(p) = ip.take(
+                ctx.name(),
+                "filter restarted at the operator's pose estimate",
+            )?
         {
             // The operator knows better: the filter restarts there (keeping the odometry
             // scale it learnt), and the next fixes are fused from there.
             self.ekf.restart_at(p.pose, &p.covariance);
             self.last_fix_ns = self.last_odom_ns.or(Some(0));
-            tracing::info!(
-                module = ctx.name(),
-                x = p.pose.x,
-                y = p.pose.y,
-                theta = p.pose.theta,
-                "filter restarted at the operator's pose estimate"
-            );
             self.rate(ctx);
             self.publish()?;
         }

@@ -420,7 +420,7 @@ impl Module for SlamModule {
             }
         } else if let Some(ip) = &mut self.initial_pose
             && ip.is(input)
-            && let Some(p) = ip.take(ctx.name())?
+            && let Some(p) = ip.take(ctx.name(), "new map from the operator's pose estimate")?
         {
             // A new map starts at the operator's estimate, from the odometry reading of now
             // (as after a restart from a checkpoint: the local map is rebuilt from the next
@@ -428,13 +428,6 @@ impl Module for SlamModule {
             let (_, odom) = self.tracker.anchor();
             self.restored_scans += self.tracker.scans();
             self.tracker = SlamTracker::resume(self.tracker.cfg, p.pose, odom);
-            tracing::info!(
-                module = ctx.name(),
-                x = p.pose.x,
-                y = p.pose.y,
-                theta = p.pose.theta,
-                "new map from the operator's pose estimate"
-            );
             self.publish_pose()?;
         }
         Ok(())
