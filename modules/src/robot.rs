@@ -15,9 +15,9 @@
 //! (turning in place stays allowed). Every new envelope limits the command in force again. An
 //! envelope older than `freshness_s` (by its scan's stamp), or none yet from a holder that
 //! published one before, means stop. A holder that never published an envelope limits
-//! nothing, and when Security's contract ends (Security dead, or not yet re-contracted after
-//! a restart) the elected client drives unlimited until Security is back, as when Security
-//! relayed the commands and went silent. The accepted commands are forwarded to the base
+//! nothing, and when Security's contract ends (Security dead: under `hng run` at once, on the
+//! supervisor's `Died` event; or not yet re-contracted after a restart) the elected client
+//! drives unlimited until Security is back, as before the envelope (docs/fault-matrix.md). The accepted commands are forwarded to the base
 //! (`cmd_out`, the simulator's `sim/cmd_vel` here, a hardware bridge on a real robot) after
 //! clamping to the base's limits. When the client in control goes silent and no other takes
 //! over, one stop is sent. Odometry from the base is provided as "Odometry" on `odom_out`
