@@ -204,6 +204,7 @@ fn dispatch(prefix: &str, name: &str, mode: Mode) -> Result<()> {
         msg::OrderStatus,
         msg::Behaviours,
         msg::Walls,
+        msg::SpeedEnvelope,
         system::SupervisorCommand,
         system::ModuleEvent,
         system::ResourceCosts,

@@ -4,17 +4,24 @@
 //! It is a driver (paper 5.6 "Drivers"): its clients hold "Robot control" contracts and send
 //! their commands on its data channel `cmd_in` (`robot/cmd_vel`, named in its proposals); it
 //! obeys only the live contract holder with the most important priority
-//! (`ctx.drive` + `ctx.command_verdict`: Security 1.1 over the operator's Interface 2.1 over
-//! the Servo-controller 2.2.1.1); commands of the others are ignored and counted
-//! (`commands_preempted`, `commands_no_contract` in its contract table). The election is made
-//! here only: the commands of the client the most important holder supervises (the live one
-//! elected among the others, `ctx.supervised_client`) are also published on
-//! [`supervised_channel`]`(cmd_in)` (`robot/cmd_vel/supervised`), where Security reads the
-//! command it limits before sending its own at 1.1. The accepted ones are
-//! forwarded to the base (`cmd_out`, the simulator's `sim/cmd_vel` here, a hardware bridge on a
-//! real robot) after clamping to the base's limits. When the client in control goes silent
-//! and no other takes over, one stop is sent. Odometry from the base is provided as
-//! "Odometry" on `odom_out` (`robot/odom`).
+//! (`ctx.drive` + `ctx.command_verdict`: the operator's Interface 2.1 over the
+//! Servo-controller 2.2.1.1); commands of the others are ignored and counted
+//! (`commands_preempted`, `commands_no_contract` in its contract table). This is the only
+//! election of a wheel command. The elected command is then limited by the speed-limit
+//! envelope ([`SpeedEnvelope`]) of the most important holder, Security (1.1, paper 5.8: it
+//! may invalidate the others' commands), which publishes one per scan on
+//! [`envelope_channel`]`(cmd_in)` (`robot/cmd_vel/envelope`) and sends no commands: a speed
+//! the envelope does not allow at the command's curvature is reduced, keeping the curvature
+//! (turning in place stays allowed). Every new envelope limits the command in force again. An
+//! envelope older than `freshness_s` (by its scan's stamp), or none yet from a holder that
+//! published one before, means stop. A holder that never published an envelope limits
+//! nothing, and when Security's contract ends (Security dead: under `hng run` at once, on the
+//! supervisor's `Died` event; or not yet re-contracted after a restart) the elected client
+//! drives unlimited until Security is back, as before the envelope (docs/fault-matrix.md). The accepted commands are forwarded to the base
+//! (`cmd_out`, the simulator's `sim/cmd_vel` here, a hardware bridge on a real robot) after
+//! clamping to the base's limits. When the client in control goes silent and no other takes
+//! over, one stop is sent. Odometry from the base is provided as "Odometry" on `odom_out`
+//! (`robot/odom`).
 //!
 //! Without contracts (benches, systems without a Manager) `sources` wires clients statically,
 //! each with a configured priority ([`CommandMux`]).
@@ -27,7 +34,7 @@ use std::time::Duration;
 
 use hng_runtime::channel::InputId;
 use hng_runtime::contract::{ModuleId, ServiceOffer, Verdict};
-use hng_runtime::msg::{Odometry, Twist};
+use hng_runtime::msg::{Odometry, SpeedEnvelope, Twist};
 use hng_runtime::{Context, Module, ModuleResult, Publisher, Subscriber, TimerId};
 use serde::{Deserialize, Serialize};
 use smart_default::SmartDefault;
@@ -83,25 +90,74 @@ struct RobotState {
     forwarded: u64,
     stops: u64,
     invalid: u64,
+    /// Commands changed by the guard's envelope (or stopped without a fresh one).
+    #[serde(default)]
+    guarded: u64,
 }
 
 /// The "Robot control" service.
 pub const ROBOT_CONTROL: &str = "Robot control";
 
-/// Where a driver whose commands come in on `control_channel` publishes the commands of the
-/// client its most important contract holder supervises (`robot/cmd_vel/supervised`).
-pub fn supervised_channel(control_channel: &str) -> String {
-    format!("{control_channel}/supervised")
+/// Where the safety client of a driver whose commands come in on `control_channel` publishes
+/// its speed-limit envelope ([`SpeedEnvelope`], `robot/cmd_vel/envelope`).
+pub fn envelope_channel(control_channel: &str) -> String {
+    format!("{control_channel}/envelope")
+}
+
+/// What limits the elected command before it goes to the base.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Guard<'a> {
+    /// The most important contract holder publishes no envelope (no Security in the system,
+    /// or Security's contract ended: dead, or not yet back): the command goes as it is.
+    None,
+    /// The holder's fresh envelope.
+    Limit(&'a SpeedEnvelope),
+    /// The holder guards but its envelope is missing or stale: stop.
+    Stop,
+}
+
+/// The guard rule: `top` (the most important holder) limits commands only if it is one of
+/// `guards` (it published envelopes); then by its `envelope` if that is its own and its scan
+/// younger than `freshness`, else by a stop.
+fn guard_of<'a>(
+    top: Option<ModuleId>,
+    guards: &[ModuleId],
+    envelope: Option<&'a SpeedEnvelope>,
+    now: Duration,
+    freshness: Duration,
+) -> Guard<'a> {
+    let Some(top) = top.filter(|t| guards.contains(t)) else {
+        return Guard::None;
+    };
+    match envelope {
+        Some(e)
+            if e.header.source == top.0
+                && now.saturating_sub(Duration::from_nanos(e.scan_stamp_ns)) < freshness =>
+        {
+            Guard::Limit(e)
+        }
+        _ => Guard::Stop,
+    }
 }
 
 /// The Robot driver module.
 #[derive(Debug)]
 pub struct RobotModule {
     cmd_in: Subscriber<Twist>,
-    /// The supervised client's commands, for the supervisor (Security).
-    supervised_out: Publisher<Twist>,
+    /// The envelopes of the safety client (Security).
+    envelope_in: Subscriber<SpeedEnvelope>,
+    /// The newest envelope.
+    envelope: Option<SpeedEnvelope>,
+    /// Clients that published an envelope: while one of them holds the most important
+    /// contract, its fresh envelope limits every command.
+    guards: Vec<ModuleId>,
     /// When the last contracted command was obeyed (`None`: nobody in control).
     obeyed_at: Option<Duration>,
+    /// The elected client's last command, as it sent it, and when (limited again by every
+    /// new envelope while younger than `freshness_s`).
+    in_force: Option<(Duration, Twist)>,
+    /// The last command sent to the base, after clamping.
+    sent: Option<Twist>,
     freshness: Duration,
     sources: Vec<Subscriber<Twist>>,
     mux: CommandMux,
@@ -116,12 +172,85 @@ pub struct RobotModule {
 
 impl RobotModule {
     fn send(&mut self, cmd: &Twist) -> ModuleResult {
-        let out = clamp_command(cmd, self.max_linear, self.max_angular);
-        self.cmd_out.publish(Twist {
+        let out = Twist {
             header: Default::default(),
-            ..out
-        })?;
+            ..clamp_command(cmd, self.max_linear, self.max_angular)
+        };
+        self.cmd_out.publish(out)?;
+        self.sent = Some(out);
         self.state.forwarded += 1;
+        Ok(())
+    }
+
+    /// What limits commands now ([`guard_of`]): the guard is the most important "Robot
+    /// control" holder; without a contract plane (the static wiring), the publisher of the
+    /// newest envelope.
+    fn guard(&self, ctx: &Context) -> Guard<'_> {
+        let top = match ctx.contracts() {
+            Some(agent) => agent
+                .client_contracts()
+                .filter(|c| c.service == ROBOT_CONTROL)
+                .min_by_key(|c| (c.priority, c.client))
+                .map(|c| c.client),
+            None => self.envelope.map(|e| ModuleId(e.header.source)),
+        };
+        guard_of(
+            top,
+            &self.guards,
+            self.envelope.as_ref(),
+            ctx.now(),
+            self.freshness,
+        )
+    }
+
+    /// Obeys the elected command `cmd` (from `from`) within the guard's envelope.
+    fn obey_guarded(&mut self, ctx: &mut Context, cmd: &Twist, from: &str) -> ModuleResult {
+        self.in_force = Some((ctx.now(), *cmd));
+        let finite = [cmd.linear_x, cmd.linear_y, cmd.angular_z]
+            .iter()
+            .all(|v| v.is_finite());
+        match self.guard(ctx) {
+            // A non-finite command is counted and reported as invalid, then a stop.
+            Guard::None => self.obey(ctx, cmd, from),
+            Guard::Limit(_) if !finite => self.obey(ctx, cmd, from),
+            Guard::Stop => {
+                self.state.guarded += 1;
+                self.send(&Twist::default())
+            }
+            Guard::Limit(e) => {
+                let (limited, changed) = e.limit(cmd);
+                if changed {
+                    self.state.guarded += 1;
+                }
+                self.send(&limited)
+            }
+        }
+    }
+
+    /// A new envelope, or a tick: the command in force (the elected client's last, younger
+    /// than `freshness_s`) is limited again, and sent if that changes what the base was told
+    /// (a stop once the guard's envelope is stale).
+    fn reguard(&mut self, ctx: &mut Context) -> ModuleResult {
+        let Some((at, cmd)) = self.in_force else {
+            return Ok(());
+        };
+        if ctx.now().saturating_sub(at) >= self.freshness {
+            self.in_force = None;
+            return Ok(());
+        }
+        let out = match self.guard(ctx) {
+            Guard::None => return Ok(()),
+            Guard::Stop => Twist::default(),
+            Guard::Limit(e) => e.limit(&cmd).0,
+        };
+        let out = Twist {
+            header: Default::default(),
+            ..clamp_command(&out, self.max_linear, self.max_angular)
+        };
+        if self.sent != Some(out) {
+            self.state.guarded += 1;
+            self.send(&out)?;
+        }
         Ok(())
     }
 
@@ -184,8 +313,12 @@ impl Module for RobotModule {
         ctx.add_timer((freshness / 4).max(Duration::from_millis(10)));
         Ok(RobotModule {
             cmd_in: ctx.subscribe(&cfg.cmd_in, None)?,
-            supervised_out: ctx.publisher(&supervised_channel(&cfg.cmd_in))?,
+            envelope_in: ctx.subscribe(&envelope_channel(&cfg.cmd_in), None)?,
+            envelope: None,
+            guards: Vec::new(),
             obeyed_at: None,
+            in_force: None,
+            sent: None,
             freshness,
             sources,
             mux,
@@ -212,18 +345,25 @@ impl Module for RobotModule {
             // Contract holders: only the live one with the most important priority is obeyed.
             while let Some(cmd) = self.cmd_in.receive()? {
                 let cmd = *cmd;
-                let verdict = ctx.command_verdict(ROBOT_CONTROL, &cmd.header);
-                if ctx.supervised_client(ROBOT_CONTROL) == Some(ModuleId(cmd.header.source)) {
-                    // Stamped afresh by the publisher (source: the Robot).
-                    self.supervised_out.publish(Twist {
-                        header: Default::default(),
-                        ..cmd
-                    })?;
-                }
-                if verdict == Verdict::Accept {
+                if ctx.command_verdict(ROBOT_CONTROL, &cmd.header) == Verdict::Accept {
                     self.obeyed_at = Some(ctx.now());
-                    self.obey(ctx, &cmd, "contract")?;
+                    self.obey_guarded(ctx, &cmd, "contract")?;
                 }
+            }
+            return Ok(());
+        }
+        if input == self.envelope_in.id() {
+            let mut got = false;
+            while let Some(e) = self.envelope_in.receive()? {
+                let source = ModuleId(e.header.source);
+                if !self.guards.contains(&source) {
+                    self.guards.push(source);
+                }
+                self.envelope = Some(*e);
+                got = true;
+            }
+            if got {
+                self.reguard(ctx)?;
             }
             return Ok(());
         }
@@ -235,7 +375,7 @@ impl Module for RobotModule {
             let cmd = *cmd;
             if let MuxAction::Send(_) = self.mux.on_command(i as u32, &cmd, now) {
                 let from = self.sources[i].channel().to_string();
-                self.obey(ctx, &cmd, &from)?;
+                self.obey_guarded(ctx, &cmd, &from)?;
             }
         }
         Ok(())
@@ -253,6 +393,8 @@ impl Module for RobotModule {
             self.state.stops += 1;
             self.send(&Twist::default())?;
         }
+        // The guard's envelope went stale under a moving command: stop.
+        self.reguard(ctx)?;
         if let MuxAction::Send(stop) = self.mux.on_tick(now) {
             tracing::debug!(module = ctx.name(), "commanding client went silent: stop");
             self.state.stops += 1;
@@ -279,6 +421,128 @@ impl Module for RobotModule {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use hng_runtime::harness::Harness;
+    use hng_runtime::msg::ENVELOPE_BINS;
+
+    fn cmd(v: f64, w: f64) -> Twist {
+        Twist {
+            linear_x: v,
+            angular_z: w,
+            ..Default::default()
+        }
+    }
+
+    /// An envelope allowing `fwd` forward at every curvature and anything backward.
+    fn envelope(source: u32, scan_stamp_ns: u64, fwd: f64) -> SpeedEnvelope {
+        let mut e = SpeedEnvelope {
+            scan_stamp_ns,
+            stop: 0,
+            turn_in_place: f64::INFINITY,
+            forward: [fwd; ENVELOPE_BINS],
+            backward: [2.0; ENVELOPE_BINS],
+            ..Default::default()
+        };
+        e.header.source = source;
+        e
+    }
+
+    #[test]
+    fn only_a_guarding_top_holder_limits_and_its_stale_or_missing_envelope_stops() {
+        let (sec, gui) = (ModuleId(1), ModuleId(2));
+        let s = Duration::from_secs;
+        let fresh = envelope(1, s(10).as_nanos() as u64, 0.3);
+        fn g<'a>(
+            top: Option<ModuleId>,
+            guards: &[ModuleId],
+            e: Option<&'a SpeedEnvelope>,
+            now: Duration,
+        ) -> Guard<'a> {
+            guard_of(top, guards, e, now, Duration::from_millis(500))
+        }
+        assert_eq!(
+            g(Some(sec), &[sec], Some(&fresh), s(10)),
+            Guard::Limit(&fresh)
+        );
+        assert_eq!(
+            g(Some(sec), &[sec], Some(&fresh), s(11)),
+            Guard::Stop,
+            "stale"
+        );
+        assert_eq!(g(Some(sec), &[sec], None, s(10)), Guard::Stop, "none yet");
+        let other = envelope(2, s(10).as_nanos() as u64, 0.3);
+        assert_eq!(g(Some(sec), &[sec, gui], Some(&other), s(10)), Guard::Stop);
+        // Security's contract ended (dead, or not back yet): the elected client drives.
+        assert_eq!(g(Some(gui), &[sec], Some(&fresh), s(10)), Guard::None);
+        assert_eq!(g(None, &[sec], Some(&fresh), s(10)), Guard::None);
+        // A holder that never published an envelope limits nothing.
+        assert_eq!(g(Some(sec), &[], None, s(10)), Guard::None);
+    }
+
+    /// The module's own loop (in-process harness, the static wiring: without a contract
+    /// plane the envelope's publisher guards): a command the envelope forbids is limited, at
+    /// once when a new envelope comes under a command in force; backing away is not; a stale
+    /// envelope stops the robot, turning included.
+    #[test]
+    fn the_module_limits_commands_by_the_envelope_and_stops_on_a_stale_one() {
+        let mut h = Harness::new("robot").unwrap();
+        let input = h.input::<Twist>("test/cmd").unwrap();
+        let env_in = h
+            .input::<SpeedEnvelope>(&envelope_channel("robot/cmd_vel"))
+            .unwrap();
+        let mut wheels = h.output::<Twist>("test/wheels").unwrap();
+        // A freshness far longer than the test: no silence stop of the client interferes.
+        h.start::<RobotModule>(
+            "sources = [{ channel = \"test/cmd\", priority = \"2.1\" }]\n\
+             cmd_out = \"test/wheels\"\nodom_in = \"test/odom\"\nfreshness_s = 30.0",
+        )
+        .unwrap();
+        let wait = Duration::from_secs(5);
+        let now = || hng_runtime::clock::Clock::wall().now_ns();
+
+        // Far from everything: nothing limited.
+        env_in.publish(envelope(7, now(), 2.0)).unwrap();
+        input.publish(cmd(1.0, 0.0)).unwrap();
+        h.wait_for(&mut wheels, wait, |c| c.linear_x == 1.0)
+            .unwrap();
+
+        // A wall comes near: the command in force is limited at once, curvature kept.
+        input.publish(cmd(1.0, 0.4)).unwrap();
+        h.wait_for(&mut wheels, wait, |c| c.angular_z == 0.4)
+            .unwrap();
+        env_in.publish(envelope(7, now(), 0.3)).unwrap();
+        let limited = h.wait_for(&mut wheels, wait, |c| c.linear_x < 1.0).unwrap();
+        assert!(
+            (limited.linear_x - 0.3).abs() < 1e-12 && (limited.angular_z - 0.12).abs() < 1e-12,
+            "{limited:?}"
+        );
+        // Away from it: not limited.
+        input.publish(cmd(-0.5, 0.2)).unwrap();
+        let back = h.wait_for(&mut wheels, wait, |c| c.linear_x < 0.0).unwrap();
+        assert_eq!((back.linear_x, back.angular_z), (-0.5, 0.2));
+
+        // The envelope goes stale (its scan a minute old): the moving robot is stopped, and
+        // a new command moves nothing, not even a turn.
+        input.publish(cmd(0.2, 0.0)).unwrap();
+        h.wait_for(&mut wheels, wait, |c| c.linear_x == 0.2)
+            .unwrap();
+        let old = now().saturating_sub(60_000_000_000);
+        env_in.publish(envelope(7, old, 0.3)).unwrap();
+        h.wait_for(&mut wheels, wait, |c| {
+            c.linear_x == 0.0 && c.angular_z == 0.0
+        })
+        .unwrap();
+        let n = wheels.samples.len();
+        input.publish(cmd(0.3, 0.5)).unwrap();
+        h.wait_for(&mut wheels, wait, |_| true).unwrap();
+        let after: Vec<_> = wheels.samples[n..].iter().map(|c| c.msg).collect();
+        assert!(
+            after
+                .iter()
+                .all(|c| c.linear_x == 0.0 && c.angular_z == 0.0),
+            "stale envelope: only stops {after:?}"
+        );
+        h.finish().unwrap();
+    }
 
     #[test]
     fn commands_are_clamped_to_the_base_limits() {

@@ -3,21 +3,21 @@
 //!
 //! Security answers the Manager's objective 1, so its "Robot control" contract with the Robot
 //! driver has priority 1.1, the most important of the Robot's clients (paper 5.8: it may
-//! invalidate the others' commands): while it commands, the Robot obeys only it. The other
-//! clients (the operator's Interface 2.1, the Servo-controller 2.2.1.1) send their commands to
-//! the Robot, which elects one of them by contract priority, the only election of a wheel
-//! command, and publishes that client's commands on `robot/cmd_vel/supervised`
-//! ([`crate::robot::supervised_channel`]). Security reads that one command, limits its speed
-//! to what the lidar says is safe, and sends its own command, the limited one, to the Robot at
-//! every scan and every desired command. It never reads nor rewrites the others' commands,
-//! and knows nothing of their priorities. When no client commands (no desired command for
-//! `freshness_s`), it commands a stop: the robot holds still. Without a fresh scan it commands
-//! a stop too (it cannot vouch for anything it cannot see). The lidar comes from its "LIDAR
+//! invalidate the others' commands). It sends no command: at every scan it publishes a
+//! speed-limit envelope ([`SpeedEnvelope`], [`envelope`]) on its Robot's
+//! [`crate::robot::envelope_channel`] (`robot/cmd_vel/envelope`, a state channel), the largest
+//! safe forward and backward speed for every curvature of motion, and the Robot limits the
+//! command of the client it elected (the operator's Interface 2.1, the Servo-controller
+//! 2.2.1.1) by it before it goes to the wheels. Security never reads the others' commands,
+//! and knows nothing of their priorities; it is called once per scan. Without a fresh scan
+//! (none for `scan_timeout_s`, or none yet when the Robot is contracted) it publishes the stop
+//! envelope (it cannot vouch for anything it cannot see); an envelope is as old as its scan,
+//! and the Robot stops on one older than its `freshness_s`. The lidar comes from its "LIDAR
 //! data" provider (the configured `scan` channel until one is known); the latest scan is kept
 //! as the loaned shared-memory sample, not copied.
 //!
-//! Without contracts (benches, systems without a Manager), `cmd_in` names the channel of the
-//! desired commands and the result goes to `cmd_out`.
+//! Without contracts (the `hng bench loop`), `cmd_in` names the channel of the desired
+//! commands; Security limits each itself ([`decide`]) and sends it on `cmd_out`.
 //!
 //! The speed limit ([`speed_limit`]): the free distance `d` along the robot's path (the swept
 //! disc of radius `robot_radius + side_margin`, straight or along the arc of the commanded
@@ -36,13 +36,13 @@ use std::time::Duration;
 use hng_runtime::channel::{InputId, Sample};
 use hng_runtime::contract::{NeedSpec, ServiceOffer};
 use hng_runtime::control::{FollowProvider as _, ProviderInfo, ProviderInput};
-use hng_runtime::msg::{LaserScan, Twist};
+use hng_runtime::msg::{ENVELOPE_BINS, LaserScan, SpeedEnvelope, Twist, envelope_bin_curvature};
 use hng_runtime::{Context, Module, ModuleResult, Publisher, Subscriber};
 use serde::{Deserialize, Serialize};
 use smart_default::SmartDefault;
 
 use crate::common::{check_fields, positive, seconds};
-use crate::robot::{ROBOT_CONTROL, supervised_channel};
+use crate::robot::{ROBOT_CONTROL, envelope_channel};
 pub use crate::scan::ScanView;
 use crate::scan::scan_quality;
 
@@ -73,6 +73,10 @@ pub struct SafetyConfig {
     /// Lidar position in the robot frame (x forward), m (default 0).
     #[default(0.0)]
     pub laser_x: f64,
+    /// The envelope resolves speeds up to this, m/s, and reports this where more would be
+    /// safe (default 2.0, twice the Robot's `max_linear_speed`).
+    #[default(2.0)]
+    pub envelope_max_speed: f64,
 }
 
 /// Free distance, m, the robot can travel with velocity `v` (sign = direction) and turn rate
@@ -80,6 +84,16 @@ pub struct SafetyConfig {
 /// arc of curvature `w/v` is followed for at most half a turn. `f64::INFINITY` if nothing is
 /// in the way; 0 if an obstacle already overlaps the disc ahead.
 pub fn free_distance(scan: &ScanView<'_>, v: f64, w: f64, cfg: &SafetyConfig) -> f64 {
+    free_distance_of(scan.points(cfg.laser_x), v, w, cfg)
+}
+
+/// [`free_distance`] among `points` (x, y in the robot frame, m).
+fn free_distance_of(
+    points: impl Iterator<Item = (f64, f64)>,
+    v: f64,
+    w: f64,
+    cfg: &SafetyConfig,
+) -> f64 {
     if v == 0.0 {
         return f64::INFINITY;
     }
@@ -87,7 +101,7 @@ pub fn free_distance(scan: &ScanView<'_>, v: f64, w: f64, cfg: &SafetyConfig) ->
     let dir = v.signum();
     let k = w / v;
     let mut best = f64::INFINITY;
-    for (x, y) in scan.points(cfg.laser_x) {
+    for (x, y) in points {
         // Mirror so the motion is forward (+x).
         let (x, y) = (x * dir, y);
         let d = if k.abs() < 1e-3 {
@@ -186,6 +200,37 @@ pub fn decide(desired: &Twist, scan: &ScanView<'_>, cfg: &SafetyConfig) -> Decis
     }
 }
 
+/// The speed-limit envelope of one scan ([`SpeedEnvelope`]): for the curvature of every bin,
+/// forward and backward, the [`speed_limit`] of the [`free_distance`] along that arc, capped at
+/// `cfg.envelope_max_speed`; and the free distance straight ahead, m. Only the points that can
+/// matter below the cap are looked at (closer than the disc radius plus the distance needed
+/// to stop from the cap): a farther point leaves more than that distance free on any arc, so
+/// the capped limit is exact.
+pub fn envelope(scan: &ScanView<'_>, cfg: &SafetyConfig) -> (SpeedEnvelope, f64) {
+    let cap = cfg.envelope_max_speed;
+    let stopping =
+        cfg.safety_distance + cap * cfg.reaction_time_s + cap * cap / (2.0 * cfg.max_decel);
+    let reach = cfg.robot_radius + cfg.side_margin + stopping;
+    let near: Vec<(f64, f64)> = scan
+        .points(cfg.laser_x)
+        .filter(|(x, y)| x * x + y * y <= reach * reach)
+        .collect();
+    let mut env = SpeedEnvelope {
+        stop: 0,
+        turn_in_place: f64::INFINITY,
+        ..Default::default()
+    };
+    for i in 0..ENVELOPE_BINS {
+        let k = envelope_bin_curvature(i);
+        let fwd = free_distance_of(near.iter().copied(), 1.0, k, cfg);
+        let back = free_distance_of(near.iter().copied(), -1.0, -k, cfg);
+        env.forward[i] = speed_limit(fwd, cfg).min(cap);
+        env.backward[i] = speed_limit(back, cfg).min(cap);
+    }
+    let ahead = free_distance_of(near.iter().copied(), 1.0, 0.0, cfg);
+    (env, ahead)
+}
+
 /// Configuration of `hng module security`.
 #[derive(Debug, Clone, Deserialize, SmartDefault)]
 #[serde(default, deny_unknown_fields)]
@@ -193,15 +238,14 @@ pub struct SecurityModuleConfig {
     /// Lidar input until a "LIDAR data" provider is known (default `laser/scan`).
     #[default("laser/scan".into())]
     pub scan: String,
-    /// Static wiring, for systems without contracts: the channel of the desired commands
-    /// (default empty: contract mode, where they come from the Robot, which publishes the
-    /// command of the client it elected on `robot/cmd_vel/supervised`).
+    /// Static wiring, for systems without contracts (the `hng bench loop`): the channel of
+    /// the desired commands, which Security limits itself and sends on `cmd_out` (default
+    /// empty: contract mode, where Security publishes its envelope for the Robot).
     pub cmd_in: String,
-    /// A desired command counts for this long, s (default 0.5).
+    /// Static wiring: a desired command counts for this long, s (default 0.5).
     #[default(0.5)]
     pub freshness_s: f64,
-    /// Output of the static wiring (with `cmd_in`; default `security/cmd_vel`). With
-    /// contracts the output is the Robot's "Robot control" channel.
+    /// Output of the static wiring (with `cmd_in`; default `security/cmd_vel`).
     #[default("security/cmd_vel".into())]
     pub cmd_out: String,
     /// No scan for this long: stop and report inaptitude, s (default 0.5).
@@ -214,21 +258,29 @@ pub struct SecurityModuleConfig {
 
 #[derive(Debug, Clone, Copy, Default, Serialize, Deserialize, PartialEq)]
 struct SecurityState {
+    /// Envelopes published (contracts) or commands decided (static wiring).
     decisions: u64,
+    /// Of those, how many limited the speed straight ahead (envelopes) or the command.
     limited: u64,
     stops_no_scan: u64,
+    /// Smallest free distance seen straight ahead (envelopes) or along a command, m.
     min_free_m: f64,
 }
 
-/// Where the desired command comes from and where Security's own command goes.
+/// Where Security's verdict goes.
 #[derive(Debug)]
-struct Link {
-    /// The Robot serving the "Robot control" need (`None`: the static wiring).
-    robot: Option<ProviderInfo>,
-    /// The desired commands: the client the Robot elected (contracts), or `cmd_in`.
-    desired: Subscriber<Twist>,
-    /// Security's own, limited command.
-    out: Publisher<Twist>,
+enum Link {
+    /// Contract mode: the Robot serving the "Robot control" need, and its envelope channel
+    /// ([`envelope_channel`] of the Robot's channel).
+    Robot {
+        robot: ProviderInfo,
+        out: Publisher<SpeedEnvelope>,
+    },
+    /// The static wiring: desired commands in, limited commands out.
+    Static {
+        desired: Subscriber<Twist>,
+        out: Publisher<Twist>,
+    },
 }
 
 /// The Security module.
@@ -238,7 +290,7 @@ pub struct SecurityModule {
     /// `None` until the Robot is contracted (contract mode).
     link: Option<Link>,
     freshness: Duration,
-    /// The latest desired command and when it came.
+    /// Static wiring: the latest desired command and when it came.
     desired: Option<(Duration, Twist)>,
     /// The latest scan, still in shared memory (a loaned sample, not a copy).
     last_scan: Option<Sample<LaserScan>>,
@@ -248,44 +300,65 @@ pub struct SecurityModule {
 }
 
 impl SecurityModule {
-    /// Sends Security's command to the Robot (nothing before a "Robot control" contract).
-    fn send(&self, cmd: Twist) -> ModuleResult {
-        if let Some(l) = &self.link {
-            l.out.publish(cmd)?;
+    /// Publishes the verdict on the current scan: the envelope to the Robot (the stop
+    /// envelope without a fresh scan), or, in the static wiring, the limited desired command.
+    fn act(&mut self, ctx: &mut Context) -> ModuleResult {
+        match &self.link {
+            None => Ok(()),
+            Some(Link::Robot { out, .. }) => {
+                let Some(scan) = &self.last_scan else {
+                    out.publish(SpeedEnvelope::stopped(ctx.now().as_nanos() as u64))?;
+                    return Ok(());
+                };
+                let (mut env, ahead) = envelope(&ScanView::of(scan), &self.cfg);
+                env.scan_stamp_ns = scan.header.stamp_ns;
+                out.publish(env)?;
+                let mid = ENVELOPE_BINS / 2;
+                let limited = env.forward[mid] < self.cfg.envelope_max_speed;
+                self.count(ctx, ahead, limited, env.forward[mid]);
+                Ok(())
+            }
+            Some(Link::Static { out, .. }) => {
+                let now = ctx.now();
+                let desired = match self.desired {
+                    Some((at, cmd)) if now.saturating_sub(at) < self.freshness => cmd,
+                    _ => Twist::default(), // nobody commands: hold still
+                };
+                let Some(scan) = &self.last_scan else {
+                    out.publish(Twist::default())?;
+                    return Ok(());
+                };
+                let d = decide(&desired, &ScanView::of(scan), &self.cfg);
+                out.publish(d.cmd)?;
+                self.count(ctx, d.free_m, d.limited, d.cmd.linear_x);
+                Ok(())
+            }
         }
-        Ok(())
     }
 
-    /// Decides and publishes Security's command for the current scan and desired command.
-    fn act(&mut self, ctx: &mut Context) -> ModuleResult {
-        let now = ctx.now();
-        let desired = match self.desired {
-            Some((at, cmd)) if now.saturating_sub(at) < self.freshness => cmd,
-            _ => Twist::default(), // nobody commands: hold still
-        };
-        let Some(scan) = &self.last_scan else {
-            self.send(Twist::default())?;
-            return Ok(());
-        };
-        let d = decide(&desired, &ScanView::of(scan), &self.cfg);
+    fn count(&mut self, ctx: &Context, free_m: f64, limited: bool, v: f64) {
         self.state.decisions += 1;
-        if d.limited {
+        if limited {
             self.state.limited += 1;
         }
-        if d.free_m.is_finite() {
-            self.state.min_free_m = self.state.min_free_m.min(d.free_m);
+        if free_m.is_finite() {
+            self.state.min_free_m = self.state.min_free_m.min(free_m);
         }
-        if d.limited != self.was_limited {
-            tracing::debug!(
-                module = ctx.name(),
-                free_m = d.free_m,
-                v = d.cmd.linear_x,
-                limited = d.limited,
-                "speed limit"
-            );
-            self.was_limited = d.limited;
+        if limited != self.was_limited {
+            tracing::debug!(module = ctx.name(), free_m, v, limited, "speed limit");
+            self.was_limited = limited;
         }
-        self.send(d.cmd)?;
+    }
+
+    /// Publishes the stop verdict (exit, lost lidar, a Robot left).
+    fn stop_now(&self, now: Duration) -> ModuleResult {
+        match &self.link {
+            Some(Link::Robot { out, .. }) => {
+                out.publish(SpeedEnvelope::stopped(now.as_nanos() as u64))?
+            }
+            Some(Link::Static { out, .. }) => out.publish(Twist::default())?,
+            None => {}
+        }
         Ok(())
     }
 }
@@ -294,20 +367,20 @@ impl Module for SecurityModule {
     type Config = SecurityModuleConfig;
 
     fn configure(ctx: &mut Context, cfg: SecurityModuleConfig) -> ModuleResult<Self> {
-        check_fields!(positive, cfg.safety, "safety"; robot_radius, max_decel, reaction_time_s)?;
+        check_fields!(positive, cfg.safety, "safety"; robot_radius, max_decel, reaction_time_s, envelope_max_speed)?;
         crate::common::non_negative("safety.safety_distance", cfg.safety.safety_distance)?;
         let freshness = seconds("freshness_s", cfg.freshness_s)?;
         let scan_timeout = seconds("scan_timeout_s", cfg.scan_timeout_s)?;
         // Provides the Manager's objective "Robot integrity"; needs "Robot control" (1.1: the
-        // Robot's most important client) and "LIDAR data" (1.2).
+        // Robot's most important client, whose envelope the Robot applies) and "LIDAR data"
+        // (1.2).
         ctx.provide(ServiceOffer::new("Robot integrity", ""))
             .need(NeedSpec::required(ROBOT_CONTROL, ROBOT_CONTROL_NEED))
             .need(NeedSpec::required("LIDAR data", LIDAR_NEED));
         let link = if cfg.cmd_in.is_empty() {
             None
         } else {
-            Some(Link {
-                robot: None,
+            Some(Link::Static {
                 desired: ctx.subscribe(&cfg.cmd_in, None)?,
                 out: ctx.publisher(&cfg.cmd_out)?,
             })
@@ -347,11 +420,14 @@ impl Module for SecurityModule {
             }
             return Ok(());
         }
-        let Some(l) = self.link.as_ref().filter(|l| l.desired.id() == input) else {
+        let Some(Link::Static { desired, .. }) = &self.link else {
             return Ok(());
         };
+        if desired.id() != input {
+            return Ok(());
+        }
         let mut got = false;
-        while let Some(cmd) = l.desired.receive()? {
+        while let Some(cmd) = desired.receive()? {
             self.desired = Some((ctx.now(), *cmd));
             got = true;
         }
@@ -372,27 +448,27 @@ impl Module for SecurityModule {
             return Ok(());
         }
         // The static wiring keeps its channels.
-        if need != ROBOT_CONTROL_NEED || self.link.as_ref().is_some_and(|l| l.robot.is_none()) {
+        if need != ROBOT_CONTROL_NEED || matches!(self.link, Some(Link::Static { .. })) {
             return Ok(());
         }
-        let same = matches!((self.link.as_ref(), provider), (Some(l), Some(b)) if l.robot.as_ref() == Some(b));
+        let same = matches!((&self.link, provider), (Some(Link::Robot { robot, .. }), Some(b)) if robot == b);
         if same {
             return Ok(());
         }
-        if let Some(old) = self.link.take() {
-            // Leave the old Robot stopped.
-            let _ = old.out.publish(Twist::default());
-            ctx.unsubscribe(old.desired.id())?;
-        }
-        self.desired = None;
-        if let Some(p) = provider.filter(|p| !p.channel.is_empty()) {
-            self.link = Some(Link {
-                robot: Some(p.clone()),
-                desired: ctx.subscribe(&supervised_channel(&p.channel), None)?,
-                out: ctx.publisher(&p.channel)?,
-            });
-        }
-        Ok(())
+        // Leave the old Robot stopped.
+        let _ = self.stop_now(ctx.now());
+        self.link = provider
+            .filter(|p| !p.channel.is_empty())
+            .map(|p| -> ModuleResult<Link> {
+                Ok(Link::Robot {
+                    robot: p.clone(),
+                    out: ctx.publisher(&envelope_channel(&p.channel))?,
+                })
+            })
+            .transpose()?;
+        // The new Robot hears the verdict on the current scan at once (the stop envelope
+        // without one): from now on it obeys it.
+        self.act(ctx)
     }
 
     fn on_deadline_missed(&mut self, ctx: &mut Context, _input: InputId) -> ModuleResult {
@@ -400,14 +476,13 @@ impl Module for SecurityModule {
         self.last_scan = None;
         self.state.stops_no_scan += 1;
         ctx.set_quality(false, -1.0);
-        self.send(Twist::default())?;
-        Ok(())
+        self.stop_now(ctx.now())
     }
 
     hng_runtime::checkpoint_field!(state);
 
-    fn stop(&mut self, _ctx: &mut Context) {
-        let _ = self.send(Twist::default());
+    fn stop(&mut self, ctx: &mut Context) {
+        let _ = self.stop_now(ctx.now());
     }
 }
 
@@ -452,49 +527,96 @@ mod tests {
         LaserScan::full_circle(&wall_scan(wall), 0.05, 10.0)
     }
 
-    /// The module's own loop (in-process harness) under contracts served by the test: it
-    /// limits the Robot's elected command on the Robot's channel, and a silent lidar is one
-    /// deadline miss, a stop and inaptitude (the SDK's deadline, seen in the module's report).
+    /// The module's own loop (in-process harness) under contracts served by the test: its
+    /// Robot hears the stop envelope as soon as it is contracted (no scan yet), then one
+    /// envelope per scan: far from walls nothing is limited; before a wall a command towards
+    /// it is held (turning allowed) and one away from it is not; a silent lidar is one
+    /// deadline miss, the stop envelope and inaptitude.
     #[test]
-    fn the_module_limits_the_elected_command_and_stops_when_the_lidar_goes_silent() {
+    fn the_module_publishes_an_envelope_per_scan_and_the_stop_envelope_without_scans() {
         use hng_runtime::harness::Harness;
         let mut h = Harness::new("security").unwrap();
         let scan = h.input::<LaserScan>("test/scan").unwrap();
-        let desired = h
-            .input::<Twist>(&crate::robot::supervised_channel("test/cmd_vel"))
+        let mut out = h
+            .output::<SpeedEnvelope>(&crate::robot::envelope_channel("test/cmd_vel"))
             .unwrap();
-        let mut out = h.output::<Twist>("test/cmd_vel").unwrap();
         h.provider(LIDAR_NEED, "test/scan")
             .provider(ROBOT_CONTROL_NEED, "test/cmd_vel");
         h.start::<SecurityModule>("scan_timeout_s = 0.3").unwrap();
         let wait = std::time::Duration::from_secs(5);
+        let first = h.wait_for(&mut out, wait, |_| true).unwrap();
+        assert_eq!(first.stop, 1, "no scan yet: stop");
 
-        desired.publish(fwd(1.0, 0.0)).unwrap();
         scan.publish(wall_msg(5.0)).unwrap();
-        let free = h.wait_for(&mut out, wait, |c| c.linear_x > 0.0).unwrap();
-        assert_eq!(free.linear_x, 1.0, "a far wall limits nothing: {free:?}");
+        let far = h.wait_for(&mut out, wait, |e| e.stop == 0).unwrap();
+        assert_eq!(far.limit(&fwd(1.0, 0.0)), (fwd(1.0, 0.0), false), "{far:?}");
+        assert_eq!(far.limit(&fwd(0.8, -0.5)), (fwd(0.8, -0.5), false));
 
-        desired.publish(fwd(0.5, 0.4)).unwrap();
         scan.publish(wall_msg(0.32)).unwrap();
-        let held = h
-            .wait_for(&mut out, wait, |c| c.angular_z == 0.4 && c.linear_x == 0.0)
+        let near = h
+            .wait_for(&mut out, wait, |e| {
+                e.stop == 0 && e.forward[ENVELOPE_BINS / 2] == 0.0
+            })
             .unwrap();
-        assert_eq!(held.linear_x, 0.0, "held before the wall, turning allowed");
+        assert_eq!(
+            near.limit(&fwd(0.5, 0.4)),
+            (fwd(0.0, 0.4), true),
+            "held, turning"
+        );
+        assert_eq!(near.limit(&fwd(-0.3, 0.0)), (fwd(-0.3, 0.0), false), "away");
+        assert!(near.scan_stamp_ns > 0);
 
-        // No more scans: after scan_timeout_s, one miss, a stop, Q = -1.
+        // No more scans: after scan_timeout_s, one miss, the stop envelope, Q = -1.
         let n = out.samples.len();
         let report = h.wait_for_report(wait, |r| r.deadline_misses > 0).unwrap();
         assert_eq!(report.deadline_misses, 1, "one silence, one miss");
         assert_eq!((report.aptitude, report.quality), (0, -1.0));
-        h.collect(&mut out).unwrap();
-        let after: Vec<_> = out.samples[n..].iter().map(|c| c.msg).collect();
-        assert!(
-            after
-                .iter()
-                .any(|c| c.linear_x == 0.0 && c.angular_z == 0.0),
-            "a stop after the silence: {after:?}"
-        );
+        let stop = h.wait_for(&mut out, wait, |e| e.stop == 1).unwrap();
+        assert_eq!(stop.limit(&fwd(0.0, 0.5)).0, Twist::default());
+        assert!(out.samples[n..].iter().any(|c| c.msg.stop == 1));
         h.finish().unwrap();
+    }
+
+    /// The envelope agrees with the per-command decision it replaces: exactly at the bins'
+    /// curvatures, and between them never faster than the decision by more than the
+    /// `tolerance` (the lower neighbour holds).
+    #[test]
+    fn the_envelope_limits_as_the_per_command_decision_does() {
+        let cfg = SafetyConfig::default();
+        let mut worst: f64 = 0.0;
+        for wall in [0.32, 0.45, 0.6, 1.0, 1.5] {
+            // A wall ahead and a post to the left front.
+            let mut r = wall_scan(wall);
+            r[200] = 0.7;
+            let (env, ahead) = envelope(&view(&r), &cfg);
+            assert!((ahead - free_distance(&view(&r), 1.0, 0.0, &cfg)).abs() < 1e-9);
+            for i in 0..ENVELOPE_BINS {
+                let k = envelope_bin_curvature(i);
+                for v in [1.0, -1.0] {
+                    let exact = speed_limit(free_distance(&view(&r), v, v * k, &cfg), &cfg)
+                        .min(cfg.envelope_max_speed);
+                    let got = if v > 0.0 {
+                        env.forward[i]
+                    } else {
+                        env.backward[i]
+                    };
+                    assert!(
+                        (got - exact).abs() < 1e-9,
+                        "bin {i}, v {v}: {got} vs {exact}"
+                    );
+                }
+            }
+            for n in 0..2000 {
+                let k = -6.0 + 12.0 * n as f64 / 2000.0;
+                for v in [1.0, -1.0] {
+                    let exact = speed_limit(free_distance(&view(&r), v, v * k, &cfg), &cfg)
+                        .min(cfg.envelope_max_speed);
+                    worst = worst.max(env.max_speed(v > 0.0, k) - exact);
+                }
+            }
+        }
+        eprintln!("worst excess between bins: {worst} m/s");
+        assert!(worst < 0.01, "{worst}");
     }
 
     #[test]

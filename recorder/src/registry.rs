@@ -250,7 +250,13 @@ json_fixed!(
     hng_modules::planning::progress::NavProgress,
 );
 
-raw_fixed!(msg::Walls, msg::Behaviours, msg::Order, msg::OrderStatus);
+raw_fixed!(
+    msg::Walls,
+    msg::Behaviours,
+    msg::Order,
+    msg::OrderStatus,
+    msg::SpeedEnvelope
+);
 
 json_slice!(system::JsonInfo => true, msg::BytesInfo => false);
 
@@ -306,6 +312,7 @@ pub fn registry() -> Vec<TypeEntry> {
         fixed::<msg::Behaviours>(),
         fixed::<msg::Order>(),
         fixed::<msg::OrderStatus>(),
+        fixed::<msg::SpeedEnvelope>(),
         slice::<msg::PathInfo>(),
         slice::<msg::GridInfo>(),
         slice::<msg::ImageInfo>(),

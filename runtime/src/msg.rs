@@ -16,6 +16,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::qos::ChannelKind;
 
+mod envelope;
+pub use envelope::*;
 mod operator;
 pub use operator::*;
 mod path;

@@ -1,6 +1,6 @@
 //! The module SDK across processes: clean stop on SIGTERM, checkpoint and restore. (A missed
 //! receive deadline, counted once in the module's report, is a module unit test on the
-//! in-process harness: `security::tests::the_module_limits_the_elected_command_and_stops_when_the_lidar_goes_silent`.)
+//! in-process harness: `security::tests::the_module_publishes_an_envelope_per_scan_and_the_stop_envelope_without_scans`.)
 
 use std::time::Duration;
 
