@@ -197,6 +197,8 @@ pub const LOCALIZATION_NEED: u16 = 2;
 #[derive(Debug)]
 pub struct ServoModule {
     core: ServoCore,
+    /// Planning's waypoint, polled at each pose (Planning sends it from the pose, so it
+    /// would only ever be stored).
     waypoint: Subscriber<Waypoint>,
     /// The contracted "Localization" provider's pose (need rank [`LOCALIZATION_NEED`]); the
     /// configured `pose` channel's until one is known.
@@ -209,7 +211,8 @@ pub struct ServoModule {
     wp_timeout: Duration,
     pose_timeout: Duration,
     state: ServoState,
-    /// Odometry and the rating of the Localization provider by it (client feedback).
+    /// Odometry (polled at each pose) and the rating of the Localization provider by it
+    /// (client feedback).
     odom: Option<Subscriber<hng_runtime::msg::Odometry>>,
     rater: crate::feedback::OdometryConsistency,
 }
@@ -278,7 +281,7 @@ impl Module for ServoModule {
         ctx.set_quality(false, -1.0);
         Ok(ServoModule {
             core: ServoCore::new(cfg.params),
-            waypoint: ctx.subscribe(&cfg.waypoint, None)?,
+            waypoint: ctx.subscribe_polled(&cfg.waypoint)?,
             localization: ProviderInput::new().with_fallback(ctx, &cfg.pose)?,
             cmd_out: ProviderOutput::new(),
             status_out: ctx.publisher(&cfg.status_out)?,
@@ -290,36 +293,35 @@ impl Module for ServoModule {
             odom: if cfg.odom.is_empty() {
                 None
             } else {
-                Some(ctx.subscribe(&cfg.odom, None)?)
+                Some(ctx.subscribe_polled(&cfg.odom)?)
             },
             rater: crate::feedback::OdometryConsistency::default(),
         })
     }
 
     fn on_input(&mut self, ctx: &mut Context, input: InputId) -> ModuleResult {
-        let now = ctx.now();
-        if input == self.waypoint.id() {
-            while let Some(w) = self.waypoint.receive()? {
-                self.last_wp = Some((*w, now));
-            }
-            Ok(())
-        } else if self.localization.is(input) {
-            while let Some(p) = self.localization.receive()? {
-                self.last_pose = Some((p.pose, now));
-                let sigma = crate::feedback::position_sigma(&p.covariance);
-                if let Some(e) = self.rater.on_pose(p.pose, sigma, now.as_secs_f64()) {
-                    ctx.evaluate_provider(LOCALIZATION_NEED, e);
-                }
-            }
-            self.act(ctx)
-        } else if let Some(odom) = self.odom.as_ref().filter(|o| o.id() == input) {
-            while let Some(o) = odom.receive()? {
-                self.rater.on_odom(o.pose);
-            }
-            Ok(())
-        } else {
-            Ok(())
+        if !self.localization.is(input) {
+            return Ok(());
         }
+        // The pose is the one trigger: the waypoint and the odometry are polled inputs, read
+        // here (what was sent before the pose; in lockstep, before this round opened).
+        let now = ctx.now();
+        if let Some(odom) = &self.odom
+            && let Some(o) = odom.latest()?
+        {
+            self.rater.on_odom(o.pose);
+        }
+        if let Some(w) = self.waypoint.latest()? {
+            self.last_wp = Some((*w, now));
+        }
+        while let Some(p) = self.localization.receive()? {
+            self.last_pose = Some((p.pose, now));
+            let sigma = crate::feedback::position_sigma(&p.covariance);
+            if let Some(e) = self.rater.on_pose(p.pose, sigma, now.as_secs_f64()) {
+                ctx.evaluate_provider(LOCALIZATION_NEED, e);
+            }
+        }
+        self.act(ctx)
     }
 
     fn on_tick(&mut self, ctx: &mut Context, _timer: TimerId) -> ModuleResult {

@@ -665,6 +665,7 @@ impl Node {
             key: channel_key(channel),
             counted,
             empty_at: Cell::new(None),
+            polled: Cell::new(false),
         });
         K::update_connections(&port);
         Ok(Receiver {
@@ -747,6 +748,8 @@ pub(crate) struct Inlet {
     /// The channel's publish count ([`WakeFlag::published`]) when the port was last found
     /// empty (`None`: not empty, or not looked at).
     empty_at: Cell<Option<u32>>,
+    /// A polled input: only its newest sample matters, so a gap is no loss.
+    pub(super) polled: Cell<bool>,
 }
 
 impl Inlet {
@@ -766,7 +769,7 @@ impl Inlet {
         let mut seqs = self.last_seq.borrow_mut();
         match seqs.iter_mut().find(|(src, _)| *src == h.source) {
             Some((_, last)) => {
-                if h.seq > *last + 1 {
+                if h.seq > *last + 1 && !self.polled.get() {
                     let lost = h.seq - *last - 1;
                     stats.dropped += lost;
                     Counters::add(&self.counters.msgs_dropped, lost);

@@ -44,6 +44,7 @@ use crate::system::{
 use crate::wait::Waiter;
 
 mod follow;
+mod repeats;
 mod transport;
 
 use transport::open_service_out;
@@ -181,6 +182,8 @@ pub(crate) struct ControlPlane {
     table: Publisher<ContractTable>,
     to_modules: HashMap<ModuleId, SlicePublisher<ControlInfo>>,
     to_services: HashMap<String, ServiceOut>,
+    /// Heartbeats that say nothing new go out unannounced (control/repeats.rs).
+    repeats: repeats::Repeats,
     drops: DropCounters,
     send_failures: u64,
     arbiters: Vec<(String, CommandArbiter)>,
@@ -289,6 +292,7 @@ impl ControlPlane {
             table,
             to_modules: HashMap::new(),
             to_services,
+            repeats: repeats::Repeats::default(),
             drops: DropCounters::default(),
             send_failures: 0,
             arbiters,

@@ -513,6 +513,66 @@ mod tests {
         );
     }
 
+    /// Reads `s/level` as a polled input and, at every `s/trigger`, publishes on `s/out` the
+    /// newest level (`linear_x`, -1 without one) and its calls to `on_input` (`angular_z`).
+    struct Sampler {
+        trigger: Subscriber<Twist>,
+        level: Subscriber<Twist>,
+        out: Publisher<Twist>,
+        calls: u32,
+    }
+
+    impl Module for Sampler {
+        type Config = ();
+        fn configure(ctx: &mut Context, _: ()) -> ModuleResult<Self> {
+            Ok(Sampler {
+                trigger: ctx.subscribe("s/trigger", None)?,
+                level: ctx.subscribe_polled("s/level")?,
+                out: ctx.publisher("s/out")?,
+                calls: 0,
+            })
+        }
+        fn on_input(&mut self, _: &mut Context, input: InputId) -> ModuleResult {
+            self.calls += 1;
+            if input == self.trigger.id() {
+                while self.trigger.receive()?.is_some() {}
+                let level = self.level.latest()?.map_or(-1.0, |l| l.linear_x);
+                self.out.publish(Twist::new(level, f64::from(self.calls)))?;
+            }
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn a_polled_input_calls_nothing_and_its_newest_sample_is_read_at_the_trigger() {
+        let mut h = Harness::new("sampler").unwrap();
+        let trigger = h.input::<Twist>("s/trigger").unwrap();
+        let level = h.input::<Twist>("s/level").unwrap();
+        let mut out = h.output::<Twist>("s/out").unwrap();
+        h.start::<Sampler>("").unwrap();
+        for (round, levels) in [(1.0, &[1.0, 2.0, 3.0][..]), (2.0, &[4.0][..])] {
+            for l in levels {
+                level.publish(Twist::new(*l, 0.0)).unwrap();
+            }
+            trigger.publish(Twist::default()).unwrap();
+            let got = h
+                .wait_for(&mut out, Duration::from_secs(5), |t| t.angular_z >= round)
+                .unwrap();
+            let newest = levels.last().copied().unwrap_or(-1.0);
+            assert_eq!(
+                (got.linear_x, got.angular_z),
+                (newest, round),
+                "the newest level, and one call per trigger (none for the levels)"
+            );
+        }
+        trigger.publish(Twist::default()).unwrap();
+        let got = h
+            .wait_for(&mut out, Duration::from_secs(5), |t| t.angular_z >= 3.0)
+            .unwrap();
+        assert_eq!(got.linear_x, -1.0, "read once: nothing newer");
+        h.finish().unwrap();
+    }
+
     #[test]
     fn a_module_that_fails_to_configure_is_reported() {
         struct Bad;

@@ -265,6 +265,32 @@ impl Context {
         self.subscribe_kind(channel, deadline)
     }
 
+    /// Subscribes to a channel as a **polled input** (ROS 2's subscription read by `take()`
+    /// instead of a callback, Autoware's polling subscriber, Orocos' data port beside its event
+    /// ports): the module reads its newest sample ([`Receiver::latest`]) when something else
+    /// calls it (`None` when nothing came since the last read: keep the value you need). A
+    /// sample on it calls no [`Module::on_input`], does not wake the executor, and
+    /// in lockstep is not one of the inputs the module declares, so writing it opens no round
+    /// for the module. What a read in lockstep round `r` sees is what was sent before `r`
+    /// opened (the "two phases" of [`crate::clock::lockstep`]), so it stays deterministic. No
+    /// deadline: a polled input's age is the module's to judge (its header's stamp). Samples
+    /// overwritten between two reads count as no loss in the module's report.
+    pub fn subscribe_polled<T: Message>(&mut self, channel: &str) -> Result<Subscriber<T>, Error> {
+        let sub = self.node.subscriber::<T>(channel)?;
+        sub.set_polled();
+        Ok(sub)
+    }
+
+    /// [`Context::subscribe_polled`] for a variable-size channel.
+    pub fn subscribe_slice_polled<H: SliceMessage>(
+        &mut self,
+        channel: &str,
+    ) -> Result<SliceSubscriber<H>, Error> {
+        let sub = self.node.slice_subscriber::<H>(channel)?;
+        sub.set_polled();
+        Ok(sub)
+    }
+
     /// Subscribes to a channel of either kind (the provider inputs' one way in).
     pub(crate) fn subscribe_kind<K: Kind>(
         &mut self,
@@ -509,5 +535,57 @@ impl Context {
         };
         r.set_name(self.name());
         r
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+    use crate::channel::channel_key;
+    use crate::msg::Twist;
+    use crate::shm;
+
+    #[test]
+    fn a_polled_input_wakes_no_waiter_and_is_no_declared_input() {
+        let prefix = shm::unique_prefix("polled");
+        let node = Node::new(NodeOptions::new("m").prefix(&prefix)).unwrap();
+        let peer = Node::new(NodeOptions::new("peer").prefix(&prefix)).unwrap();
+        let mut ctx = Context::new(node, WaitMode::SLEEP).unwrap();
+        let trigger = ctx.subscribe::<Twist>("p/trigger", None).unwrap();
+        let polled = ctx.subscribe_polled::<Twist>("p/polled").unwrap();
+        let keys: Vec<u64> = ctx.waiter.input_keys().collect();
+        assert_eq!(
+            keys,
+            [channel_key("p/trigger")],
+            "a lockstep answer declares the trigger only"
+        );
+        let to_polled = peer.publisher::<Twist>("p/polled").unwrap();
+        let to_trigger = peer.publisher::<Twist>("p/trigger").unwrap();
+        // More samples than the subscriber's buffer holds (twice: the first read only learns
+        // the sequence).
+        let burst = |from: u32| {
+            for i in from..from + 10 {
+                to_polled.publish(Twist::new(f64::from(i), 0.0)).unwrap();
+            }
+        };
+        burst(0);
+        assert_eq!(polled.latest().unwrap().unwrap().linear_x, 9.0);
+        burst(10);
+        assert_eq!(
+            ctx.waiter.wait(Some(Duration::from_millis(20))).unwrap(),
+            Wake::Timeout,
+            "a sample on a polled input wakes nobody"
+        );
+        to_trigger.publish(Twist::default()).unwrap();
+        assert_eq!(
+            ctx.waiter.wait(Some(Duration::from_secs(5))).unwrap(),
+            Wake::Data
+        );
+        assert_eq!(ctx.waiter.ready().collect::<Vec<_>>(), [trigger.id()]);
+        assert_eq!(polled.latest().unwrap().unwrap().linear_x, 19.0);
+        assert_eq!(polled.stats().dropped, 0, "overwritten samples are no loss");
+        drop((trigger, polled, to_polled, to_trigger, ctx, peer));
+        shm::remove_prefix_files(&prefix);
     }
 }

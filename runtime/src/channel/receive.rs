@@ -286,6 +286,12 @@ impl<K: Kind> Receiver<K> {
         InputId(Rc::as_ptr(&self.reader.inlet) as usize)
     }
 
+    /// Marks this receiver a polled input ([`crate::Context::subscribe_polled`]): a sequence
+    /// gap (samples overwritten between two reads) is then not counted as a loss.
+    pub(crate) fn set_polled(&self) {
+        self.reader.inlet.polled.set(true);
+    }
+
     pub(crate) fn as_input(&self) -> Rc<dyn Input> {
         self.reader.clone()
     }

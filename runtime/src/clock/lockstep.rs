@@ -18,7 +18,8 @@
 //!    does this, [`Acker`]) and acknowledges the round with a [`ClockAck`] on
 //!    [`ACK_CHANNEL`]: its name, the round, the channels it **wrote** since its previous
 //!    acknowledgement (their [`channel_key`]s, its report excepted), the channels it
-//!    **reads** (the inputs its executor watches), and its next deadline in simulated time
+//!    **reads** (the inputs its executor watches; not its polled inputs,
+//!    [`crate::Context::subscribe_polled`]), and its next deadline in simulated time
 //!    (its next timer, input deadline or contract deadline; none: `u64::MAX`).
 //! 3. The simulator ([`Barrier`]) waits for the acknowledgements of the round's members
 //!    only. A channel written by a member, or by the step, makes every participant that
@@ -43,7 +44,9 @@
 //! timer publishes nothing, and the contract plane's timers are part of its deadline).
 //! Messages from processes outside the barrier (the supervisor's events, the resource
 //! manager, an operator's order) are nobody's acknowledgement: a module reads them at its
-//! next round, at the latest `idle` of simulated time later (`lockstep_idle_s`).
+//! next round, at the latest `idle` of simulated time later (`lockstep_idle_s`); so are the
+//! contract heartbeats that repeat the last one, which a member writes unannounced
+//! (`control/repeats.rs`).
 //!
 //! **Two phases: what a round delivers does not depend on scheduling.** A module that answers
 //! round `r` quickly could hand its output to another module within `r` (if that one had not

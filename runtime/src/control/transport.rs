@@ -166,6 +166,8 @@ impl ControlPlane {
                 return;
             }
         };
+        // In lockstep, a heartbeat that says nothing new calls none of its readers.
+        let _quiet = self.repeats.repeated(o).then(|| node.unannounced());
         let result = match &o.to {
             Destination::Module(id) => {
                 if !self.to_modules.contains_key(id) {

@@ -640,4 +640,36 @@ mod tests {
             assert_eq!(called(&b2), ["servo"], "provider first: {provider_first}");
         }
     }
+
+    #[test]
+    fn a_polled_input_written_in_a_round_calls_nobody_and_is_read_with_the_next_trigger() {
+        // The servo reads the pose as a trigger and the waypoint as a polled input, which its
+        // answers do not declare: the planner's waypoint calls nobody; the pose does.
+        let mut b = Barrier::new(&["planner", "servo"], T).selective(Duration::from_secs(1));
+        let r = b.open_at(0, 0, false);
+        b.ack(&sel("planner", r, &["loc/pose"], &[], u64::MAX));
+        b.ack(&sel("servo", r, &["loc/pose"], &[], u64::MAX));
+        assert_eq!(b.poll(1).0, Verdict::Quiet);
+        b.written(Some(&[channel_key("loc/pose")]));
+        let r = b.open_at(2, 10, false);
+        assert_eq!(called(&b), ["planner", "servo"]);
+        b.ack(&sel(
+            "planner",
+            r,
+            &["loc/pose"],
+            &["plan/waypoint"],
+            u64::MAX,
+        ));
+        b.ack(&sel("servo", r, &["loc/pose"], &["servo/cmd"], u64::MAX));
+        assert_eq!(
+            b.poll(3).0,
+            Verdict::Quiet,
+            "the waypoint is nobody's trigger: no round at the same time"
+        );
+        // The next step's pose calls the servo, which then reads the waypoint sent in the
+        // earlier round (sent before this round opened: the same value in every run).
+        b.written(Some(&[channel_key("loc/pose")]));
+        b.open_at(4, 20, false);
+        assert_eq!(called(&b), ["planner", "servo"]);
+    }
 }
