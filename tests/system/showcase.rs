@@ -37,7 +37,7 @@ const LAUNCH: &str = "examples/showcase/launch.toml";
 /// Beacon 3 of the showcase world.
 const BEACON: (f64, f64) = (17.5, 8.0);
 /// The dark zone on the way from the goal to beacon 3 (`world.toml`): centre, radius.
-const DARK: ((f64, f64), f64) = ((17.35, 5.5), 0.5);
+const DARK: ((f64, f64), f64) = ((17.35, 5.5), 0.7);
 const HNG: &str = env!("CARGO_BIN_EXE_hng");
 
 fn has(b: &Behaviours, kind: OrderKind, param: i32) -> bool {
