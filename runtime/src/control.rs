@@ -493,15 +493,6 @@ impl ControlPlane {
         v
     }
 
-    /// The client of `service` the holder of its most important contract supervises (see
-    /// [`CommandArbiter::supervised`]), as of the last [`ControlPlane::command_verdict`].
-    pub(crate) fn supervised_client(&self, service: &str, now: Duration) -> Option<ModuleId> {
-        self.arbiters
-            .iter()
-            .find(|(s, _)| s == service)
-            .and_then(|(_, a)| a.supervised(now))
-    }
-
     /// Driver drops summed over the module's arbiters.
     pub(crate) fn command_drops(&self) -> DropCounters {
         let mut d = DropCounters::default();

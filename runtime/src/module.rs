@@ -497,13 +497,6 @@ impl Context {
         }
     }
 
-    /// A driver's client of `service` that its most important contract holder supervises
-    /// (after [`Context::command_verdict`]; see [`crate::contract::CommandArbiter::supervised`]).
-    pub fn supervised_client(&self, service: &str) -> Option<ModuleId> {
-        let now = self.now();
-        self.plane.as_ref()?.supervised_client(service, now)
-    }
-
     /// Control messages dropped so far by the transport (undecodable, spoofed).
     pub fn control_drops(&self) -> DropCounters {
         self.plane

@@ -113,24 +113,6 @@ impl CommandArbiter {
             .map(|(id, _)| *id)
     }
 
-    /// The client the holder of the most important contract supervises at `now`: the live
-    /// client with the most important priority among all the others, that is, the one that
-    /// commands whenever that holder is silent. A safety client at the top (Security 1.1 over
-    /// the Robot's other clients, paper 5.8: it "invalidates" their commands) limits this
-    /// client's command and sends its own, so the election among the clients is made once, here.
-    pub fn supervised(&self, now: Duration) -> Option<ModuleId> {
-        let top = self
-            .holders
-            .iter()
-            .min_by_key(|(id, h)| (h.priority, **id))
-            .map(|(id, _)| *id)?;
-        self.holders
-            .iter()
-            .filter(|(id, h)| **id != top && self.live(h, now))
-            .min_by_key(|(id, h)| (h.priority, **id))
-            .map(|(id, _)| *id)
-    }
-
     /// Ignored commands, by reason.
     pub fn drops(&self) -> &DropCounters {
         &self.drops
@@ -194,34 +176,5 @@ mod tests {
             Verdict::Ignore(DropReason::NoContract)
         );
         assert_eq!(a.holders(), 1);
-    }
-
-    #[test]
-    fn the_top_holder_supervises_the_live_client_elected_among_the_others() {
-        let (sec, gui, servo) = (ModuleId(1), ModuleId(2), ModuleId(3));
-        let mut a = CommandArbiter::new(ms(300));
-        a.offer(sec, "1.1".parse().unwrap(), ms(0));
-        a.offer(gui, "2.1".parse().unwrap(), ms(0));
-        a.offer(servo, "2.2.1.1".parse().unwrap(), ms(0));
-        assert_eq!(a.supervised(ms(0)), None, "nobody commands yet");
-        // Security silent (not yet live): it still supervises; the servo is elected.
-        a.on_command(servo, ms(10));
-        assert_eq!(a.supervised(ms(10)), Some(servo));
-        a.on_command(gui, ms(20));
-        a.on_command(sec, ms(30));
-        assert_eq!(a.active(ms(30)), Some(sec));
-        assert_eq!(
-            a.supervised(ms(30)),
-            Some(gui),
-            "the operator over the servo"
-        );
-        // The operator goes silent: the servo, still commanding, is elected.
-        a.on_command(servo, ms(330));
-        assert_eq!(a.supervised(ms(330)), Some(servo));
-        // Security's contract ends: the operator's is the top one, nobody supervises it.
-        a.release(sec);
-        assert_eq!(a.supervised(ms(340)), Some(servo));
-        a.release(gui);
-        assert_eq!(a.supervised(ms(340)), None, "the top holder alone");
     }
 }
