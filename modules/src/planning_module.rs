@@ -416,7 +416,12 @@ pub(crate) mod tests {
         use std::time::Duration;
         let mut h = Harness::new("planning").unwrap();
         let map = h.slice_input::<GridInfo>("test/map", 6000).unwrap();
-        let blocked = h.slice_input::<GridInfo>("maps/map", 6000).unwrap();
+        // The fallback channel's map comes from a process of its own (as from Maps): from
+        // the harness's own node it would have the provider's source, and the module could
+        // not tell the two maps apart (the later one read would win).
+        let maps = hng_runtime::Node::new(hng_runtime::NodeOptions::new("maps").prefix(h.prefix()))
+            .unwrap();
+        let blocked = maps.slice_publisher::<GridInfo>("maps/map", 6000).unwrap();
         let pose = h.input::<PoseWithCovariance>("test/pose").unwrap();
         let goals = h.input::<Goal>("manager/goal").unwrap();
         let mut waypoints = h.output::<Waypoint>("planning/waypoint").unwrap();
