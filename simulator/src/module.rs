@@ -42,7 +42,7 @@ use std::time::{Duration, Instant};
 use hng_runtime::channel::InputId;
 use hng_runtime::clock::{CLOCK_CHANNEL, Clock, ClockMode};
 use hng_runtime::module::REPORT_CHANNEL;
-use hng_runtime::msg::{self, ModuleReport, Pose2D, Twist};
+use hng_runtime::msg::{self, ModuleReport, Twist};
 use hng_runtime::{
     Context, Module, ModuleResult, Node, NodeOptions, Publisher, RunOptions, Subscriber, TimerId,
     run_module_with,
@@ -498,19 +498,16 @@ impl SimulatorModule {
         };
         let mut moved = false;
         while let Some(t) = sub.receive()? {
-            let before = self.sim.ground_truth();
-            let refused = match self.sim.teleport(t.pose) {
-                Err(e) => Some(e.to_string()),
-                Ok(()) if self.sim.clearance() <= 0.0 => {
-                    // Into an obstacle: back where it was.
-                    self.sim
-                        .teleport(Pose2D::new(before.x, before.y, before.theta))?;
-                    Some(format!(
-                        "({:.2}, {:.2}) overlaps an obstacle",
-                        t.pose.x, t.pose.y
-                    ))
-                }
-                Ok(()) => None,
+            // Checked before the robot moves: a refused teleport leaves it as it was, moving.
+            // (A pose that is not finite is the simulator's to refuse.)
+            let finite = t.pose.x.is_finite() && t.pose.y.is_finite();
+            let refused = if finite && self.sim.clearance_at(t.pose.x, t.pose.y) <= 0.0 {
+                Some(format!(
+                    "({:.2}, {:.2}) overlaps an obstacle",
+                    t.pose.x, t.pose.y
+                ))
+            } else {
+                self.sim.teleport(t.pose).err().map(|e| e.to_string())
             };
             match refused {
                 Some(why) => {

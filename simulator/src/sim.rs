@@ -281,6 +281,27 @@ impl Simulator {
         self.last_clearance
     }
 
+    /// Gap between the robot disc, were it centred at (`x`, `y`), and the nearest obstacle,
+    /// metres (negative when it would overlap one; +inf when nothing within 1 km).
+    #[must_use]
+    pub fn clearance_at(&self, x: f64, y: f64) -> f64 {
+        let p = Vector::new(x as f32, y as f32);
+        let proj = self.phys.project_point(
+            p,
+            1000.0,
+            false,
+            QueryFilter::default().exclude_rigid_body(self.robot),
+        );
+        match proj {
+            Some((_, proj)) => {
+                let d = f64::from((proj.point - p).length());
+                let signed = if proj.is_inside { -d } else { d };
+                signed - self.world.robot.radius
+            }
+            None => f64::INFINITY,
+        }
+    }
+
     /// The true pose and twist now (evaluation only).
     #[must_use]
     pub fn ground_truth(&self) -> GroundTruth {
@@ -737,21 +758,7 @@ impl Simulator {
     }
 
     fn update_clearance(&mut self) {
-        let p = Vector::new(self.pose.x as f32, self.pose.y as f32);
-        let proj = self.phys.project_point(
-            p,
-            1000.0,
-            false,
-            QueryFilter::default().exclude_rigid_body(self.robot),
-        );
-        self.last_clearance = match proj {
-            Some((_, proj)) => {
-                let d = f64::from((proj.point - p).length());
-                let signed = if proj.is_inside { -d } else { d };
-                signed - self.world.robot.radius
-            }
-            None => f64::INFINITY,
-        };
+        self.last_clearance = self.clearance_at(self.pose.x, self.pose.y);
         self.stats.min_clearance = self.stats.min_clearance.min(self.last_clearance);
     }
 }
