@@ -26,7 +26,7 @@ use hng_simulator::SimStatus;
 use crate::common::TestSystem;
 
 /// The world: a 4.5 x 3 m room, the robot facing its east wall.
-fn world_file() -> String {
+pub(crate) fn world_file() -> String {
     format!(
         r#"
 name = "wall-ahead"
@@ -58,8 +58,8 @@ const MODULES: [&str; 5] = ["robot", "laser", "security", "interface", "manager"
 const OPERATOR: &str = "operator";
 
 /// East wall face: wall line x = 4.5 minus half its 5 cm thickness.
-const WALL_FACE_X: f64 = 4.475;
-const RADIUS: f64 = 0.2;
+pub(crate) const WALL_FACE_X: f64 = 4.475;
+pub(crate) const RADIUS: f64 = 0.2;
 
 /// Module processes of one test; killed on drop, before the prefix is cleaned.
 struct Procs {
