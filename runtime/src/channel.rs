@@ -673,6 +673,7 @@ impl Node {
                 port,
                 inlet,
                 held: RefCell::new(VecDeque::new()),
+                peeked: RefCell::new(None),
             }),
         })
     }
@@ -792,7 +793,11 @@ impl Inlet {
 /// Anything the executor can wait on.
 pub(crate) trait Input {
     fn inlet(&self) -> &Rc<Inlet>;
+    /// A message is waiting (possibly one that waits for the next lockstep round).
     fn has_samples(&self) -> bool;
+    /// A message may be handled now: in lockstep, one sent before the current round
+    /// (those sent in it are set aside for the next one, see [`crate::clock::lockstep`]).
+    fn handleable(&self) -> bool;
 }
 
 /// Identifies an input (a subscriber) in executor callbacks.

@@ -279,11 +279,14 @@ impl Waiter {
         self.inputs.iter().map(|(_, i)| i.inlet().key)
     }
 
-    /// The ids of the inputs that have data now.
+    /// The ids of the inputs that have data to handle now. In lockstep, an input whose only
+    /// messages were sent in the current round is not ready: they wait for the next round
+    /// (and are set aside for it), so whether a handler runs in a round never depends on how
+    /// fast another member answered the same round.
     pub fn ready(&self) -> impl Iterator<Item = InputId> + '_ {
         self.inputs
             .iter()
-            .filter(|(_, i)| i.has_samples())
+            .filter(|(_, i)| i.handleable())
             .map(|(id, _)| *id)
     }
 
