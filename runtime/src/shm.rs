@@ -160,29 +160,48 @@ fn walk_all(dir: &Path, out: &mut Vec<PathBuf>) {
 
 /// Every file of `prefix`: the files in `/dev/shm` whose name starts with it, and its iceoryx2
 /// root folder ([`iox_root`]) with everything in it. Sorted, so a folder comes before what it
-/// holds. A folder of another system (one whose prefix starts with this one) is not listed.
+/// holds. The files of another system whose prefix starts with this one (`hng_x_` when this
+/// one is `hng_`), known by its root folder, are not listed: stopping one system must not
+/// remove a running neighbour's files.
 pub fn prefix_files(prefix: &str) -> Vec<PathBuf> {
     let mut out = Vec::new();
     if prefix.is_empty() {
         return out;
     }
     let root = iox_root(prefix);
-    if let Ok(entries) = std::fs::read_dir(SHM_DIR) {
-        for e in entries.flatten() {
-            let path = e.path();
-            if !e.file_name().to_string_lossy().starts_with(prefix) {
-                continue;
-            }
-            if e.file_type().is_ok_and(|t| t.is_dir()) {
-                // hng's only folders in /dev/shm are iceoryx2 roots: another one is another
-                // system's (`hng_x_iox` for prefix `hng_x_` when this prefix is `hng_`).
-                if path == root {
-                    out.push(path);
-                    walk_all(&root, &mut out);
-                }
-            } else {
+    let Ok(entries) = std::fs::read_dir(SHM_DIR) else {
+        return out;
+    };
+    let entries: Vec<_> = entries
+        .flatten()
+        .filter(|e| e.file_name().to_string_lossy().starts_with(prefix))
+        .collect();
+    // Systems whose prefix starts with this one (`hng_x_` when this one is `hng_`), known by
+    // their iceoryx2 root folder: their files are theirs.
+    let others: Vec<String> = entries
+        .iter()
+        .filter(|e| e.path() != root && e.file_type().is_ok_and(|t| t.is_dir()))
+        .filter_map(|e| {
+            let name = e.file_name().to_string_lossy().into_owned();
+            name.strip_suffix(IOX_ROOT_TAG).map(str::to_owned)
+        })
+        .filter(|other| other.len() > prefix.len())
+        .collect();
+    for e in entries {
+        let path = e.path();
+        let name = e.file_name().to_string_lossy().into_owned();
+        if others.iter().any(|o| name.starts_with(o.as_str())) {
+            continue;
+        }
+        if e.file_type().is_ok_and(|t| t.is_dir()) {
+            // hng's only folders in /dev/shm are iceoryx2 roots: another one is another
+            // system's (`hng_x_iox` for prefix `hng_x_` when this prefix is `hng_`).
+            if path == root {
                 out.push(path);
+                walk_all(&root, &mut out);
             }
+        } else {
+            out.push(path);
         }
     }
     out.sort();
@@ -303,7 +322,12 @@ mod tests {
             root.join(format!("{prefix}123.event")),
             Path::new(SHM_DIR).join(format!("{prefix}c.data")),
         ];
-        for f in &files {
+        // The other system's files beside its root (its wake segment, a data segment).
+        let others = [
+            Path::new(SHM_DIR).join(format!("{other}hngwake_1")),
+            Path::new(SHM_DIR).join(format!("{other}d.data")),
+        ];
+        for f in files.iter().chain(&others) {
             std::fs::write(f, b"").expect("file");
         }
         let listed = prefix_files(&prefix);
@@ -317,7 +341,7 @@ mod tests {
         want.sort();
         assert_eq!(
             listed, want,
-            "the root, its folders and files; not the other's root"
+            "the root, its folders and files; not the other system's root nor files"
         );
         // The root and iceoryx2's two folders stay after a clean stop; what they hold does not.
         let left = leftovers(&prefix);
@@ -332,10 +356,10 @@ mod tests {
         assert_eq!(remove_prefix_files(&prefix), want.len());
         assert!(!root.exists() && prefix_files(&prefix).is_empty());
         assert!(
-            iox_root(&other).exists(),
-            "another system's root is left alone"
+            iox_root(&other).exists() && others.iter().all(|f| f.exists()),
+            "another system's root and files are left alone"
         );
-        assert_eq!(remove_prefix_files(&other), 1);
+        assert_eq!(remove_prefix_files(&other), 1 + others.len());
     }
 
     #[test]
