@@ -1,8 +1,9 @@
 //! The resource manager as an hng module (`hng module rm`): one per computer, started and
 //! watched by the supervisor like any module.
 //!
-//! Inputs: every module's report (`hng/report`), the contract tables (`hng/contracts`),
-//! the supervisor's status (`hng/supervisor/status`). Each period (`rate_hz`) it runs
+//! Inputs: every module's report (`hng/report`, read as it arrives), the contract tables
+//! (`hng/contracts`) and the supervisor's status (`hng/supervisor/status`), both polled:
+//! read at each period (and with the reports), not woken for. Each period (`rate_hz`) it runs
 //! [`ResourceManager::tick`] and publishes C_R(t) and the minimum priority on
 //! [`RM_COSTS`], R and R_eff on [`RM_EFFECTIVE_COSTS`], its JSON status on [`RM_STATUS`],
 //! and an [`CommandOp::OverLimit`] command on [`SUPERVISOR_COMMAND`] for a module over a
@@ -73,9 +74,12 @@ impl Module for RmModule {
         ctx.add_timer(period);
         Ok(RmModule {
             rm,
+            // Every report is read when it arrives: its delay is the comm scarcity signal.
             reports: ctx.subscribe(REPORT_CHANNEL, None)?,
-            tables: ctx.subscribe(CONTRACTS, None)?,
-            supervisor: ctx.subscribe_slice(SUPERVISOR_STATUS, None)?,
+            // The contract tables (every module's, every 0.2 s) and the supervisor's status
+            // only count at the next period: read then, without a wake-up each.
+            tables: ctx.subscribe_polled(CONTRACTS)?,
+            supervisor: ctx.subscribe_slice_polled(SUPERVISOR_STATUS)?,
             costs: ctx.publisher(RM_COSTS)?,
             effective: ctx.publisher(RM_EFFECTIVE_COSTS)?,
             status: ctx.slice_publisher(RM_STATUS, 16 * 1024)?,

@@ -184,8 +184,8 @@ impl Module for SimulatorModule {
                 ctx,
                 &node,
                 &cfg.lockstep,
-                cfg.lockstep_timeout_s,
-                cfg.lockstep_idle_s,
+                (cfg.lockstep_timeout_s, cfg.lockstep_idle_s),
+                &cfg.lockstep_outside,
             )?)
         };
         let followers: BTreeSet<String> =

@@ -265,7 +265,7 @@ fn render_plan(
         s,
         r#"[defaults]
 restart = "on-failure"
-heartbeat_period_s = 0.2
+heartbeat_period_s = 0.5
 heartbeat_timeout_s = 3.0
 start_timeout_s = 10.0
 checkpoint_period_s = 0.5

@@ -43,10 +43,14 @@
 //! due: calling it would have changed nothing (a module that handles no input and fires no
 //! timer publishes nothing, and the contract plane's timers are part of its deadline).
 //! Messages from processes outside the barrier (the supervisor's events, the resource
-//! manager, an operator's order) are nobody's acknowledgement: a module reads them at its
-//! next round, at the latest `idle` of simulated time later (`lockstep_idle_s`); so are the
-//! contract heartbeats that repeat the last one, which a member writes unannounced
-//! (`control/repeats.rs`).
+//! manager, an operator's order) are nobody's acknowledgement. The simulator watches the
+//! channels written on an event ([`OutsideWrites`], `lockstep_outside`: the supervisor's
+//! events, orders, teleoperation, missions) and makes their readers pending at the next
+//! step; what else comes from outside (the resource manager's periodic costs) a module reads
+//! at its next round: its own deadline, at the latest `idle` of simulated time later
+//! (`lockstep_idle_s`). So are the contract heartbeats that repeat the last one, which a
+//! member writes unannounced (`control/repeats.rs`): both sides of a contract have a
+//! deadline every refresh period.
 //!
 //! **Two phases: what a round delivers does not depend on scheduling.** A module that answers
 //! round `r` quickly could hand its output to another module within `r` (if that one had not
@@ -80,7 +84,9 @@ use crate::qos::ChannelKind;
 use crate::wake::Countdown;
 
 mod barrier;
+mod outside;
 pub use barrier::{Barrier, Verdict};
+pub use outside::{DEFAULT_OUTSIDE, OutsideWrites};
 
 /// The channel of the acknowledgements.
 pub const ACK_CHANNEL: &str = "hng/clock_ack";

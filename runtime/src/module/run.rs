@@ -140,13 +140,17 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
     .with_slack(slack(report_ns));
     let checkpoint_slack_ns = slack(checkpoint_ns);
     let mut next_checkpoint = monotonic_ns().saturating_add(checkpoint_ns);
+    // A module's state changes only in its callbacks: while none ran since the last
+    // checkpoint, the next one would be the same (and is not written: module/checkpoints.rs),
+    // so the module is not woken for it.
+    let mut worked = true;
     let clock_id = rounds.as_ref().map(|r| r.common.id());
     while !ctx.stop_requested && !opts.harness.as_ref().is_some_and(Hooks::stopped) {
         // Wall-clock wake-ups: report and checkpoint; clock-time ones: timers and deadlines
         // (in simulation they are checked at every clock sample instead).
         let wall_now = monotonic_ns();
         let mut wake_at = beat.next_ns();
-        if store.is_some() {
+        if store.is_some() && worked {
             wake_at = wake_at.min(next_checkpoint.saturating_add(checkpoint_slack_ns));
         }
         // When a timer or an input deadline is due (wall clock): work, not idleness.
@@ -190,6 +194,7 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
         }
         let now = clock.now_ns();
         if !rounds.as_ref().is_some_and(Rounds::holds) {
+            worked = true;
             let ready: Vec<InputId> = ctx
                 .waiter
                 .ready()
@@ -238,8 +243,10 @@ pub fn run_module_with<M: Module>(opts: &RunOptions) -> Result<(), RunError> {
         }
         let wall_now = monotonic_ns();
         if let Some(store) = &store
+            && worked
             && wall_now >= next_checkpoint
         {
+            worked = false;
             next_checkpoint = wall_now.saturating_add(checkpoint_ns);
             save_checkpoint(&module, store, &mut ctx, &opts.name);
         }

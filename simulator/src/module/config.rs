@@ -3,6 +3,7 @@
 use std::path::PathBuf;
 
 use hng_runtime::ModuleResult;
+use hng_runtime::clock::lockstep::DEFAULT_OUTSIDE;
 use hng_runtime::msg::MAX_BEAMS;
 use hng_runtime::wait::WaitMode;
 use serde::{Deserialize, Deserializer};
@@ -120,11 +121,15 @@ pub struct SimModuleConfig {
     #[default(10.0)]
     pub lockstep_timeout_s: f64,
     /// A lockstep participant is called to a round at least every this many seconds of
-    /// simulated time, even with nothing written to it and no deadline (so it reads what
-    /// processes outside the barrier sent it: the supervisor, the RM, an operator); default
-    /// 0.1.
-    #[default(0.1)]
+    /// simulated time, even with nothing written to it and no deadline; default 1. What
+    /// processes outside the barrier send it comes through `lockstep_outside` sooner.
+    #[default(1.0)]
     pub lockstep_idle_s: f64,
+    /// Channels written from outside the barrier (the supervisor, the RM, an operator):
+    /// when one is published to, its readers are called at the next step. Default
+    /// [`hng_runtime::clock::lockstep::DEFAULT_OUTSIDE`].
+    #[default(DEFAULT_OUTSIDE.iter().map(|c| (*c).to_owned()).collect())]
+    pub lockstep_outside: Vec<String>,
 }
 
 fn de_speed<'de, D: Deserializer<'de>>(d: D) -> Result<Speed, D::Error> {

@@ -6,7 +6,7 @@ use std::time::{Duration, Instant};
 
 use hng_runtime::channel::{InputId, Node, Publisher};
 use hng_runtime::clock::lockstep::{
-    ACK_CHANNEL, Barrier, ClockAck, RoundCountdown, Verdict, round_channel,
+    ACK_CHANNEL, Barrier, ClockAck, OutsideWrites, RoundCountdown, Verdict, round_channel,
 };
 use hng_runtime::clock::monotonic_ns;
 use hng_runtime::system::{EventKind, ModuleEvent, SUPERVISOR_EVENTS};
@@ -21,6 +21,10 @@ pub(super) struct Lockstep {
     events: Subscriber<ModuleEvent>,
     /// Each participant's own round channel, by name.
     calls: Vec<(String, Publisher<msg::Clock>)>,
+    /// Channels written from outside the barrier (`lockstep_outside`).
+    outside: OutsideWrites,
+    /// Scratch: what a step and the outside wrote.
+    written: Vec<u64>,
     /// The answers the open round waits for: only the last one wakes us.
     countdown: RoundCountdown,
     /// Members called to the rounds so far (summed over the rounds).
@@ -41,16 +45,16 @@ pub(super) struct Lockstep {
 const MAX_ROUNDS_AT_ONE_TIME: u32 = 64;
 
 impl Lockstep {
-    /// Subscribes to the acknowledgements and the supervisor's events.
     /// Subscribes to the acknowledgements and the supervisor's events, and opens each
     /// participant's round channel on `node` (the simulator's data node). Every participant
-    /// is called at least every `idle_s` of simulated time.
+    /// is called at least every `idle_s` of simulated time, and the readers of the
+    /// `outside` channels at the first step after one was written.
     pub(super) fn new(
         ctx: &mut Context,
         node: &Node,
         participants: &[String],
-        timeout_s: f64,
-        idle_s: f64,
+        (timeout_s, idle_s): (f64, f64),
+        outside: &[String],
     ) -> ModuleResult<Lockstep> {
         let calls = participants
             .iter()
@@ -62,6 +66,8 @@ impl Lockstep {
             acks: ctx.subscribe(ACK_CHANNEL, None)?,
             events: ctx.subscribe(SUPERVISOR_EVENTS, None)?,
             calls,
+            outside: OutsideWrites::open(node, outside)?,
+            written: Vec::new(),
             countdown: RoundCountdown::open(node)?,
             members: 0,
             rounds: 0,
@@ -107,10 +113,14 @@ impl Lockstep {
         Ok(round)
     }
 
-    /// What a step wrote (the keys of its channels): does it need a round? `data`: it
-    /// published more than ground truth.
+    /// What a step wrote (the keys of its channels), with what was written from outside
+    /// the barrier since the last step: does it need a round? `data`: it published more
+    /// than ground truth.
     pub(super) fn step_wants_round(&mut self, sim_ns: u64, written: &[u64], data: bool) -> bool {
-        self.barrier.written(Some(written));
+        self.written.clear();
+        self.written.extend_from_slice(written);
+        self.outside.written_since(&mut self.written);
+        self.barrier.written(Some(&self.written));
         self.barrier.wants_round(sim_ns, data)
     }
 
