@@ -29,6 +29,9 @@ use hng_modules::manager::{MISSION_PLAN_CHANNEL, MissionPlan};
 use hng_modules::planning::progress::{NavProgress, PROGRESS_CHANNEL};
 
 use super::nav_watch::NavWatch;
+
+mod episodes;
+pub use episodes::{Episode, EpisodeLine, EpisodeOptions, read_episodes};
 use hng_runtime::msg::PoseWithCovariance;
 use hng_runtime::system::{
     CONTRACTS, CommandOp, ContractRole, ContractTable, EventKind, JsonInfo, ModuleEvent,
@@ -145,6 +148,8 @@ pub struct MonitorOptions {
     /// is stopped (written to a temporary file and renamed: a reader sees all or nothing),
     /// so that `hng eval nav` can go on while this run stops.
     pub summary_file: Option<std::path::PathBuf>,
+    /// Run these episodes (one goal each, from its own start) instead of `goals`.
+    pub episodes: Option<EpisodeOptions>,
 }
 
 /// Writes `summary` as JSON to `path` through a temporary file and a rename.
@@ -245,6 +250,12 @@ struct State {
     dead: HashMap<String, u32>,
     /// True poses lost so far had been said.
     truth_loss_said: bool,
+    /// The episodes, if the run has them.
+    episodes: Option<episodes::Runner>,
+    /// The Manager's latest document had no current goal.
+    manager_idle: bool,
+    /// Least clearance since the current episode's goal was given, m.
+    episode_min_clearance: f64,
 }
 
 impl State {
@@ -261,6 +272,10 @@ impl State {
         let tables = node.tap_subscriber::<ContractTable>(CONTRACTS)?;
         let command = node.publisher::<SupervisorCommand>(SUPERVISOR_COMMAND)?;
         let progress = node.subscriber::<NavProgress>(PROGRESS_CHANNEL)?;
+        let episodes = match &opts.episodes {
+            Some(e) => Some(episodes::Runner::new(&node, e)?),
+            None => None,
+        };
         let mut waiter = Waiter::new(WaitMode::SLEEP)?;
         waiter.attach(&mission)?;
         waiter.attach(&sim)?;
@@ -298,6 +313,9 @@ impl State {
             names: HashMap::new(),
             providers: BTreeMap::new(),
             dead: HashMap::new(),
+            episodes,
+            manager_idle: false,
+            episode_min_clearance: f64::INFINITY,
         })
     }
 
@@ -310,7 +328,15 @@ impl State {
         while !stop.load(Ordering::Acquire) {
             self.waiter.wait(Some(batch_wait(self.batch_rate)))?;
             self.read()?;
-            if let Some(f) = self.verdict(opts) {
+            let verdict = if self.episodes.is_some() {
+                match self.step_episodes()? {
+                    Some(f) => Some(f),
+                    None => self.silent(opts),
+                }
+            } else {
+                self.verdict(opts)
+            };
+            if let Some(f) = verdict {
                 failure = f;
                 break;
             }
@@ -422,13 +448,17 @@ impl State {
                 self.not_reached()
             )));
         }
-        if self.last_sim.elapsed() > opts.stall_timeout {
-            return Some(Some(format!(
+        self.silent(opts)
+    }
+
+    /// A failure if the simulator has been silent too long.
+    fn silent(&self, opts: &MonitorOptions) -> Option<Option<String>> {
+        (self.last_sim.elapsed() > opts.stall_timeout).then(|| {
+            Some(format!(
                 "the simulator has been silent for {:?}",
                 opts.stall_timeout
-            )));
-        }
-        None
+            ))
+        })
     }
 
     fn read(&mut self) -> Result<()> {
@@ -442,6 +472,7 @@ impl State {
             self.path_length_m = s.path_length_m;
             if s.min_clearance.is_finite() {
                 self.min_clearance = self.min_clearance.min(s.min_clearance);
+                self.episode_min_clearance = self.episode_min_clearance.min(s.min_clearance);
             }
             if s.collisions > self.collisions {
                 self.collisions = s.collisions;
@@ -650,6 +681,7 @@ impl State {
             ));
         }
         self.done = p.done && p.goals_total > 0;
+        self.manager_idle = p.current_goal_id == 0;
     }
 }
 

@@ -1,0 +1,457 @@
+//! Episodes: many start/goal problems on one running system (`hng run --episodes FILE`, used
+//! by `hng eval nav`). For each episode the monitor puts the robot at the episode's start
+//! (`sim/teleport`), tells the localization (`operator/initial_pose`), waits until the true
+//! pose and every watched pose estimate are there, adds the goal to the Manager
+//! (`hng/mission`), judges it against the true pose, cancels it (`Skip`) when it ran out of
+//! time or the robot collided, and appends the episode's summary to a JSON-lines file at
+//! once. Each episode's figures are differences of the simulator's and the monitor's
+//! counters from the moment its goal was given (the least clearance: since the teleport,
+//! which restarts the simulator's).
+
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use hng_modules::manager::MISSION_CHANNEL;
+use hng_modules::msgs::{Mission, MissionGoal, MissionOp};
+use hng_runtime::msg::{FrameId, Header, INITIAL_POSE_CHANNEL, Pose2D, PoseWithCovariance};
+use hng_runtime::{Node, Publisher};
+use hng_simulator::module::SimTeleport;
+use serde::{Deserialize, Serialize};
+
+use super::{GoalSummary, State, Summary};
+use crate::error::{Context as _, Result};
+
+/// One episode: where the robot starts, where it goes, and the simulated time it has.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Episode {
+    /// The caller's id of the episode (copied to its summary line).
+    pub id: u64,
+    /// Start pose: x, y (m, map frame), heading (rad).
+    pub start: [f64; 3],
+    /// Goal: x, y (m, map frame).
+    pub goal: [f64; 2],
+    /// Simulated time allowed from the moment the goal is given, s.
+    pub duration_s: f64,
+}
+
+/// Reads an episode file: one [`Episode`] as JSON per line (blank lines and `#` comments
+/// skipped); errors name the file and the line.
+pub fn read_episodes(path: &Path) -> Result<Vec<Episode>> {
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("reading the episodes {}", path.display()))?;
+    let mut out = Vec::new();
+    for (i, line) in text.lines().enumerate() {
+        let line = line.trim();
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        let e: Episode = serde_json::from_str(line)
+            .with_context(|| format!("{}:{}: an episode", path.display(), i + 1))?;
+        let finite = e.start.iter().chain(&e.goal).all(|v| v.is_finite());
+        if !finite || !(e.duration_s.is_finite() && e.duration_s > 0.0) {
+            crate::error::bail!(
+                "{}:{}: an episode needs a finite start and goal and a positive duration_s",
+                path.display(),
+                i + 1
+            );
+        }
+        out.push(e);
+    }
+    if out.is_empty() {
+        crate::error::bail!("{}: no episode", path.display());
+    }
+    Ok(out)
+}
+
+/// One line of the episode output: the episode's id and its summary (the fields of
+/// [`Summary`], for this episode alone).
+#[derive(Debug, Serialize)]
+pub struct EpisodeLine<'a> {
+    /// [`Episode::id`].
+    pub episode: u64,
+    /// The episode's figures.
+    #[serde(flatten)]
+    pub summary: &'a Summary,
+}
+
+/// The true pose counts as at the start within this, m (a teleport puts it there exactly).
+const PLACED_M: f64 = 0.02;
+/// A pose estimate counts as at the start within this, m (Localization and SLAM restart
+/// there exactly; the filter may move by a GPS fix or two before it is read).
+const ESTIMATE_M: f64 = 0.15;
+/// Simulated time the teleport, the estimates and the Manager have to answer, s.
+const ANSWER_S: f64 = 5.0;
+
+/// Where an episode is.
+#[derive(Debug, Clone, Copy)]
+enum Phase {
+    /// Waiting for the system: the simulator running, the Manager without a goal.
+    Ready,
+    /// The robot and the estimates sent to the start at simulated time `at` (s).
+    Placing { at: f64 },
+    /// The goal sent at `at`; it will be the monitor's goal number `index`.
+    Sent { at: f64, index: usize },
+    /// The goal is pursued.
+    Running { index: usize },
+}
+
+/// The counters when an episode's goal was given.
+#[derive(Debug, Clone, Copy)]
+struct Base {
+    sim_s: f64,
+    path_m: f64,
+    collisions: u64,
+    restarts: u64,
+    stuck_s: f64,
+    lost: u64,
+}
+
+/// The episodes of a run and where they are.
+pub(super) struct Runner {
+    list: Vec<Episode>,
+    next: usize,
+    out: Option<PathBuf>,
+    tolerance_m: f64,
+    /// The run started at the first episode's start: no teleport for it.
+    first_placed: bool,
+    teleport: Publisher<SimTeleport>,
+    estimate: Publisher<PoseWithCovariance>,
+    mission: Publisher<Mission>,
+    /// Pose estimates that must be at the start before the goal is given: channel, reader,
+    /// latest (stamp s, x, y).
+    poses: Vec<(
+        String,
+        hng_runtime::Subscriber<PoseWithCovariance>,
+        Option<(f64, f64, f64)>,
+    )>,
+    phase: Phase,
+    base: Option<Base>,
+    wall: Instant,
+    failed: usize,
+}
+
+/// What the monitor needs for episodes.
+#[derive(Debug, Clone)]
+pub struct EpisodeOptions {
+    /// The episodes, in order.
+    pub list: Vec<Episode>,
+    /// Append each episode's summary line to this file (JSON lines).
+    pub out: Option<PathBuf>,
+    /// Position tolerance of the goals, m.
+    pub tolerance_m: f64,
+    /// Pose estimates (state channels of `PoseWithCovariance`) that must be at an episode's
+    /// start before its goal is given (e.g. `localization/pose`).
+    pub pose_channels: Vec<String>,
+    /// The system started with the robot at the first episode's start.
+    pub first_placed: bool,
+}
+
+impl Runner {
+    pub(super) fn new(node: &Node, o: &EpisodeOptions) -> Result<Runner> {
+        let mut poses = Vec::new();
+        for c in &o.pose_channels {
+            poses.push((
+                c.clone(),
+                node.tap_subscriber::<PoseWithCovariance>(c)?,
+                None,
+            ));
+        }
+        Ok(Runner {
+            list: o.list.clone(),
+            next: 0,
+            out: o.out.clone(),
+            tolerance_m: o.tolerance_m,
+            first_placed: o.first_placed,
+            teleport: node.publisher::<SimTeleport>("sim/teleport")?,
+            estimate: node.publisher::<PoseWithCovariance>(INITIAL_POSE_CHANNEL)?,
+            mission: node.publisher::<Mission>(MISSION_CHANNEL)?,
+            poses,
+            phase: Phase::Ready,
+            base: None,
+            wall: Instant::now(),
+            failed: 0,
+        })
+    }
+
+    fn read_poses(&mut self) -> Result<()> {
+        for (_, sub, last) in &mut self.poses {
+            while let Some(p) = sub.receive()? {
+                *last = Some((p.header.stamp_ns as f64 * 1e-9, p.pose.x, p.pose.y));
+            }
+        }
+        Ok(())
+    }
+
+    fn send<T: hng_runtime::msg::Message>(p: &Publisher<T>, m: T) -> Result<()> {
+        p.update_connections();
+        p.publish(m)
+            .with_context(|| format!("publishing on {}", p.channel()))
+    }
+}
+
+fn near(a: (f64, f64), b: (f64, f64), d: f64) -> bool {
+    (a.0 - b.0).hypot(a.1 - b.1) <= d
+}
+
+impl State {
+    /// Moves the episodes on; `Some(failure)` when the last one is done (`None`: all
+    /// succeeded).
+    pub(super) fn step_episodes(&mut self) -> Result<Option<Option<String>>> {
+        let Some(mut r) = self.episodes.take() else {
+            return Ok(None);
+        };
+        let out = self.step_runner(&mut r);
+        self.episodes = Some(r);
+        out
+    }
+
+    fn step_runner(&mut self, r: &mut Runner) -> Result<Option<Option<String>>> {
+        r.read_poses()?;
+        let now = self.sim_time_s;
+        loop {
+            let Some(ep) = r.list.get(r.next).cloned() else {
+                let failure = (r.failed > 0)
+                    .then(|| format!("{} of {} episodes failed", r.failed, r.list.len()));
+                return Ok(Some(failure));
+            };
+            let start = (ep.start[0], ep.start[1]);
+            match r.phase {
+                Phase::Ready => {
+                    // The simulator runs (a true pose came) and the Manager holds no goal.
+                    if self.truth_log.is_empty() || !self.manager_idle {
+                        return Ok(None);
+                    }
+                    r.wall = Instant::now();
+                    if !(r.next == 0 && r.first_placed) {
+                        let pose = Pose2D::new(ep.start[0], ep.start[1], ep.start[2]);
+                        let header = Header {
+                            frame_id: FrameId::MAP,
+                            ..Header::default()
+                        };
+                        Runner::send(&r.teleport, SimTeleport { header, pose })?;
+                        Runner::send(
+                            &r.estimate,
+                            PoseWithCovariance {
+                                header,
+                                pose,
+                                covariance: [0.0; 9],
+                            },
+                        )?;
+                    }
+                    r.phase = Phase::Placing { at: now };
+                }
+                Phase::Placing { at } => {
+                    let truth = self
+                        .truth_log
+                        .back()
+                        .filter(|(t, _, _)| *t as f64 * 1e-9 >= at)
+                        .map(|(_, x, y)| (*x, *y));
+                    let placed = truth.is_some_and(|p| near(p, start, PLACED_M));
+                    let off: Vec<String> = r
+                        .poses
+                        .iter()
+                        .filter(|(_, _, l)| !l.is_some_and(|(t, x, y)| t >= at && near((x, y), start, ESTIMATE_M)))
+                        .map(|(c, _, l)| match l {
+                            Some((_, x, y)) => format!("{c} at ({x:.2}, {y:.2})"),
+                            None => format!("{c} silent"),
+                        })
+                        .collect();
+                    if placed && off.is_empty() {
+                        self.give_goal(r, &ep)?;
+                        continue;
+                    }
+                    if now - at <= ANSWER_S {
+                        return Ok(None);
+                    }
+                    let why = if !placed {
+                        format!(
+                            "the robot could not be put at the start ({:.2}, {:.2}): the simulator \
+                             refused the teleport (the start overlaps an obstacle or is not free)",
+                            start.0, start.1
+                        )
+                    } else {
+                        format!(
+                            "the pose estimate did not come to the start within {ANSWER_S} s simulated: {}",
+                            off.join(", ")
+                        )
+                    };
+                    self.end_episode(r, &ep, None, Some(why))?;
+                }
+                Phase::Sent { at, index } => {
+                    if self.goals.len() > index {
+                        r.phase = Phase::Running { index };
+                        continue;
+                    }
+                    if now - at <= ANSWER_S {
+                        return Ok(None);
+                    }
+                    let why = format!("the Manager did not take the goal within {ANSWER_S} s simulated");
+                    self.end_episode(r, &ep, None, Some(why))?;
+                }
+                Phase::Running { index } => {
+                    let Some(base) = r.base else {
+                        return Ok(None);
+                    };
+                    let g = &self.goals[index];
+                    let collisions = self.collisions.saturating_sub(base.collisions);
+                    let why = if collisions > 0 {
+                        Some(format!(
+                            "the robot collided with an obstacle ({collisions} contacts)"
+                        ))
+                    } else {
+                        match g.state.as_str() {
+                            "reached" => None,
+                            "missed" | "refused" => Some(format!(
+                                "goal {} {}: {}",
+                                g.id,
+                                g.state,
+                                g.reason.as_deref().unwrap_or("no reason given")
+                            )),
+                            _ if now - base.sim_s > ep.duration_s => Some(format!(
+                                "the goal took longer than its duration ({} s simulated){}",
+                                ep.duration_s,
+                                self.last_pos
+                                    .map(|p| format!(
+                                        "; the true pose is {:.2} m from the goal",
+                                        (p.0 - g.x).hypot(p.1 - g.y)
+                                    ))
+                                    .unwrap_or_default()
+                            )),
+                            _ => return Ok(None),
+                        }
+                    };
+                    self.end_episode(r, &ep, Some(index), why)?;
+                }
+            }
+        }
+    }
+
+    /// Sends the episode's goal to the Manager and takes the counters.
+    fn give_goal(&mut self, r: &mut Runner, ep: &Episode) -> Result<()> {
+        let goal = MissionGoal {
+            pose: Pose2D::new(ep.goal[0], ep.goal[1], 0.0),
+            tolerance_m: r.tolerance_m,
+            use_theta: 0,
+        };
+        Runner::send(&r.mission, Mission::new(MissionOp::Append, &[goal]))?;
+        self.manager_idle = false;
+        self.episode_min_clearance = f64::INFINITY;
+        r.base = Some(Base {
+            sim_s: self.sim_time_s,
+            path_m: self.path_before_m + self.path_length_m,
+            collisions: self.collisions,
+            restarts: self.restarts,
+            stuck_s: self.nav.stuck_time_s(),
+            lost: self.truth.stats().dropped,
+        });
+        r.phase = Phase::Sent {
+            at: self.sim_time_s,
+            index: self.goals.len(),
+        };
+        Ok(())
+    }
+
+    /// Ends the current episode (its goal, if it got one, `index`; `why`: its failure):
+    /// cancels a goal still pursued, writes the line, goes on with the next.
+    fn end_episode(
+        &mut self,
+        r: &mut Runner,
+        ep: &Episode,
+        index: Option<usize>,
+        why: Option<String>,
+    ) -> Result<()> {
+        let goal = index.and_then(|i| self.goals.get(i)).cloned();
+        let settled = goal
+            .as_ref()
+            .is_some_and(|g| matches!(g.state.as_str(), "reached" | "missed" | "refused"));
+        if goal.is_some() && !settled {
+            // Give it up: the Manager holds, the next episode waits for that.
+            Runner::send(&r.mission, Mission::new(MissionOp::Skip, &[]))?;
+            self.manager_idle = false;
+        }
+        let base = r.base.take();
+        let mut g = goal.unwrap_or_else(|| GoalSummary {
+            id: 0,
+            x: ep.goal[0],
+            y: ep.goal[1],
+            tolerance_m: r.tolerance_m,
+            state: "pending".to_owned(),
+            reason: why.clone(),
+            true_error_m: None,
+        });
+        if g.true_error_m.is_none() {
+            g.true_error_m = self.last_pos.map(|(x, y)| (x - g.x).hypot(y - g.y));
+        }
+        let (stalls, recoveries) = if g.id > 0 {
+            self.nav.goal_counts(g.id)
+        } else {
+            (0, 0)
+        };
+        let success = why.is_none();
+        let summary = match base {
+            Some(b) => Summary {
+                success,
+                goals_reached: u32::from(success),
+                goals_total: 1,
+                goals: vec![g],
+                sim_time_s: (self.sim_time_s - b.sim_s).max(0.0),
+                wall_time_s: r.wall.elapsed().as_secs_f64(),
+                path_length_m: (self.path_before_m + self.path_length_m - b.path_m).max(0.0),
+                min_obstacle_distance_m: self
+                    .episode_min_clearance
+                    .is_finite()
+                    .then_some(self.episode_min_clearance),
+                collisions: self.collisions.saturating_sub(b.collisions),
+                contract_switches: 0,
+                restarts: self.restarts.saturating_sub(b.restarts),
+                stuck_time_s: (self.nav.stuck_time_s() - b.stuck_s).max(0.0),
+                stalls,
+                recoveries,
+                true_poses_lost: self.truth.stats().dropped.saturating_sub(b.lost),
+                failure: why.clone(),
+            },
+            None => Summary {
+                success,
+                goals_total: 1,
+                goals: vec![g],
+                wall_time_s: r.wall.elapsed().as_secs_f64(),
+                failure: why.clone(),
+                ..Summary::default()
+            },
+        };
+        let mut why_said = why.clone().unwrap_or_default();
+        if summary.restarts > 0 {
+            why_said.push_str(&format!(" ({} module restart(s) during it)", summary.restarts));
+        }
+        self.say(&format!(
+            "episode {} ({} of {}): {}",
+            ep.id,
+            r.next + 1,
+            r.list.len(),
+            if success { "ok".to_owned() } else { format!("FAILED: {why_said}") }
+        ));
+        if !success {
+            r.failed += 1;
+        }
+        if let Some(path) = &r.out {
+            let line = serde_json::to_string(&EpisodeLine {
+                episode: ep.id,
+                summary: &summary,
+            })
+            .context("encoding an episode's summary")?;
+            let mut f = std::fs::OpenOptions::new()
+                .create(true)
+                .append(true)
+                .open(path)
+                .with_context(|| format!("opening {}", path.display()))?;
+            // One write of the whole line: a reader sees whole lines or nothing of it.
+            f.write_all(format!("{line}\n").as_bytes())
+                .with_context(|| format!("writing {}", path.display()))?;
+        }
+        r.next += 1;
+        r.phase = Phase::Ready;
+        Ok(())
+    }
+}
