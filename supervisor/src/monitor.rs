@@ -256,6 +256,8 @@ struct State {
     manager_idle: bool,
     /// Least clearance since the current episode's goal was given, m.
     episode_min_clearance: f64,
+    /// Simulated time (s) each goal was first seen in the Manager's documents and dealt with.
+    goal_times: HashMap<u32, (f64, Option<f64>)>,
 }
 
 impl State {
@@ -316,6 +318,7 @@ impl State {
             episodes,
             manager_idle: false,
             episode_min_clearance: f64::INFINITY,
+            goal_times: HashMap::new(),
         })
     }
 
@@ -514,7 +517,7 @@ impl State {
         }
         for (stamp, p) in plans {
             let truth = self.truth_at(stamp);
-            self.on_plan(&p, truth);
+            self.on_plan(&p, truth, stamp);
         }
         while let Some(e) = self.events.receive()? {
             let name = e.module().to_owned();
@@ -598,7 +601,8 @@ impl State {
 
     /// A mission document (published at simulated time when the true position was `truth`):
     /// new goals are added, goals dealt with are judged against the true pose.
-    fn on_plan(&mut self, p: &MissionPlan, truth: Option<(f64, f64)>) {
+    fn on_plan(&mut self, p: &MissionPlan, truth: Option<(f64, f64)>, stamp_ns: u64) {
+        let stamp_s = stamp_ns as f64 * 1e-9;
         for e in &p.goals {
             let known = self.goals.iter().position(|g| g.id == e.id);
             let i = match known {
@@ -616,6 +620,7 @@ impl State {
                         reason: None,
                         true_error_m: None,
                     });
+                    self.goal_times.insert(e.id, (stamp_s, None));
                     self.goals.len() - 1
                 }
             };
@@ -625,6 +630,12 @@ impl State {
                 continue;
             }
             g.state = e.state.clone();
+            if matches!(e.state.as_str(), "reached" | "refused")
+                && let Some(t) = self.goal_times.get_mut(&e.id)
+            {
+                t.1 = Some(stamp_s);
+            }
+            let g = &mut self.goals[i];
             let error = truth.map(|(x, y)| (x - g.x).hypot(y - g.y));
             let line = match e.state.as_str() {
                 "reached" => {

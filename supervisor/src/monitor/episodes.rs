@@ -390,13 +390,19 @@ impl State {
             (0, 0)
         };
         let success = why.is_none();
+        let g_id = g.id;
         let summary = match base {
             Some(b) => Summary {
                 success,
                 goals_reached: u32::from(success),
                 goals_total: 1,
                 goals: vec![g],
-                sim_time_s: (self.sim_time_s - b.sim_s).max(0.0),
+                // From the Manager taking the goal to its dealing with it (the stamps of its
+                // documents): the monitor, outside the lockstep, may read them late.
+                sim_time_s: {
+                    let (from, to) = self.goal_times.get(&g_id).copied().unwrap_or((b.sim_s, None));
+                    (to.unwrap_or(self.sim_time_s) - from).max(0.0)
+                },
                 wall_time_s: r.wall.elapsed().as_secs_f64(),
                 path_length_m: (self.path_before_m + self.path_length_m - b.path_m).max(0.0),
                 min_obstacle_distance_m: self
@@ -453,5 +459,41 @@ impl State {
         r.next += 1;
         r.phase = Phase::Ready;
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_episode_file_is_read_and_its_errors_name_the_line() {
+        let dir = std::env::temp_dir().join(format!("hng-episodes-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let f = dir.join("e.jsonl");
+        std::fs::write(
+            &f,
+            "# two\n{\"id\": 3, \"start\": [1, 2, 0.5], \"goal\": [4, 5], \"duration_s\": 30}\n\n\
+             {\"id\": 4, \"start\": [4, 5, 0], \"goal\": [1, 2], \"duration_s\": 20}\n",
+        )
+        .unwrap();
+        let e = read_episodes(&f).unwrap();
+        assert_eq!(e.len(), 2);
+        assert_eq!(e[0].start, [1.0, 2.0, 0.5]);
+        assert_eq!((e[1].id, e[1].goal, e[1].duration_s), (4, [1.0, 2.0], 20.0));
+        std::fs::write(
+            &f,
+            "{\"id\": 3, \"start\": [1, 2, 0], \"goal\": [4, 5], \"duration_s\": 30}\n\
+             {\"id\": 4, \"start\": [1, 2, 0], \"goal\": [4, 5], \"duration_s\": -1}\n",
+        )
+        .unwrap();
+        let why = format!("{:#}", read_episodes(&f).unwrap_err());
+        assert!(why.contains("e.jsonl:2") && why.contains("duration_s"), "{why}");
+        std::fs::write(&f, "{\"id\": 3, \"goal\": [4, 5]}\n").unwrap();
+        let why = format!("{:#}", read_episodes(&f).unwrap_err());
+        assert!(why.contains("e.jsonl:1"), "{why}");
+        std::fs::write(&f, "# nothing\n").unwrap();
+        assert!(read_episodes(&f).is_err());
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }
