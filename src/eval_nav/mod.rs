@@ -355,7 +355,6 @@ pub fn run(a: &EvalNavArgs) -> Result<()> {
             break;
         }
     }
-    drop(emit);
     if let Some((sig, id)) = stopped {
         eprintln!(
             "hng eval nav: stopped by signal {sig} during problem {id}; {} problem(s) done",

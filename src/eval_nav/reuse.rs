@@ -152,12 +152,7 @@ pub fn run_world(
         let p = &ps[k];
         let result = match (r, why) {
             (Some(v), _) => from_summary(p, v, "", wall_s, cpu),
-            (None, why) => failed(
-                p,
-                why.unwrap_or_else(|| "no result".into()),
-                wall_s,
-                cpu,
-            ),
+            (None, why) => failed(p, why.unwrap_or_else(|| "no result".into()), wall_s, cpu),
         };
         let ok = result.success;
         emit(result)?;

@@ -192,7 +192,10 @@ impl Stopping {
 }
 
 /// Sends SIGTERM to `hng run` and waits for its orderly stop (at most 30 s, then SIGKILL).
-pub(super) fn stop_child(child: &mut std::process::Child, sig: i32) -> Option<std::process::ExitStatus> {
+pub(super) fn stop_child(
+    child: &mut std::process::Child,
+    sig: i32,
+) -> Option<std::process::ExitStatus> {
     tracing::info!(
         signal = sig,
         pid = child.id(),

@@ -50,7 +50,7 @@ pub fn read_episodes(path: &Path) -> Result<Vec<Episode>> {
         let e: Episode = serde_json::from_str(line)
             .with_context(|| format!("{}:{}: an episode", path.display(), i + 1))?;
         let finite = e.start.iter().chain(&e.goal).all(|v| v.is_finite());
-        if !finite || !(e.duration_s.is_finite() && e.duration_s > 0.0) {
+        if !(finite && e.duration_s.is_finite() && e.duration_s > 0.0) {
             crate::error::bail!(
                 "{}:{}: an episode needs a finite start and goal and a positive duration_s",
                 path.display(),
@@ -83,14 +83,21 @@ const PLACED_M: f64 = 0.02;
 const ESTIMATE_M: f64 = 0.15;
 /// Simulated time the teleport, the estimates and the Manager have to answer, s.
 const ANSWER_S: f64 = 5.0;
+/// The pose estimates count only when stamped this long (simulated s) after the true pose was
+/// first seen at the start: Localization and SLAM read the estimate at their next call, and
+/// an estimate applied after the robot has begun to move would put it back at the start.
+/// Without this, a robot already at the next start (the previous goal) got its goal before
+/// the reset and was then reset while driving (a goal missed by 0.66 m).
+const SETTLE_S: f64 = 0.5;
 
 /// Where an episode is.
 #[derive(Debug, Clone, Copy)]
 enum Phase {
     /// Waiting for the system: the simulator running, the Manager without a goal.
     Ready,
-    /// The robot and the estimates sent to the start at simulated time `at` (s).
-    Placing { at: f64 },
+    /// The robot and the estimates sent to the start at simulated time `at` (s); the true
+    /// pose seen there first at `placed` (its stamp).
+    Placing { at: f64, placed: Option<f64> },
     /// The goal sent at `at`; it will be the monitor's goal number `index`.
     Sent { at: f64, index: usize },
     /// The goal is pursued.
@@ -108,6 +115,13 @@ struct Base {
     lost: u64,
 }
 
+/// A pose estimate watched: channel, reader, latest (stamp s, x, y).
+type PoseWatch = (
+    String,
+    hng_runtime::Subscriber<PoseWithCovariance>,
+    Option<(f64, f64, f64)>,
+);
+
 /// The episodes of a run and where they are.
 pub(super) struct Runner {
     list: Vec<Episode>,
@@ -121,11 +135,7 @@ pub(super) struct Runner {
     mission: Publisher<Mission>,
     /// Pose estimates that must be at the start before the goal is given: channel, reader,
     /// latest (stamp s, x, y).
-    poses: Vec<(
-        String,
-        hng_runtime::Subscriber<PoseWithCovariance>,
-        Option<(f64, f64, f64)>,
-    )>,
+    poses: Vec<PoseWatch>,
     phase: Phase,
     base: Option<Base>,
     wall: Instant,
@@ -240,24 +250,36 @@ impl State {
                             },
                         )?;
                     }
-                    r.phase = Phase::Placing { at: now };
+                    r.phase = Phase::Placing {
+                        at: now,
+                        placed: None,
+                    };
                 }
-                Phase::Placing { at } => {
-                    let truth = self
-                        .truth_log
-                        .back()
-                        .filter(|(t, _, _)| *t as f64 * 1e-9 >= at)
-                        .map(|(_, x, y)| (*x, *y));
-                    let placed = truth.is_some_and(|p| near(p, start, PLACED_M));
+                Phase::Placing { at, mut placed } => {
+                    if placed.is_none() {
+                        placed = self
+                            .truth_log
+                            .back()
+                            .map(|(t, x, y)| (*t as f64 * 1e-9, (*x, *y)))
+                            .filter(|(t, p)| *t >= at && near(*p, start, PLACED_M))
+                            .map(|(t, _)| t);
+                        r.phase = Phase::Placing { at, placed };
+                    }
                     let off: Vec<String> = r
                         .poses
                         .iter()
-                        .filter(|(_, _, l)| !l.is_some_and(|(t, x, y)| t >= at && near((x, y), start, ESTIMATE_M)))
+                        .filter(|(_, _, l)| {
+                            !l.is_some_and(|(t, x, y)| {
+                                placed.is_some_and(|p| t >= p + SETTLE_S)
+                                    && near((x, y), start, ESTIMATE_M)
+                            })
+                        })
                         .map(|(c, _, l)| match l {
                             Some((_, x, y)) => format!("{c} at ({x:.2}, {y:.2})"),
                             None => format!("{c} silent"),
                         })
                         .collect();
+                    let placed = placed.is_some();
                     if placed && off.is_empty() {
                         self.give_goal(r, &ep)?;
                         continue;
@@ -287,7 +309,8 @@ impl State {
                     if now - at <= ANSWER_S {
                         return Ok(None);
                     }
-                    let why = format!("the Manager did not take the goal within {ANSWER_S} s simulated");
+                    let why =
+                        format!("the Manager did not take the goal within {ANSWER_S} s simulated");
                     self.end_episode(r, &ep, None, Some(why))?;
                 }
                 Phase::Running { index } => {
@@ -400,7 +423,11 @@ impl State {
                 // From the Manager taking the goal to its dealing with it (the stamps of its
                 // documents): the monitor, outside the lockstep, may read them late.
                 sim_time_s: {
-                    let (from, to) = self.goal_times.get(&g_id).copied().unwrap_or((b.sim_s, None));
+                    let (from, to) = self
+                        .goal_times
+                        .get(&g_id)
+                        .copied()
+                        .unwrap_or((b.sim_s, None));
                     (to.unwrap_or(self.sim_time_s) - from).max(0.0)
                 },
                 wall_time_s: r.wall.elapsed().as_secs_f64(),
@@ -429,14 +456,21 @@ impl State {
         };
         let mut why_said = why.clone().unwrap_or_default();
         if summary.restarts > 0 {
-            why_said.push_str(&format!(" ({} module restart(s) during it)", summary.restarts));
+            why_said.push_str(&format!(
+                " ({} module restart(s) during it)",
+                summary.restarts
+            ));
         }
         self.say(&format!(
             "episode {} ({} of {}): {}",
             ep.id,
             r.next + 1,
             r.list.len(),
-            if success { "ok".to_owned() } else { format!("FAILED: {why_said}") }
+            if success {
+                "ok".to_owned()
+            } else {
+                format!("FAILED: {why_said}")
+            }
         ));
         if !success {
             r.failed += 1;
@@ -488,7 +522,10 @@ mod tests {
         )
         .unwrap();
         let why = format!("{:#}", read_episodes(&f).unwrap_err());
-        assert!(why.contains("e.jsonl:2") && why.contains("duration_s"), "{why}");
+        assert!(
+            why.contains("e.jsonl:2") && why.contains("duration_s"),
+            "{why}"
+        );
         std::fs::write(&f, "{\"id\": 3, \"goal\": [4, 5]}\n").unwrap();
         let why = format!("{:#}", read_episodes(&f).unwrap_err());
         assert!(why.contains("e.jsonl:1"), "{why}");
