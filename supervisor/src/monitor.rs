@@ -252,10 +252,14 @@ struct State {
     truth_loss_said: bool,
     /// The episodes, if the run has them.
     episodes: Option<episodes::Runner>,
-    /// The Manager's latest document had no current goal.
-    manager_idle: bool,
+    /// Since when (simulated s, the stamp of its document) the Manager has held no goal.
+    idle_since: Option<f64>,
     /// Least clearance since the current episode's goal was given, m.
     episode_min_clearance: f64,
+    /// Length of the true path by the true poses read, m (episodes: the simulator's counter
+    /// comes with its status, every 100 ms of wall time, which at full speed can be seconds
+    /// of simulated time behind the end of a goal).
+    truth_path_m: f64,
     /// Simulated time (s) each goal was first seen in the Manager's documents and dealt with.
     goal_times: HashMap<u32, (f64, Option<f64>)>,
 }
@@ -316,9 +320,10 @@ impl State {
             providers: BTreeMap::new(),
             dead: HashMap::new(),
             episodes,
-            manager_idle: false,
+            idle_since: None,
             episode_min_clearance: f64::INFINITY,
             goal_times: HashMap::new(),
+            truth_path_m: 0.0,
         })
     }
 
@@ -486,6 +491,13 @@ impl State {
         while let Some(p) = self.truth.receive()? {
             truths += 1;
             let (x, y) = (p.pose.x, p.pose.y);
+            if let Some((px, py)) = self.last_pos {
+                let d = (x - px).hypot(y - py);
+                // A jump of a metre between two poses 10 ms apart is a teleport.
+                if d < 1.0 {
+                    self.truth_path_m += d;
+                }
+            }
             self.last_pos = Some((x, y));
             if self.truth_log.len() >= TRUTH_LOG {
                 self.truth_log.pop_front();
@@ -692,7 +704,11 @@ impl State {
             ));
         }
         self.done = p.done && p.goals_total > 0;
-        self.manager_idle = p.current_goal_id == 0;
+        if p.current_goal_id != 0 {
+            self.idle_since = None;
+        } else if self.idle_since.is_none() {
+            self.idle_since = Some(stamp_s);
+        }
     }
 }
 

@@ -89,15 +89,24 @@ const ANSWER_S: f64 = 5.0;
 /// Without this, a robot already at the next start (the previous goal) got its goal before
 /// the reset and was then reset while driving (a goal missed by 0.66 m).
 const SETTLE_S: f64 = 0.5;
+/// The robot is moved only when the Manager has held no goal this long (simulated s): the
+/// Servo follows Planning's last waypoint for up to its `waypoint_timeout_s` (1 s), and a
+/// robot moved before that was driven off its new start by the previous problem's waypoint.
+const QUIET_S: f64 = 1.5;
 
 /// Where an episode is.
 #[derive(Debug, Clone, Copy)]
 enum Phase {
     /// Waiting for the system: the simulator running, the Manager without a goal.
     Ready,
-    /// The robot and the estimates sent to the start at simulated time `at` (s); the true
-    /// pose seen there first at `placed` (its stamp).
-    Placing { at: f64, placed: Option<f64> },
+    /// The robot sent to the start at simulated time `at` (s); the true pose seen there
+    /// first at `placed` (its stamp), when the pose estimate was sent; the estimates count
+    /// when stamped from `settle` on.
+    Placing {
+        at: f64,
+        placed: Option<f64>,
+        settle: f64,
+    },
     /// The goal sent at `at`; it will be the monitor's goal number `index`.
     Sent { at: f64, index: usize },
     /// The goal is pursued.
@@ -201,6 +210,13 @@ impl Runner {
     }
 }
 
+fn map_header() -> Header {
+    Header {
+        frame_id: FrameId::MAP,
+        ..Header::default()
+    }
+}
+
 fn near(a: (f64, f64), b: (f64, f64), d: f64) -> bool {
     (a.0 - b.0).hypot(a.1 - b.1) <= d
 }
@@ -230,48 +246,69 @@ impl State {
             match r.phase {
                 Phase::Ready => {
                     // The simulator runs (a true pose came) and the Manager holds no goal.
-                    if self.truth_log.is_empty() || !self.manager_idle {
+                    let quiet = self.idle_since.is_some_and(|t| now >= t + QUIET_S);
+                    if self.truth_log.is_empty() || !quiet {
                         return Ok(None);
                     }
                     r.wall = Instant::now();
                     if !(r.next == 0 && r.first_placed) {
                         let pose = Pose2D::new(ep.start[0], ep.start[1], ep.start[2]);
-                        let header = Header {
-                            frame_id: FrameId::MAP,
-                            ..Header::default()
-                        };
-                        Runner::send(&r.teleport, SimTeleport { header, pose })?;
                         Runner::send(
-                            &r.estimate,
-                            PoseWithCovariance {
-                                header,
+                            &r.teleport,
+                            SimTeleport {
+                                header: map_header(),
                                 pose,
-                                covariance: [0.0; 9],
                             },
                         )?;
                     }
                     r.phase = Phase::Placing {
                         at: now,
                         placed: None,
+                        settle: f64::INFINITY,
                     };
                 }
-                Phase::Placing { at, mut placed } => {
+                Phase::Placing {
+                    at,
+                    mut placed,
+                    mut settle,
+                } => {
                     if placed.is_none() {
                         placed = self
                             .truth_log
-                            .back()
-                            .map(|(t, x, y)| (*t as f64 * 1e-9, (*x, *y)))
-                            .filter(|(t, p)| *t >= at && near(*p, start, PLACED_M))
-                            .map(|(t, _)| t);
-                        r.phase = Phase::Placing { at, placed };
+                            .iter()
+                            .rev()
+                            .take_while(|(t, _, _)| *t as f64 * 1e-9 >= at)
+                            .find(|(_, x, y)| near((*x, *y), start, PLACED_M))
+                            .map(|(t, _, _)| *t as f64 * 1e-9);
+                        if placed.is_some() {
+                            // The estimate only once the robot is there (a refused teleport
+                            // must not reset the localization elsewhere); it counts from the
+                            // latest true pose read on (the monitor reads as it goes).
+                            let latest = self
+                                .truth_log
+                                .back()
+                                .map_or(now, |(t, _, _)| *t as f64 * 1e-9);
+                            settle = latest + SETTLE_S;
+                            if !(r.next == 0 && r.first_placed) {
+                                let pose = Pose2D::new(ep.start[0], ep.start[1], ep.start[2]);
+                                Runner::send(
+                                    &r.estimate,
+                                    PoseWithCovariance {
+                                        header: map_header(),
+                                        pose,
+                                        covariance: [0.0; 9],
+                                    },
+                                )?;
+                            }
+                        }
+                        r.phase = Phase::Placing { at, placed, settle };
                     }
                     let off: Vec<String> = r
                         .poses
                         .iter()
                         .filter(|(_, _, l)| {
                             !l.is_some_and(|(t, x, y)| {
-                                placed.is_some_and(|p| t >= p + SETTLE_S)
-                                    && near((x, y), start, ESTIMATE_M)
+                                t >= settle && near((x, y), start, ESTIMATE_M)
                             })
                         })
                         .map(|(c, _, l)| match l {
@@ -359,11 +396,11 @@ impl State {
             use_theta: 0,
         };
         Runner::send(&r.mission, Mission::new(MissionOp::Append, &[goal]))?;
-        self.manager_idle = false;
+        self.idle_since = None;
         self.episode_min_clearance = f64::INFINITY;
         r.base = Some(Base {
             sim_s: self.sim_time_s,
-            path_m: self.path_before_m + self.path_length_m,
+            path_m: self.truth_path_m,
             collisions: self.collisions,
             restarts: self.restarts,
             stuck_s: self.nav.stuck_time_s(),
@@ -392,7 +429,7 @@ impl State {
         if goal.is_some() && !settled {
             // Give it up: the Manager holds, the next episode waits for that.
             Runner::send(&r.mission, Mission::new(MissionOp::Skip, &[]))?;
-            self.manager_idle = false;
+            self.idle_since = None;
         }
         let base = r.base.take();
         let mut g = goal.unwrap_or_else(|| GoalSummary {
@@ -431,7 +468,7 @@ impl State {
                     (to.unwrap_or(self.sim_time_s) - from).max(0.0)
                 },
                 wall_time_s: r.wall.elapsed().as_secs_f64(),
-                path_length_m: (self.path_before_m + self.path_length_m - b.path_m).max(0.0),
+                path_length_m: (self.truth_path_m - b.path_m).max(0.0),
                 min_obstacle_distance_m: self
                     .episode_min_clearance
                     .is_finite()
