@@ -256,10 +256,6 @@ struct State {
     idle_since: Option<f64>,
     /// Least clearance since the current episode's goal was given, m.
     episode_min_clearance: f64,
-    /// Length of the true path by the true poses read, m (episodes: the simulator's counter
-    /// comes with its status, every 100 ms of wall time, which at full speed can be seconds
-    /// of simulated time behind the end of a goal).
-    truth_path_m: f64,
     /// Simulated time (s) each goal was first seen in the Manager's documents and dealt with.
     goal_times: HashMap<u32, (f64, Option<f64>)>,
 }
@@ -323,7 +319,6 @@ impl State {
             idle_since: None,
             episode_min_clearance: f64::INFINITY,
             goal_times: HashMap::new(),
-            truth_path_m: 0.0,
         })
     }
 
@@ -491,13 +486,6 @@ impl State {
         while let Some(p) = self.truth.receive()? {
             truths += 1;
             let (x, y) = (p.pose.x, p.pose.y);
-            if let Some((px, py)) = self.last_pos {
-                let d = (x - px).hypot(y - py);
-                // A jump of a metre between two poses 10 ms apart is a teleport.
-                if d < 1.0 {
-                    self.truth_path_m += d;
-                }
-            }
             self.last_pos = Some((x, y));
             if self.truth_log.len() >= TRUTH_LOG {
                 self.truth_log.pop_front();

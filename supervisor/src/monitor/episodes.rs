@@ -355,6 +355,12 @@ impl State {
                         return Ok(None);
                     };
                     let g = &self.goals[index];
+                    // Dealt with: the counters must have caught up with that moment.
+                    if let Some((_, Some(t))) = self.goal_times.get(&g.id)
+                        && self.sim_time_s < *t
+                    {
+                        return Ok(None);
+                    }
                     let collisions = self.collisions.saturating_sub(base.collisions);
                     let why = if collisions > 0 {
                         Some(format!(
@@ -400,7 +406,7 @@ impl State {
         self.episode_min_clearance = f64::INFINITY;
         r.base = Some(Base {
             sim_s: self.sim_time_s,
-            path_m: self.truth_path_m,
+            path_m: self.path_before_m + self.path_length_m,
             collisions: self.collisions,
             restarts: self.restarts,
             stuck_s: self.nav.stuck_time_s(),
@@ -468,7 +474,7 @@ impl State {
                     (to.unwrap_or(self.sim_time_s) - from).max(0.0)
                 },
                 wall_time_s: r.wall.elapsed().as_secs_f64(),
-                path_length_m: (self.truth_path_m - b.path_m).max(0.0),
+                path_length_m: (self.path_before_m + self.path_length_m - b.path_m).max(0.0),
                 min_obstacle_distance_m: self
                     .episode_min_clearance
                     .is_finite()
