@@ -1,7 +1,8 @@
 //! `hng eval nav`: the closed loop (planning, servo, security, localisation, the robot in the
 //! simulator: `hng run`, every module its own process, in lockstep) on many start/goal
-//! problems, one fresh system per problem, so the robot starts at the problem's start and
-//! nothing carries over. One JSON line per problem and a summary (see docs/navigation.md).
+//! problems: the consecutive problems of one world on one running system ([`reuse`]: the
+//! robot moved to each start), or with `--fresh` one system per problem ([`runner`]). One
+//! JSON line per problem and a summary (see docs/navigation.md).
 //!
 //! Inputs: a MovingAI map and scenario (`--map M --scen S --resolution R`), a map_server world
 //! and a problem list (`--world W --problems P`), or generated worlds (`--generate N --seed S
