@@ -13,7 +13,7 @@ use hng_supervisor::host::{Companion, HostOptions, RunPaths, StartCompanions};
 use hng_supervisor::lock::{self, SystemLock};
 use hng_supervisor::logs;
 use hng_supervisor::mission::{self, Mission, MissionOptions};
-use hng_supervisor::monitor::{Monitor, MonitorOptions, Outcome};
+use hng_supervisor::monitor::{EpisodeOptions, Monitor, MonitorOptions, Outcome};
 use hng_watchdog::{LaunchPlan, LoadOptions, ModuleSpec, launch};
 
 /// Options of `hng run`.
@@ -70,6 +70,16 @@ pub struct RunArgs {
     /// ends, before the system stops, and again at the end; each time whole, by a rename).
     #[arg(long, conflicts_with = "file")]
     pub summary: Option<PathBuf>,
+    /// Built-in mission: run these episodes one after the other on the one system instead of
+    /// goals (JSON lines: `{"id", "start": [x, y, theta], "goal": [x, y], "duration_s"}`; the
+    /// robot is moved to each start, `hng eval nav`'s reuse; `--start` should be the first
+    /// episode's start).
+    #[arg(long, conflicts_with_all = ["file", "goal"])]
+    pub episodes: Option<PathBuf>,
+    /// With `--episodes`: append each episode's summary to this file as one JSON line as soon
+    /// as it ends.
+    #[arg(long, requires = "episodes")]
+    pub episode_out: Option<PathBuf>,
     /// Louder terminal: `-v` shows `hng run`'s info lines and echoes every module's log
     /// lines, `-vv` debug (`HNG_LOG`/`RUST_LOG` set the filter and echo too). Module logs are
     /// always in RUN_DIR/logs (`hng logs`).
@@ -92,6 +102,7 @@ impl RunArgs {
             duration_s: self.duration,
             tolerance_m: self.tolerance,
             fusion: !self.no_fusion,
+            episodes: self.episodes.is_some(),
         }
     }
 }
@@ -202,12 +213,40 @@ fn run_mission(prefix: &str, args: &RunArgs) -> ExitCode {
         "logs: {} (hng logs MODULE [-f]; -v shows them here)",
         logs::log_dir(&run_dir).display()
     );
+    let episodes = match &args.episodes {
+        Some(f) => match hng_supervisor::monitor::read_episodes(f) {
+            Ok(list) => {
+                let first_placed = list.first().is_some_and(|e| {
+                    (e.start[0] - mission.start.x).hypot(e.start[1] - mission.start.y) < 1e-6
+                        && (e.start[2] - mission.start.theta).abs() < 1e-6
+                });
+                Some(EpisodeOptions {
+                    list,
+                    out: args.episode_out.clone(),
+                    tolerance_m: args.tolerance,
+                    pose_channels: if args.no_fusion {
+                        vec!["slam/pose".to_owned()]
+                    } else {
+                        vec!["localization/pose".to_owned(), "slam/pose".to_owned()]
+                    },
+                    first_placed,
+                })
+            }
+            Err(e) => {
+                eprintln!("hng: error: {:#}", anyhow::Error::from(e));
+                lock.release();
+                return ExitCode::from(EXIT_BAD_LAUNCH_FILE);
+            }
+        },
+        None => None,
+    };
     let monitor = match Monitor::start(MonitorOptions {
         prefix: prefix.to_owned(),
         goals: mission.goals.clone(),
         duration_s: mission.duration_s,
         stall_timeout: Duration::from_secs(30),
         summary_file: args.summary.clone(),
+        episodes,
     }) {
         Ok(m) => m,
         Err(e) => {

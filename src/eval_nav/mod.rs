@@ -1,13 +1,15 @@
 //! `hng eval nav`: the closed loop (planning, servo, security, localisation, the robot in the
 //! simulator: `hng run`, every module its own process, in lockstep) on many start/goal
-//! problems, one fresh system per problem, so the robot starts at the problem's start and
-//! nothing carries over. One JSON line per problem and a summary (see docs/navigation.md).
+//! problems: the consecutive problems of one world on one running system ([`reuse`]: the
+//! robot moved to each start), or with `--fresh` one system per problem ([`runner`]). One
+//! JSON line per problem and a summary (see docs/navigation.md).
 //!
 //! Inputs: a MovingAI map and scenario (`--map M --scen S --resolution R`), a map_server world
 //! and a problem list (`--world W --problems P`), or generated worlds (`--generate N --seed S
 //! [--clutter D]`).
 
 mod problems;
+mod reuse;
 mod runner;
 mod stop;
 
@@ -88,6 +90,10 @@ pub struct EvalNavArgs {
     /// Also append the JSON lines to this file as problems finish.
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// One fresh system per problem (`hng run` started and stopped for each), instead of
+    /// consecutive problems of one world on one running system.
+    #[arg(long)]
+    pub fresh: bool,
 }
 
 /// Mean of some values (`None` if empty).
@@ -293,34 +299,17 @@ pub fn run(a: &EvalNavArgs) -> Result<()> {
     }
     let mut results = Vec::new();
     let mut stopped = None;
-    // Runs of finished problems still stopping (see `runner`); at most two at a time.
-    let mut stopping: Vec<runner::Stopping> = Vec::new();
-    for p in &list {
-        stopping.retain_mut(|s| !s.poll());
-        while stopping.len() >= 2 {
-            stopping.remove(0).wait();
-        }
-        let (r, still) = runner::run(p, &opts)?;
-        stopping.extend(still);
-        if let Some(sig) = stop::requested() {
-            // Stopped by a signal: the interrupted problem is not a result.
-            eprintln!(
-                "hng eval nav: stopped by signal {sig} during problem {}; {} problem(s) done",
-                p.id,
-                results.len()
-            );
-            stopped = Some(sig);
-            break;
-        }
+    let total = list.len();
+    let mut emit = |r: ProblemResult| -> Result<()> {
         let line = serde_json::to_string(&r)?;
         if a.json {
             println!("{line}");
         } else {
             eprintln!(
                 "problem {}/{} {}: {} ({:.1} s wall)",
-                p.id,
-                list.len(),
-                p.source,
+                r.problem.id,
+                total,
+                r.problem.source,
                 if r.success {
                     "ok".to_owned()
                 } else {
@@ -333,7 +322,47 @@ pub fn run(a: &EvalNavArgs) -> Result<()> {
             writeln!(f, "{line}")?;
         }
         results.push(r);
+        Ok(())
+    };
+    // Runs of finished problems (or worlds) still stopping; at most two at a time.
+    let mut stopping: Vec<runner::Stopping> = Vec::new();
+    let mut i = 0;
+    while i < list.len() {
+        stopping.retain_mut(|s| !s.poll());
+        while stopping.len() >= 2 {
+            stopping.remove(0).wait();
+        }
+        if a.fresh {
+            let p = &list[i];
+            let (r, still) = runner::run(p, &opts)?;
+            stopping.extend(still);
+            if let Some(sig) = stop::requested() {
+                // Stopped by a signal: the interrupted problem is not a result.
+                stopped = Some((sig, p.id));
+                break;
+            }
+            emit(r)?;
+            i += 1;
+            continue;
+        }
+        // The consecutive problems of this world, on one system.
+        let world = &list[i].world;
+        let n = list[i..].iter().take_while(|p| &p.world == world).count();
+        let end = reuse::run_world(&list[i..i + n], &opts, &mut emit)?;
+        stopping.extend(end.stopping);
+        i += end.done;
+        if let Some(sig) = end.signal.or_else(stop::requested) {
+            stopped = Some((sig, list.get(i).map_or(0, |p| p.id)));
+            break;
+        }
     }
+    if let Some((sig, id)) = stopped {
+        eprintln!(
+            "hng eval nav: stopped by signal {sig} during problem {id}; {} problem(s) done",
+            results.len()
+        );
+    }
+    let stopped = stopped.map(|(sig, _)| sig);
     for s in stopping {
         s.wait();
     }

@@ -79,19 +79,19 @@ pub struct ProblemResult {
 /// How often the run's summary file and exit are looked for: the problem's wall time ends
 /// when the summary is seen, so this bounds what a problem is charged for the look (it was
 /// 200 ms, the CPU sampling period: about 0.1 s per problem on average).
-const SUMMARY_POLL: Duration = Duration::from_millis(5);
+pub(super) const SUMMARY_POLL: Duration = Duration::from_millis(5);
 
 /// How often each module process's CPU time is read from /proc (a walk of every process).
-const CPU_SAMPLE_PERIOD: Duration = Duration::from_millis(200);
+pub(super) const CPU_SAMPLE_PERIOD: Duration = Duration::from_millis(200);
 
 /// Clock ticks per second of /proc's CPU times: USER_HZ, 100 on every Linux architecture
 /// this runs on (the kernel's ABI constant, whatever its internal HZ).
-fn ticks_per_s() -> f64 {
+pub(super) fn ticks_per_s() -> f64 {
     100.0
 }
 
 /// (ppid, utime + stime in ticks) of a process.
-fn proc_stat(pid: u32) -> Option<(u32, u64)> {
+pub(super) fn proc_stat(pid: u32) -> Option<(u32, u64)> {
     let s = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
     let rest = &s[s.rfind(')')? + 2..];
     let f: Vec<&str> = rest.split_whitespace().collect();
@@ -114,7 +114,7 @@ fn module_name(pid: u32) -> Option<String> {
 }
 
 /// CPU ticks of the children of `parent`, by pid (the latest reading of each).
-fn sample_children(parent: u32, seen: &mut BTreeMap<u32, (String, u64)>) {
+pub(super) fn sample_children(parent: u32, seen: &mut BTreeMap<u32, (String, u64)>) {
     let Ok(dir) = std::fs::read_dir("/proc") else {
         return;
     };
@@ -147,11 +147,11 @@ fn f64_of(v: &Value, k: &str) -> Option<f64> {
 /// files removed, its run directory too when the problem needs it no more).
 #[derive(Debug)]
 pub struct Stopping {
-    child: std::process::Child,
-    prefix: String,
+    pub(super) child: std::process::Child,
+    pub(super) prefix: String,
     /// The run directory to remove once it has stopped.
-    remove: Option<PathBuf>,
-    since: Instant,
+    pub(super) remove: Option<PathBuf>,
+    pub(super) since: Instant,
 }
 
 impl Stopping {
@@ -192,7 +192,10 @@ impl Stopping {
 }
 
 /// Sends SIGTERM to `hng run` and waits for its orderly stop (at most 30 s, then SIGKILL).
-fn stop_child(child: &mut std::process::Child, sig: i32) -> Option<std::process::ExitStatus> {
+pub(super) fn stop_child(
+    child: &mut std::process::Child,
+    sig: i32,
+) -> Option<std::process::ExitStatus> {
     tracing::info!(
         signal = sig,
         pid = child.id(),
@@ -319,23 +322,7 @@ pub fn run(p: &Problem, o: &RunOptions) -> Result<(ProblemResult, Option<Stoppin
                     last_lines(&dir.join("stderr.txt"), 3)
                 ),
             };
-            ProblemResult {
-                problem: p.clone(),
-                success: false,
-                reason: Some(why),
-                time_s: 0.0,
-                wall_s,
-                path_length_m: 0.0,
-                path_ratio: None,
-                min_clearance_m: None,
-                collisions: 0,
-                stuck_time_s: 0.0,
-                stalls: 0,
-                recoveries: 0,
-                true_poses_lost: 0,
-                true_error_m: None,
-                cpu_s,
-            }
+            failed(p, why, wall_s, cpu_s)
         }
     };
     let remove = (!o.keep && result.success).then_some(dir);
@@ -354,13 +341,39 @@ pub fn run(p: &Problem, o: &RunOptions) -> Result<(ProblemResult, Option<Stoppin
     Ok((result, None))
 }
 
-fn last_lines(path: &Path, n: usize) -> String {
+/// A problem that gave no figures, with the reason.
+pub(super) fn failed(
+    p: &Problem,
+    why: String,
+    wall_s: f64,
+    cpu_s: BTreeMap<String, f64>,
+) -> ProblemResult {
+    ProblemResult {
+        problem: p.clone(),
+        success: false,
+        reason: Some(why),
+        time_s: 0.0,
+        wall_s,
+        path_length_m: 0.0,
+        path_ratio: None,
+        min_clearance_m: None,
+        collisions: 0,
+        stuck_time_s: 0.0,
+        stalls: 0,
+        recoveries: 0,
+        true_poses_lost: 0,
+        true_error_m: None,
+        cpu_s,
+    }
+}
+
+pub(super) fn last_lines(path: &Path, n: usize) -> String {
     let t = std::fs::read_to_string(path).unwrap_or_default();
     let lines: Vec<&str> = t.lines().collect();
     lines[lines.len().saturating_sub(n)..].join(" | ")
 }
 
-fn from_summary(
+pub(super) fn from_summary(
     p: &Problem,
     s: &Value,
     stdout: &str,

@@ -77,6 +77,8 @@ pub struct MissionOptions {
     pub tolerance_m: f64,
     /// Run the fused localization module (false: GPS and SLAM only, `--no-fusion`).
     pub fusion: bool,
+    /// Goals come as episodes from the monitor (`--episodes`): the Manager starts without.
+    pub episodes: bool,
 }
 
 impl Default for MissionOptions {
@@ -90,6 +92,7 @@ impl Default for MissionOptions {
             duration_s: DEFAULT_DURATION_S,
             tolerance_m: GOAL_TOLERANCE_M,
             fusion: true,
+            episodes: false,
         }
     }
 }
@@ -194,7 +197,7 @@ impl Mission {
             Some(p) => (World::load(p)?, false),
         };
         let start = opts.start.unwrap_or(world.robot.start);
-        let goals = if !opts.goals.is_empty() {
+        let goals = if !opts.goals.is_empty() || opts.episodes {
             opts.goals.clone()
         } else if opts.world.is_none() && opts.start.is_none() {
             DEFAULT_GOALS.to_vec()

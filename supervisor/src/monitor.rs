@@ -29,6 +29,9 @@ use hng_modules::manager::{MISSION_PLAN_CHANNEL, MissionPlan};
 use hng_modules::planning::progress::{NavProgress, PROGRESS_CHANNEL};
 
 use super::nav_watch::NavWatch;
+
+mod episodes;
+pub use episodes::{Episode, EpisodeLine, EpisodeOptions, read_episodes};
 use hng_runtime::msg::PoseWithCovariance;
 use hng_runtime::system::{
     CONTRACTS, CommandOp, ContractRole, ContractTable, EventKind, JsonInfo, ModuleEvent,
@@ -145,6 +148,8 @@ pub struct MonitorOptions {
     /// is stopped (written to a temporary file and renamed: a reader sees all or nothing),
     /// so that `hng eval nav` can go on while this run stops.
     pub summary_file: Option<std::path::PathBuf>,
+    /// Run these episodes (one goal each, from its own start) instead of `goals`.
+    pub episodes: Option<EpisodeOptions>,
 }
 
 /// Writes `summary` as JSON to `path` through a temporary file and a rename.
@@ -245,6 +250,14 @@ struct State {
     dead: HashMap<String, u32>,
     /// True poses lost so far had been said.
     truth_loss_said: bool,
+    /// The episodes, if the run has them.
+    episodes: Option<episodes::Runner>,
+    /// Since when (simulated s, the stamp of its document) the Manager has held no goal.
+    idle_since: Option<f64>,
+    /// Least clearance since the current episode's goal was given, m.
+    episode_min_clearance: f64,
+    /// Simulated time (s) each goal was first seen in the Manager's documents and dealt with.
+    goal_times: HashMap<u32, (f64, Option<f64>)>,
 }
 
 impl State {
@@ -261,6 +274,10 @@ impl State {
         let tables = node.tap_subscriber::<ContractTable>(CONTRACTS)?;
         let command = node.publisher::<SupervisorCommand>(SUPERVISOR_COMMAND)?;
         let progress = node.subscriber::<NavProgress>(PROGRESS_CHANNEL)?;
+        let episodes = match &opts.episodes {
+            Some(e) => Some(episodes::Runner::new(&node, e)?),
+            None => None,
+        };
         let mut waiter = Waiter::new(WaitMode::SLEEP)?;
         waiter.attach(&mission)?;
         waiter.attach(&sim)?;
@@ -298,6 +315,10 @@ impl State {
             names: HashMap::new(),
             providers: BTreeMap::new(),
             dead: HashMap::new(),
+            episodes,
+            idle_since: None,
+            episode_min_clearance: f64::INFINITY,
+            goal_times: HashMap::new(),
         })
     }
 
@@ -310,7 +331,15 @@ impl State {
         while !stop.load(Ordering::Acquire) {
             self.waiter.wait(Some(batch_wait(self.batch_rate)))?;
             self.read()?;
-            if let Some(f) = self.verdict(opts) {
+            let verdict = if self.episodes.is_some() {
+                match self.step_episodes()? {
+                    Some(f) => Some(f),
+                    None => self.silent(opts),
+                }
+            } else {
+                self.verdict(opts)
+            };
+            if let Some(f) = verdict {
                 failure = f;
                 break;
             }
@@ -422,13 +451,17 @@ impl State {
                 self.not_reached()
             )));
         }
-        if self.last_sim.elapsed() > opts.stall_timeout {
-            return Some(Some(format!(
+        self.silent(opts)
+    }
+
+    /// A failure if the simulator has been silent too long.
+    fn silent(&self, opts: &MonitorOptions) -> Option<Option<String>> {
+        (self.last_sim.elapsed() > opts.stall_timeout).then(|| {
+            Some(format!(
                 "the simulator has been silent for {:?}",
                 opts.stall_timeout
-            )));
-        }
-        None
+            ))
+        })
     }
 
     fn read(&mut self) -> Result<()> {
@@ -442,6 +475,7 @@ impl State {
             self.path_length_m = s.path_length_m;
             if s.min_clearance.is_finite() {
                 self.min_clearance = self.min_clearance.min(s.min_clearance);
+                self.episode_min_clearance = self.episode_min_clearance.min(s.min_clearance);
             }
             if s.collisions > self.collisions {
                 self.collisions = s.collisions;
@@ -483,7 +517,7 @@ impl State {
         }
         for (stamp, p) in plans {
             let truth = self.truth_at(stamp);
-            self.on_plan(&p, truth);
+            self.on_plan(&p, truth, stamp);
         }
         while let Some(e) = self.events.receive()? {
             let name = e.module().to_owned();
@@ -567,7 +601,8 @@ impl State {
 
     /// A mission document (published at simulated time when the true position was `truth`):
     /// new goals are added, goals dealt with are judged against the true pose.
-    fn on_plan(&mut self, p: &MissionPlan, truth: Option<(f64, f64)>) {
+    fn on_plan(&mut self, p: &MissionPlan, truth: Option<(f64, f64)>, stamp_ns: u64) {
+        let stamp_s = stamp_ns as f64 * 1e-9;
         for e in &p.goals {
             let known = self.goals.iter().position(|g| g.id == e.id);
             let i = match known {
@@ -585,6 +620,7 @@ impl State {
                         reason: None,
                         true_error_m: None,
                     });
+                    self.goal_times.insert(e.id, (stamp_s, None));
                     self.goals.len() - 1
                 }
             };
@@ -594,6 +630,12 @@ impl State {
                 continue;
             }
             g.state = e.state.clone();
+            if matches!(e.state.as_str(), "reached" | "refused")
+                && let Some(t) = self.goal_times.get_mut(&e.id)
+            {
+                t.1 = Some(stamp_s);
+            }
+            let g = &mut self.goals[i];
             let error = truth.map(|(x, y)| (x - g.x).hypot(y - g.y));
             let line = match e.state.as_str() {
                 "reached" => {
@@ -650,6 +692,11 @@ impl State {
             ));
         }
         self.done = p.done && p.goals_total > 0;
+        if p.current_goal_id != 0 {
+            self.idle_since = None;
+        } else if self.idle_since.is_none() {
+            self.idle_since = Some(stamp_s);
+        }
     }
 }
 

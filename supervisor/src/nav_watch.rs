@@ -57,6 +57,13 @@ impl NavWatch {
         self.per_goal.values().map(|v| u64::from(v.1)).sum()
     }
 
+    /// Stalls and recovery behaviours of one goal.
+    pub fn goal_counts(&self, goal_id: u32) -> (u64, u64) {
+        self.per_goal
+            .get(&goal_id)
+            .map_or((0, 0), |v| (u64::from(v.0), u64::from(v.1)))
+    }
+
     /// Simulated time the robot stood still while a goal was pursued, s.
     pub fn stuck_time_s(&self) -> f64 {
         self.stuck_s
