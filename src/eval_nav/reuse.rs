@@ -10,7 +10,7 @@
 
 use std::collections::BTreeMap;
 use std::io::Read as _;
-use std::process::{Command, Stdio};
+
 use std::time::Instant;
 
 use anyhow::{Context as _, Result};
@@ -82,35 +82,11 @@ pub fn run_world(
         text.push('\n');
     }
     std::fs::write(&episodes, text).with_context(|| format!("writing {}", episodes.display()))?;
-    let mut cmd = Command::new(&o.exe);
-    cmd.env("HNG_LOG", "warn")
-        .arg("--prefix")
-        .arg(&prefix)
-        .arg("run")
-        .arg("--no-gui")
-        .arg("--run-dir")
-        .arg(dir.join("run"))
-        .arg("--world")
-        .arg(&first.world)
-        .arg("--start")
-        .arg(format!(
-            "{},{},{}",
-            first.start[0], first.start[1], first.start[2]
-        ))
-        .arg("--episodes")
+    let mut cmd = super::runner::run_command(o, &prefix, &dir, &first.world, first.start)?;
+    cmd.arg("--episodes")
         .arg(&episodes)
         .arg("--episode-out")
-        .arg(&out)
-        .arg("--speed")
-        .arg(&o.speed)
-        .arg("--tolerance")
-        .arg(format!("{}", o.tolerance_m))
-        .stdin(Stdio::null())
-        .stdout(std::fs::File::create(dir.join("stdout.txt"))?)
-        .stderr(std::fs::File::create(dir.join("stderr.txt"))?);
-    if let Some(s) = o.seed {
-        cmd.arg("--seed").arg(s.to_string());
-    }
+        .arg(&out);
     super::stop::terminate_with_parent(&mut cmd);
     let started = Instant::now();
     let mut child = cmd

@@ -218,6 +218,41 @@ pub(super) fn stop_child(
     child.wait().ok()
 }
 
+/// `hng run` of the problems' system on `prefix` in `dir`, headless, from `start` in `world`,
+/// at the options' speed, tolerance and seed; its output to `dir`. The caller adds the goal
+/// or the episodes.
+pub(super) fn run_command(
+    o: &RunOptions,
+    prefix: &str,
+    dir: &Path,
+    world: &Path,
+    start: [f64; 3],
+) -> Result<Command> {
+    let mut cmd = Command::new(&o.exe);
+    cmd.env("HNG_LOG", "warn")
+        .arg("--prefix")
+        .arg(prefix)
+        .arg("run")
+        .arg("--no-gui")
+        .arg("--run-dir")
+        .arg(dir.join("run"))
+        .arg("--world")
+        .arg(world)
+        .arg("--start")
+        .arg(format!("{},{},{}", start[0], start[1], start[2]))
+        .arg("--speed")
+        .arg(&o.speed)
+        .arg("--tolerance")
+        .arg(format!("{}", o.tolerance_m))
+        .stdin(Stdio::null())
+        .stdout(std::fs::File::create(dir.join("stdout.txt"))?)
+        .stderr(std::fs::File::create(dir.join("stderr.txt"))?);
+    if let Some(s) = o.seed {
+        cmd.arg("--seed").arg(s.to_string());
+    }
+    Ok(cmd)
+}
+
 /// Runs one problem: its result, and its run if it is still stopping.
 pub fn run(p: &Problem, o: &RunOptions) -> Result<(ProblemResult, Option<Stopping>)> {
     let prefix = hng_runtime::shm::unique_prefix("evalnav");
@@ -226,34 +261,13 @@ pub fn run(p: &Problem, o: &RunOptions) -> Result<(ProblemResult, Option<Stoppin
     let summary_path = dir.join("summary.json");
     let _ = std::fs::remove_file(&summary_path);
     let duration = o.duration_base_s + o.duration_per_m_s * p.optimum_m.unwrap_or(30.0);
-    let mut cmd = Command::new(&o.exe);
-    cmd.env("HNG_LOG", "warn")
-        .arg("--prefix")
-        .arg(&prefix)
-        .arg("run")
-        .arg("--no-gui")
-        .arg("--run-dir")
-        .arg(dir.join("run"))
-        .arg("--world")
-        .arg(&p.world)
-        .arg("--start")
-        .arg(format!("{},{},{}", p.start[0], p.start[1], p.start[2]))
-        .arg("--goal")
+    let mut cmd = run_command(o, &prefix, &dir, &p.world, p.start)?;
+    cmd.arg("--goal")
         .arg(format!("{},{}", p.goal[0], p.goal[1]))
-        .arg("--speed")
-        .arg(&o.speed)
         .arg("--duration")
         .arg(format!("{duration}"))
-        .arg("--tolerance")
-        .arg(format!("{}", o.tolerance_m))
         .arg("--summary")
-        .arg(&summary_path)
-        .stdin(Stdio::null())
-        .stdout(std::fs::File::create(dir.join("stdout.txt"))?)
-        .stderr(std::fs::File::create(dir.join("stderr.txt"))?);
-    if let Some(s) = o.seed {
-        cmd.arg("--seed").arg(s.to_string());
-    }
+        .arg(&summary_path);
     // An eval killed outright still stops this run in order (SIGTERM to it when we die).
     super::stop::terminate_with_parent(&mut cmd);
     let started = Instant::now();
