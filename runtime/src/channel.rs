@@ -57,6 +57,7 @@ pub use list::{ChannelListing, list_channels};
 use outlet::Outlet;
 use publish::Received;
 pub use publish::{Loan, Publisher, Sample};
+pub(crate) use receive::Input;
 use receive::Reader;
 pub use receive::{Fixed, Kind, Receiver, Slice, SliceSubscriber, Subscriber, Waitable};
 use slice::SlicePort;
@@ -788,16 +789,6 @@ impl Inlet {
     pub(crate) fn drain_events(&self) {
         let _ = self.listener.try_wait(|_| {});
     }
-}
-
-/// Anything the executor can wait on.
-pub(crate) trait Input {
-    fn inlet(&self) -> &Rc<Inlet>;
-    /// A message is waiting (possibly one that waits for the next lockstep round).
-    fn has_samples(&self) -> bool;
-    /// A message may be handled now: in lockstep, one sent before the current round
-    /// (those sent in it are set aside for the next one, see [`crate::clock::lockstep`]).
-    fn handleable(&self) -> bool;
 }
 
 /// Identifies an input (a subscriber) in executor callbacks.

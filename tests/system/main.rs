@@ -18,6 +18,7 @@ mod mission;
 mod mission_cmd;
 mod modules;
 mod nav;
+mod neighbours;
 mod orders;
 mod recording;
 mod rm;

@@ -1,8 +1,7 @@
 //! Every way of stopping `hng run` ends in the same orderly stop (modules in reverse start
 //! order, every file of the prefix removed), with real processes: SIGTERM, SIGINT and SIGHUP
 //! in the middle of the built-in mission, `hng stop`, a SIGKILLed supervisor (its modules go
-//! with it, the next start cleans up), one system per prefix (and a neighbour whose prefix
-//! starts with it left alone), fatal signals on the first
+//! with it, the next start cleans up), one system per prefix, fatal signals on the first
 //! delivery, and a module that is not an hng module (a shell script) stopping on SIGTERM.
 
 use std::path::PathBuf;
@@ -401,7 +400,7 @@ fn sighup_with_its_stdout_closed_stops_in_order_and_leaves_nothing() {
 }
 
 /// Writes `text` as a launch file in `dir`; returns its path.
-fn launch_file(dir: &std::path::Path, text: &str) -> PathBuf {
+pub(crate) fn launch_file(dir: &std::path::Path, text: &str) -> PathBuf {
     std::fs::create_dir_all(dir).expect("dir");
     let f = dir.join("launch.toml");
     std::fs::write(&f, text.replace("TESTMOD", TESTMOD)).expect("launch file");
@@ -409,14 +408,14 @@ fn launch_file(dir: &std::path::Path, text: &str) -> PathBuf {
 }
 
 /// Subscribes to the supervisor's events of `prefix` (before anything starts).
-struct Events {
+pub(crate) struct Events {
     sub: Subscriber<ModuleEvent>,
     waiter: Waiter,
     _node: Node,
 }
 
 impl Events {
-    fn new(prefix: &str) -> Events {
+    pub(crate) fn new(prefix: &str) -> Events {
         let node = Node::new(NodeOptions::new("sig-test").prefix(prefix)).expect("node");
         let sub = node
             .subscriber::<ModuleEvent>(SUPERVISOR_EVENTS)
@@ -431,7 +430,12 @@ impl Events {
     }
 
     /// The next event of `kind` about `module`; the others are skipped.
-    fn wait(&mut self, module: &str, kind: EventKind, log: &dyn Fn() -> String) -> ModuleEvent {
+    pub(crate) fn wait(
+        &mut self,
+        module: &str,
+        kind: EventKind,
+        log: &dyn Fn() -> String,
+    ) -> ModuleEvent {
         let deadline = Instant::now() + TIMEOUT;
         loop {
             while let Some(e) = self.sub.receive().expect("receive") {
@@ -518,7 +522,7 @@ fn a_shell_script_module_gets_sigterm_with_a_clean_signal_state_and_exits_on_it(
 }
 
 /// The log files written by [`Run`]s in `dir`.
-fn run_log(dir: &std::path::Path) -> String {
+pub(crate) fn run_log(dir: &std::path::Path) -> String {
     let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
         .into_iter()
         .flatten()
@@ -784,49 +788,4 @@ fn a_sent_sigsegv_kills_a_module_on_the_first_delivery() {
         "the crash handler says what happened"
     );
     let _ = std::fs::remove_dir_all(&dir);
-}
-
-/// Two systems side by side, the prefix of one the start of the other's (`P` and `Px_`):
-/// stopping `P` removes its files and none of `Px_`'s, whose module goes on running (before,
-/// `P`'s clean-up removed every file in /dev/shm whose name started with `P` but the other's
-/// root folder, its wake segments and data segments among them).
-#[test]
-fn stopping_a_system_leaves_a_neighbour_whose_prefix_starts_with_its_own_running() {
-    let prefix = shm::unique_prefix("signb");
-    let neighbour = format!("{prefix}x_");
-    let dir = test_dir(&prefix);
-    let file = launch_file(
-        &dir.join("launch"),
-        "system = \"neighbours\"\n\n[[module]]\nname = \"counter\"\ncommand = [\"TESTMOD\", \"counter\"]\n",
-    );
-    let mut events = Events::new(&prefix);
-    let mut near = Events::new(&neighbour);
-    let args = ["--no-rm", file.to_str().expect("path")];
-    let mut run = Run::start_on(&prefix, &args);
-    let mut other = Run::start_on(&neighbour, &args);
-    events.wait("counter", EventKind::Started, &|| run_log(&run.dir));
-    let started = near.wait("counter", EventKind::Started, &|| run_log(&other.dir));
-    drop(events);
-    let theirs = shm::prefix_files(&neighbour);
-    assert!(!theirs.is_empty(), "the neighbour has files");
-
-    let out = run.hng(&["stop"]);
-    assert!(out.status.success(), "hng stop: {out:?}");
-    assert_eq!(run.wait().code(), Some(0));
-    run.assert_left_nothing();
-    let gone: Vec<_> = theirs.iter().filter(|f| !f.exists()).collect();
-    assert!(gone.is_empty(), "the neighbour's files removed: {gone:?}");
-    assert!(
-        is_alive(started.pid as i32),
-        "the neighbour's module runs on"
-    );
-    // It still works: a restart of its module through its own supervisor.
-    let out = other.hng(&["restart", "counter"]);
-    assert!(
-        out.status.success(),
-        "hng restart on the neighbour: {out:?}"
-    );
-    near.wait("counter", EventKind::Started, &|| run_log(&other.dir));
-    drop(near);
-    other.stop_ok();
 }

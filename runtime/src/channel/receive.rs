@@ -103,6 +103,16 @@ impl<H: SliceMessage> Kind for Slice<H> {
     }
 }
 
+/// Anything the executor can wait on.
+pub(crate) trait Input {
+    fn inlet(&self) -> &Rc<Inlet>;
+    /// A message is waiting (possibly one that waits for the next lockstep round).
+    fn has_samples(&self) -> bool;
+    /// A message may be handled now: in lockstep, one sent before the current round
+    /// (those sent in it are set aside for the next one, see [`crate::clock::lockstep`]).
+    fn handleable(&self) -> bool;
+}
+
 /// The receiving port of either kind and what the executor watches.
 pub(super) struct Reader<K: Kind> {
     pub(super) port: K::Port,
