@@ -87,7 +87,6 @@ pub fn run_world(
         .arg(&episodes)
         .arg("--episode-out")
         .arg(&out);
-    super::stop::terminate_with_parent(&mut cmd);
     let started = Instant::now();
     let mut child = cmd
         .spawn()

@@ -220,7 +220,7 @@ pub(super) fn stop_child(
 
 /// `hng run` of the problems' system on `prefix` in `dir`, headless, from `start` in `world`,
 /// at the options' speed, tolerance and seed; its output to `dir`. The caller adds the goal
-/// or the episodes.
+/// or the episodes. The run gets SIGTERM when this process dies.
 pub(super) fn run_command(
     o: &RunOptions,
     prefix: &str,
@@ -250,6 +250,8 @@ pub(super) fn run_command(
     if let Some(s) = o.seed {
         cmd.arg("--seed").arg(s.to_string());
     }
+    // An eval killed outright still stops this run in order (SIGTERM to it when we die).
+    super::stop::terminate_with_parent(&mut cmd);
     Ok(cmd)
 }
 
@@ -268,8 +270,6 @@ pub fn run(p: &Problem, o: &RunOptions) -> Result<(ProblemResult, Option<Stoppin
         .arg(format!("{duration}"))
         .arg("--summary")
         .arg(&summary_path);
-    // An eval killed outright still stops this run in order (SIGTERM to it when we die).
-    super::stop::terminate_with_parent(&mut cmd);
     let started = Instant::now();
     let mut child = cmd
         .spawn()
