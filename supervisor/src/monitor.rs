@@ -31,6 +31,7 @@ use hng_modules::planning::progress::{NavProgress, PROGRESS_CHANNEL};
 use super::nav_watch::NavWatch;
 
 mod episodes;
+mod truth;
 pub use episodes::{Episode, EpisodeLine, EpisodeOptions, read_episodes};
 use hng_runtime::msg::PoseWithCovariance;
 use hng_runtime::system::{
@@ -41,6 +42,7 @@ use hng_runtime::wait::{WaitMode, Waiter};
 use hng_runtime::{Node, NodeOptions};
 use hng_simulator::module::SimStatus;
 use serde::Serialize;
+use truth::TruthLog;
 
 /// One goal of the mission, as the summary reports it.
 #[derive(Debug, Clone, Default, Serialize, PartialEq)]
@@ -81,9 +83,6 @@ fn batch_wait(rate: f64) -> Duration {
     }
 }
 
-/// True poses kept to look up where the robot was when a goal was reported (40 s simulated).
-const TRUTH_LOG: usize = 4096;
-
 /// The summary of a mission (`--summary FILE` writes it as JSON, with exactly these fields).
 #[derive(Debug, Clone, Default, Serialize, PartialEq)]
 pub struct Summary {
@@ -95,11 +94,12 @@ pub struct Summary {
     pub goals_total: u32,
     /// Every goal, in mission order.
     pub goals: Vec<GoalSummary>,
-    /// Simulated time at the end, s.
+    /// Simulated time at the end, s: the stamp of the Manager's document that said the
+    /// mission done, or when the run ended otherwise.
     pub sim_time_s: f64,
     /// Wall time from start to the end of the mission, s.
     pub wall_time_s: f64,
-    /// Length of the true path, m.
+    /// Length of the true path until the end (`sim_time_s`), m.
     pub path_length_m: f64,
     /// Smallest gap between the robot and an obstacle, m (`null` if never measured).
     pub min_obstacle_distance_m: Option<f64>,
@@ -230,8 +230,8 @@ struct State {
     last_sim: Instant,
     sim_time_s: f64,
     last_pos: Option<(f64, f64)>,
-    /// Recent true poses: (simulated ns, x, y), oldest first.
-    truth_log: std::collections::VecDeque<(u64, f64, f64)>,
+    /// Recent true poses and path counters.
+    log: TruthLog,
     /// Path length of the simulator processes before the current one, m, and the current
     /// one's.
     path_before_m: f64,
@@ -241,6 +241,8 @@ struct State {
     /// Every goal seen in the Manager's documents, in mission order.
     goals: Vec<GoalSummary>,
     done: bool,
+    /// The stamp of the Manager's document that said the mission done (simulated ns).
+    done_at_ns: Option<u64>,
     restarts: u64,
     switches: u64,
     names: HashMap<u32, String>,
@@ -258,6 +260,8 @@ struct State {
     episode_min_clearance: f64,
     /// Simulated time (s) each goal was first seen in the Manager's documents and dealt with.
     goal_times: HashMap<u32, (f64, Option<f64>)>,
+    /// The true path's length (m) at those two moments, where known.
+    goal_paths: HashMap<u32, (Option<f64>, Option<f64>)>,
 }
 
 impl State {
@@ -302,13 +306,14 @@ impl State {
             last_sim: now,
             sim_time_s: 0.0,
             last_pos: None,
-            truth_log: std::collections::VecDeque::new(),
+            log: TruthLog::default(),
             path_before_m: 0.0,
             path_length_m: 0.0,
             min_clearance: f64::INFINITY,
             collisions: 0,
             goals: Vec::new(),
             done: false,
+            done_at_ns: None,
             truth_loss_said: false,
             restarts: 0,
             switches: 0,
@@ -319,11 +324,18 @@ impl State {
             idle_since: None,
             episode_min_clearance: f64::INFINITY,
             goal_times: HashMap::new(),
+            goal_paths: HashMap::new(),
         })
     }
 
+    /// A progress line at the simulated time the monitor has read up to.
     fn say(&self, what: &str) {
-        crate::say!("[{:7.1} s] {what}", self.sim_time_s);
+        Self::say_at(self.sim_time_s, what);
+    }
+
+    /// A progress line about something stamped `t` (simulated s).
+    fn say_at(t: f64, what: &str) {
+        crate::say!("[{t:7.1} s] {what}");
     }
 
     fn run(&mut self, opts: &MonitorOptions, stop: &AtomicBool) -> Result<Outcome> {
@@ -370,14 +382,22 @@ impl State {
         if !ended && failure.is_none() {
             failure = Some("the system was stopped before the mission ended".to_owned());
         }
+        // A mission the Manager said done ends at the stamp of that document, not when the
+        // monitor read it (the robot still rolls out its last command).
+        let (mut sim_time_s, mut path_length_m) =
+            (self.sim_time_s, self.path_before_m + self.path_length_m);
+        if let Some(end) = self.done_at_ns.filter(|_| self.done) {
+            sim_time_s = end as f64 * 1e-9;
+            path_length_m = self.log.path_at(end).unwrap_or(path_length_m);
+        }
         let summary = Summary {
             success: ended && failure.is_none(),
             goals_reached: self.reached(),
             goals_total: u32::try_from(self.goals.len()).unwrap_or(u32::MAX),
             goals: self.goals.clone(),
-            sim_time_s: self.sim_time_s,
+            sim_time_s,
             wall_time_s: self.started.elapsed().as_secs_f64(),
-            path_length_m: self.path_before_m + self.path_length_m,
+            path_length_m,
             min_obstacle_distance_m: self.min_clearance.is_finite().then_some(self.min_clearance),
             collisions: self.collisions,
             contract_switches: self.switches,
@@ -473,6 +493,8 @@ impl State {
                 self.path_before_m += self.path_length_m;
             }
             self.path_length_m = s.path_length_m;
+            self.log
+                .push_path(s.sim_time_ns, self.path_before_m + self.path_length_m);
             if s.min_clearance.is_finite() {
                 self.min_clearance = self.min_clearance.min(s.min_clearance);
                 self.episode_min_clearance = self.episode_min_clearance.min(s.min_clearance);
@@ -482,19 +504,32 @@ impl State {
                 self.say(&format!("COLLISION ({} so far)", s.collisions));
             }
         }
-        let mut truths = 0u32;
-        while let Some(p) = self.truth.receive()? {
-            truths += 1;
-            let (x, y) = (p.pose.x, p.pose.y);
-            self.last_pos = Some((x, y));
-            if self.truth_log.len() >= TRUTH_LOG {
-                self.truth_log.pop_front();
+        // The Manager's documents before the true poses: a document stamped `t` is sent after
+        // the true pose of `t` (in its lockstep round), so every true pose up to the
+        // documents' stamps is here when they are read. Both are then taken in stamp order:
+        // the mission's state at each true pose is that of its simulated time, not of when
+        // the monitor read it.
+        let mut plans = Vec::new();
+        while let Some(m) = self.mission.receive()? {
+            match serde_json::from_slice::<MissionPlan>(m.data()) {
+                Ok(p) => plans.push((m.header().header.stamp_ns, p)),
+                Err(e) => self.say(&format!("unreadable mission document ignored: {e}")),
             }
-            self.truth_log.push_back((p.header.stamp_ns, x, y));
-            let active = !self.done && !self.goals.is_empty();
-            self.nav
-                .on_truth(p.header.stamp_ns as f64 * 1e-9, x, y, active);
         }
+        let mut poses = Vec::new();
+        while let Some(p) = self.truth.receive()? {
+            poses.push((p.header.stamp_ns, p.pose.x, p.pose.y));
+        }
+        let truths = u32::try_from(poses.len()).unwrap_or(u32::MAX);
+        let mut poses = poses.into_iter().peekable();
+        for (stamp, p) in plans {
+            while let Some(pose) = poses.next_if(|(t, _, _)| *t <= stamp) {
+                self.on_truth(pose);
+            }
+            let truth = self.truth_at(stamp);
+            self.on_plan(&p, truth, stamp);
+        }
+        poses.for_each(|pose| self.on_truth(pose));
         let lost = self.truth.stats().dropped;
         if lost > 0 && !self.truth_loss_said {
             self.truth_loss_said = true;
@@ -506,18 +541,7 @@ impl State {
         }
         while let Some(m) = self.progress.receive()? {
             let line = self.nav.on_progress(&m);
-            self.say(&line);
-        }
-        let mut plans = Vec::new();
-        while let Some(m) = self.mission.receive()? {
-            match serde_json::from_slice::<MissionPlan>(m.data()) {
-                Ok(p) => plans.push((m.header().header.stamp_ns, p)),
-                Err(e) => self.say(&format!("unreadable mission document ignored: {e}")),
-            }
-        }
-        for (stamp, p) in plans {
-            let truth = self.truth_at(stamp);
-            self.on_plan(&p, truth, stamp);
+            Self::say_at(m.header.stamp_ns as f64 * 1e-9, &line);
         }
         while let Some(e) = self.events.receive()? {
             let name = e.module().to_owned();
@@ -588,15 +612,17 @@ impl State {
 
 impl State {
     /// The true position at simulated time `ns`: the last sample at or before it (the
-    /// latest known if none is that old).
+    /// oldest kept if none is that old, the latest known if none is kept).
     fn truth_at(&self, ns: u64) -> Option<(f64, f64)> {
-        self.truth_log
-            .iter()
-            .rev()
-            .find(|(t, _, _)| *t <= ns)
-            .or(self.truth_log.front())
-            .map(|(_, x, y)| (*x, *y))
-            .or(self.last_pos)
+        self.log.at(ns).or(self.last_pos)
+    }
+
+    /// A true pose (simulated ns, x, y).
+    fn on_truth(&mut self, (ns, x, y): (u64, f64, f64)) {
+        self.last_pos = Some((x, y));
+        self.log.push_pose(ns, x, y);
+        let active = !self.done && !self.goals.is_empty();
+        self.nav.on_truth(ns as f64 * 1e-9, x, y, active);
     }
 
     /// A mission document (published at simulated time when the true position was `truth`):
@@ -609,7 +635,8 @@ impl State {
                 Some(i) => i,
                 None => {
                     if !self.goals.is_empty() && self.sim_time_s > 0.0 {
-                        self.say(&format!("goal {} added ({:.2}, {:.2})", e.id, e.x, e.y));
+                        let line = format!("goal {} added ({:.2}, {:.2})", e.id, e.x, e.y);
+                        Self::say_at(stamp_s, &line);
                     }
                     self.goals.push(GoalSummary {
                         id: e.id,
@@ -621,6 +648,8 @@ impl State {
                         true_error_m: None,
                     });
                     self.goal_times.insert(e.id, (stamp_s, None));
+                    self.goal_paths
+                        .insert(e.id, (self.log.path_at(stamp_ns), None));
                     self.goals.len() - 1
                 }
             };
@@ -630,10 +659,14 @@ impl State {
                 continue;
             }
             g.state = e.state.clone();
-            if matches!(e.state.as_str(), "reached" | "refused")
-                && let Some(t) = self.goal_times.get_mut(&e.id)
-            {
-                t.1 = Some(stamp_s);
+            if matches!(e.state.as_str(), "reached" | "refused") {
+                if let Some(t) = self.goal_times.get_mut(&e.id) {
+                    t.1 = Some(stamp_s);
+                }
+                let path = self.log.path_at(stamp_ns);
+                if let Some(p) = self.goal_paths.get_mut(&e.id) {
+                    p.1 = path;
+                }
             }
             let g = &mut self.goals[i];
             let error = truth.map(|(x, y)| (x - g.x).hypot(y - g.y));
@@ -686,12 +719,16 @@ impl State {
                 .iter()
                 .filter(|g| matches!(g.state.as_str(), "reached" | "missed" | "refused"))
                 .count();
-            self.say(&format!(
-                "{line}; {done} of {} goals done",
-                self.goals.len()
-            ));
+            Self::say_at(
+                stamp_s,
+                &format!("{line}; {done} of {} goals done", self.goals.len()),
+            );
         }
-        self.done = p.done && p.goals_total > 0;
+        let done = p.done && p.goals_total > 0;
+        if done && !self.done {
+            self.done_at_ns = Some(stamp_ns);
+        }
+        self.done = done;
         if p.current_goal_id != 0 {
             self.idle_since = None;
         } else if self.idle_since.is_none() {

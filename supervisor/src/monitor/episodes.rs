@@ -247,7 +247,7 @@ impl State {
                 Phase::Ready => {
                     // The simulator runs (a true pose came) and the Manager holds no goal.
                     let quiet = self.idle_since.is_some_and(|t| now >= t + QUIET_S);
-                    if self.truth_log.is_empty() || !quiet {
+                    if self.log.is_empty() || !quiet {
                         return Ok(None);
                     }
                     r.wall = Instant::now();
@@ -274,8 +274,8 @@ impl State {
                 } => {
                     if placed.is_none() {
                         placed = self
-                            .truth_log
-                            .iter()
+                            .log
+                            .poses()
                             .rev()
                             .take_while(|(t, _, _)| *t as f64 * 1e-9 >= at)
                             .find(|(_, x, y)| near((*x, *y), start, PLACED_M))
@@ -285,8 +285,9 @@ impl State {
                             // must not reset the localization elsewhere); it counts from the
                             // latest true pose read on (the monitor reads as it goes).
                             let latest = self
-                                .truth_log
-                                .back()
+                                .log
+                                .poses()
+                                .next_back()
                                 .map_or(now, |(t, _, _)| *t as f64 * 1e-9);
                             settle = latest + SETTLE_S;
                             if !(r.next == 0 && r.first_placed) {
@@ -474,7 +475,11 @@ impl State {
                     (to.unwrap_or(self.sim_time_s) - from).max(0.0)
                 },
                 wall_time_s: r.wall.elapsed().as_secs_f64(),
-                path_length_m: (self.path_before_m + self.path_length_m - b.path_m).max(0.0),
+                // Between the same two stamps where known (the goal dealt with).
+                path_length_m: match self.goal_paths.get(&g_id) {
+                    Some(&(Some(from), Some(to))) => (to - from).max(0.0),
+                    _ => (self.path_before_m + self.path_length_m - b.path_m).max(0.0),
+                },
                 min_obstacle_distance_m: self
                     .episode_min_clearance
                     .is_finite()
