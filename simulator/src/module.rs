@@ -98,6 +98,7 @@ pub struct SimulatorModule {
     cmd: Subscriber<Twist>,
     teleport: Option<Subscriber<SimTeleport>>,
     /// Teleports refused (not finite, or into an obstacle).
+    teleports: u64,
     teleports_refused: u64,
     /// Paused start: the modules not heard from yet, their reports, and the wall deadline.
     waiting: Option<(BTreeSet<String>, Subscriber<ModuleReport>, Instant)>,
@@ -231,6 +232,7 @@ impl Module for SimulatorModule {
             last_status_sim_ns: 0,
             cmd,
             teleport,
+            teleports: 0,
             teleports_refused: 0,
             waiting,
             followers,
@@ -496,8 +498,9 @@ impl SimulatorModule {
         let Some(sub) = &self.teleport else {
             return Ok(());
         };
-        let mut moved = false;
+        let (mut moved, mut answered) = (false, false);
         while let Some(t) = sub.receive()? {
+            answered = true;
             // Checked before the robot moves: a refused teleport leaves it as it was, moving.
             // (A pose that is not finite is the simulator's to refuse.)
             let finite = t.pose.x.is_finite() && t.pose.y.is_finite();
@@ -520,6 +523,7 @@ impl SimulatorModule {
                 }
                 None => {
                     moved = true;
+                    self.teleports += 1;
                     self.sim.reset_min_clearance();
                     tracing::info!(
                         module = ctx.name(),
@@ -534,6 +538,9 @@ impl SimulatorModule {
         if moved {
             // The jump is not a path.
             self.last_true = None;
+        }
+        if answered {
+            // The sender learns at once whether the robot moved.
             self.publish_status(ctx)?;
         }
         Ok(())

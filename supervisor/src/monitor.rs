@@ -238,6 +238,8 @@ struct State {
     path_length_m: f64,
     min_clearance: f64,
     collisions: u64,
+    /// Teleports the simulator refused, by its latest status.
+    teleports_refused: u64,
     /// Every goal seen in the Manager's documents, in mission order.
     goals: Vec<GoalSummary>,
     done: bool,
@@ -311,6 +313,7 @@ impl State {
             path_length_m: 0.0,
             min_clearance: f64::INFINITY,
             collisions: 0,
+            teleports_refused: 0,
             goals: Vec::new(),
             done: false,
             done_at_ns: None,
@@ -493,6 +496,7 @@ impl State {
                 self.path_before_m += self.path_length_m;
             }
             self.path_length_m = s.path_length_m;
+            self.teleports_refused = s.teleports_refused;
             self.log
                 .push_path(s.sim_time_ns, self.path_before_m + self.path_length_m);
             if s.min_clearance.is_finite() {

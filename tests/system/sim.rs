@@ -352,6 +352,7 @@ fn a_teleport_moves_the_robot_without_counting_the_jump_and_one_into_a_pillar_is
         "the jump is not a path: {} m",
         st.path_length_m
     );
+    assert_eq!((st.teleports, st.teleports_refused), (1, 0), "{st:?}");
 
     // Into the pillar at (4, 5), and a NaN: refused, the robot stays; then (11, 6): it goes
     // there, and no step between shows it anywhere else (ground truth comes every step).
@@ -368,6 +369,12 @@ fn a_teleport_moves_the_robot_without_counting_the_jump_and_one_into_a_pillar_is
             "only at (10, 5) or (11, 6): {m:?}"
         );
     }
+    // The status counts both answers (published at once after each).
+    let st = status.until(deadline(), "status counting the three teleports", |st| {
+        st.teleports == 2
+    });
+    let st = st.last().expect("status");
+    assert_eq!(st.teleports_refused, 2, "{st:?}");
     assert_clean_exit(&s.stop_sims());
 }
 

@@ -9,7 +9,7 @@ use serde::Serialize;
 /// joiners get the latest). Header stamp: simulated time.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize)]
-#[type_name("hng-simulator/SimStatus/v3")]
+#[type_name("hng-simulator/SimStatus/v4")]
 pub struct SimStatus {
     /// Header; `frame_id` is `map`.
     pub header: Header,
@@ -44,6 +44,11 @@ pub struct SimStatus {
     /// Participants called to those rounds, summed over the rounds (selective rounds call
     /// only those a round can give work to).
     pub lockstep_calls: u64,
+    /// Teleports (`sim/teleport`) carried out since this simulator process started.
+    pub teleports: u64,
+    /// Teleports refused (the pose not finite, or overlapping an obstacle); a status is
+    /// published at once after a teleport is carried out or refused.
+    pub teleports_refused: u64,
 }
 
 hng_runtime::impl_message!(SimStatus, ChannelKind::State);

@@ -255,6 +255,8 @@ impl SimulatorModule {
             lockstep_rounds: self.lockstep.as_ref().map_or(0, |l| l.rounds),
             lockstep_extra_rounds: self.lockstep.as_ref().map_or(0, |l| l.extra_rounds),
             lockstep_calls: self.lockstep.as_ref().map_or(0, |l| l.members),
+            teleports: self.teleports,
+            teleports_refused: self.teleports_refused,
         })?;
         Ok(())
     }

@@ -101,11 +101,13 @@ enum Phase {
     Ready,
     /// The robot sent to the start at simulated time `at` (s); the true pose seen there
     /// first at `placed` (its stamp), when the pose estimate was sent; the estimates count
-    /// when stamped from `settle` on.
+    /// when stamped from `settle` on; `refused`: the simulator's count of refused teleports
+    /// when this one was sent.
     Placing {
         at: f64,
         placed: Option<f64>,
         settle: f64,
+        refused: u64,
     },
     /// The goal sent at `at`; it will be the monitor's goal number `index`.
     Sent { at: f64, index: usize },
@@ -265,12 +267,14 @@ impl State {
                         at: now,
                         placed: None,
                         settle: f64::INFINITY,
+                        refused: self.teleports_refused,
                     };
                 }
                 Phase::Placing {
                     at,
                     mut placed,
                     mut settle,
+                    refused,
                 } => {
                     if placed.is_none() {
                         placed = self
@@ -302,7 +306,12 @@ impl State {
                                 )?;
                             }
                         }
-                        r.phase = Phase::Placing { at, placed, settle };
+                        r.phase = Phase::Placing {
+                            at,
+                            placed,
+                            settle,
+                            refused,
+                        };
                     }
                     let off: Vec<String> = r
                         .poses
@@ -322,13 +331,21 @@ impl State {
                         self.give_goal(r, &ep)?;
                         continue;
                     }
-                    if now - at <= ANSWER_S {
+                    // The simulator publishes its status at once when it refuses a teleport.
+                    let turned_down = !placed && self.teleports_refused > refused;
+                    if !turned_down && now - at <= ANSWER_S {
                         return Ok(None);
                     }
-                    let why = if !placed {
+                    let why = if turned_down {
                         format!(
                             "the robot could not be put at the start ({:.2}, {:.2}): the simulator \
-                             refused the teleport (the start overlaps an obstacle or is not free)",
+                             refused the teleport (the start overlaps an obstacle or is not finite)",
+                            start.0, start.1
+                        )
+                    } else if !placed {
+                        format!(
+                            "the robot was not at the start ({:.2}, {:.2}) within {ANSWER_S} s \
+                             simulated (no answer from the simulator to the teleport)",
                             start.0, start.1
                         )
                     } else {
