@@ -144,6 +144,41 @@ impl InitialPoseInput {
     }
 }
 
+/// Notices the operator's new pose estimates without applying them: a client whose provider
+/// will jump to the estimate (the Servo does not blame its Localization provider for that
+/// jump). A polled input: read when the module runs anyway.
+#[derive(Debug)]
+pub struct EstimateNotice {
+    sub: Subscriber<PoseWithCovariance>,
+    seen: Option<EstimateId>,
+}
+
+impl EstimateNotice {
+    /// Polls `channel` (none when empty).
+    pub fn new(ctx: &mut Context, channel: &str) -> ModuleResult<Option<EstimateNotice>> {
+        if channel.is_empty() {
+            return Ok(None);
+        }
+        Ok(Some(EstimateNotice {
+            sub: ctx.subscribe_polled(channel)?,
+            seen: None,
+        }))
+    }
+
+    /// Whether an estimate came that was not seen before (the latest one a module started
+    /// with counts too: a restarted client holds its judgement once).
+    pub fn new_estimate(&mut self) -> ModuleResult<bool> {
+        let Some(s) = self.sub.latest()? else {
+            return Ok(false);
+        };
+        let id = EstimateId {
+            source: s.header.source,
+            seq: s.header.seq,
+        };
+        Ok(self.seen.replace(id) != Some(id))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -180,6 +180,10 @@ pub struct ServoModuleConfig {
     /// default `robot/odom`, empty: no rating).
     #[default("robot/odom".into())]
     pub odom: String,
+    /// The operator's pose estimates (default `operator/initial_pose`, empty: none): the
+    /// Localization provider jumps to one, so the rating holds its judgement for a window.
+    #[default(crate::initial_pose::INITIAL_POSE_CHANNEL.into())]
+    pub initial_pose: String,
 }
 
 #[derive(Debug, Clone, Copy, Default, Serialize, Deserialize, PartialEq)]
@@ -215,6 +219,8 @@ pub struct ServoModule {
     /// (client feedback).
     odom: Option<Subscriber<hng_runtime::msg::Odometry>>,
     rater: crate::feedback::OdometryConsistency,
+    /// The operator's estimates, polled at each pose.
+    estimates: Option<crate::initial_pose::EstimateNotice>,
 }
 
 impl ServoModule {
@@ -296,6 +302,7 @@ impl Module for ServoModule {
                 Some(ctx.subscribe_polled(&cfg.odom)?)
             },
             rater: crate::feedback::OdometryConsistency::default(),
+            estimates: crate::initial_pose::EstimateNotice::new(ctx, &cfg.initial_pose)?,
         })
     }
 
@@ -313,6 +320,11 @@ impl Module for ServoModule {
         }
         if let Some(w) = self.waypoint.latest()? {
             self.last_wp = Some((*w, now));
+        }
+        if let Some(e) = &mut self.estimates
+            && e.new_estimate()?
+        {
+            self.rater.hold(now.as_secs_f64());
         }
         while let Some(p) = self.localization.receive()? {
             self.last_pose = Some((p.pose, now));

@@ -37,6 +37,9 @@ pub struct OdometryConsistency {
     pub floor_m: f64,
     base: Option<(Pose2D, Pose2D, f64)>,
     odom: Option<Pose2D>,
+    /// No comparison before this time, s (see [`OdometryConsistency::hold`]).
+    #[default(f64::NEG_INFINITY)]
+    held_until: f64,
     /// The last evaluation and the error behind it, m.
     pub last: Option<(f64, f64)>,
 }
@@ -48,6 +51,13 @@ impl OdometryConsistency {
         self.last = None;
     }
 
+    /// No judgement until `t + window_s`: the provider is told to jump (an operator's pose
+    /// estimate), and the first comparison starts from a pose after the jump.
+    pub fn hold(&mut self, t: f64) {
+        self.base = None;
+        self.held_until = t + self.window_s;
+    }
+
     /// The latest odometry pose.
     pub fn on_odom(&mut self, odom: Pose2D) {
         self.odom = Some(odom);
@@ -57,6 +67,10 @@ impl OdometryConsistency {
     /// its covariance); returns an evaluation in [-1, 0] when a window closes.
     pub fn on_pose(&mut self, pose: Pose2D, sigma_m: f64, t: f64) -> Option<f64> {
         let odom = self.odom?;
+        if t < self.held_until {
+            self.base = None;
+            return None;
+        }
         let Some((p0, o0, t0)) = self.base else {
             self.base = Some((pose, odom, t));
             return None;
@@ -132,6 +146,34 @@ mod tests {
         assert!(honest_noisy.iter().all(|&e| e == 0.0), "{honest_noisy:?}");
         assert!(
             (position_sigma(&[0.09, 0.0, 0.0, 0.0, 0.09, 0.0, 0.0, 0.0, 0.0]) - 0.3).abs() < 1e-12
+        );
+    }
+
+    /// A source that jumps 15 m at 2.05 s (the operator's estimate after the robot was
+    /// carried) while the odometry shows it standing: blamed, unless told of the estimate.
+    fn jump(told: bool) -> Vec<f64> {
+        let mut c = OdometryConsistency::default();
+        c.on_odom(Pose2D::new(0.0, 0.0, 0.0));
+        let mut out = Vec::new();
+        for k in 0..60 {
+            let t = k as f64 * 0.1;
+            if told && k == 20 {
+                c.hold(t);
+            }
+            let x = if k > 20 { 16.0 } else { 1.0 };
+            out.extend(c.on_pose(Pose2D::new(x, 2.0, 0.0), 0.05, t));
+        }
+        out
+    }
+
+    #[test]
+    fn a_jump_to_the_operators_estimate_is_not_blamed_and_an_untold_one_is() {
+        let untold = jump(false);
+        assert!(untold.iter().any(|&e| e <= -1.0), "{untold:?}");
+        let told = jump(true);
+        assert!(
+            told.len() >= 2 && told.iter().all(|&e| e == 0.0),
+            "judged again after the hold, and consistent: {told:?}"
         );
     }
 }
