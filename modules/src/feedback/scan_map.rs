@@ -15,8 +15,8 @@
 //! positive E sent at every refresh would pile up and entrench the provider in use).
 //!
 //! Limitation: a pose wrong by more than `search_m` blames the map too. The Servo's
-//! odometry check normally takes such a Localization provider away first (within about
-//! 1 s of motion, tests/system/attention.rs).
+//! odometry check normally takes such a Localization provider away first (usually within
+//! 1-2 s of motion, tests/system/attention.rs).
 
 use hng_runtime::channel::InputId;
 use hng_runtime::map::{OCCUPIED, OccupancyGrid, UNKNOWN};
