@@ -92,14 +92,9 @@ fn ticks_per_s() -> f64 {
 
 /// (ppid, utime + stime in ticks) of a process.
 fn proc_stat(pid: u32) -> Option<(u32, u64)> {
-    let s = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
-    let rest = &s[s.rfind(')')? + 2..];
-    let f: Vec<&str> = rest.split_whitespace().collect();
-    // After the name: state(0) ppid(1) ... utime(11) stime(12).
-    let ppid = f.get(1)?.parse().ok()?;
-    let ut: u64 = f.get(11)?.parse().ok()?;
-    let st: u64 = f.get(12)?.parse().ok()?;
-    Some((ppid, ut + st))
+    let text = std::fs::read(format!("/proc/{pid}/stat")).ok()?;
+    let f = hng_rm::sampler::parse_stat(&text)?;
+    Some((f.ppid, f.utime + f.stime))
 }
 
 /// The module name of an `hng module NAME` process.
