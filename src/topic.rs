@@ -8,11 +8,11 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context as _, Result, bail};
 use clap::Subcommand;
+use hng_recorder::codec::{FixedCodec, SliceCodec};
+use hng_recorder::registry::{KnownTypes, type_name, visit_known_types};
 use hng_runtime::channel::{Kind, Node, Receiver, iceoryx_config};
 use hng_runtime::msg::{self, Message, SliceMessage};
-use hng_runtime::system;
 use hng_runtime::wait::{WaitMode, Waiter, Wake};
-use iceoryx2::prelude::*;
 use serde::Serialize;
 
 #[derive(Debug, Subcommand)]
@@ -174,70 +174,49 @@ fn dispatch(prefix: &str, name: &str, mode: Mode) -> Result<()> {
         bail!("no channel {name:?} under prefix {prefix:?} (see `hng topic list`)");
     };
     let node = crate::tool::node(prefix, "topic")?;
-    macro_rules! fixed {
-        ($($t:ty),*) => {$(
-            if info.type_name == type_name::<$t>() {
-                return watch_fixed::<$t>(&node, name, mode);
-            }
-        )*};
-    }
-    macro_rules! slice {
-        ($($t:ty),*) => {$(
-            if info.type_name == type_name::<$t>() {
-                return watch_slice::<$t>(&node, name, mode);
-            }
-        )*};
-    }
-    fixed!(
-        msg::Twist,
-        msg::Odometry,
-        msg::PoseWithCovariance,
-        msg::LaserScan,
-        msg::BeaconObservation,
-        msg::Goal,
-        msg::Waypoint,
-        msg::Clock,
-        msg::ModuleReport,
-        msg::BeaconTrack,
-        msg::Designation,
-        msg::Order,
-        msg::OrderStatus,
-        msg::Behaviours,
-        msg::Walls,
-        msg::SpeedEnvelope,
-        system::SupervisorCommand,
-        system::ModuleEvent,
-        system::ResourceCosts,
-        system::EffectiveCosts,
-        system::ContractTable,
-        hng_simulator::module::SimStatus,
-        hng_simulator::module::SimCollision,
-        hng_simulator::module::SimTeleport,
-        hng_modules::msgs::GoalStatus,
-        hng_modules::msgs::Mission,
-        hng_modules::msgs::MissionStatus,
-        hng_modules::reacher_module::ReachStatus
-    );
     // A path's poses are printed too (an image's or a grid's bytes are not: only their
     // header and length).
     if info.type_name == type_name::<msg::PathInfo>() {
         return watch_path(&node, name, mode);
     }
-    slice!(
-        msg::GridInfo,
-        msg::ImageInfo,
-        msg::BytesInfo,
-        system::JsonInfo
-    );
+    // The types the recorder knows are the ones printed.
+    let mut watch = Watch {
+        node: &node,
+        name,
+        type_name: &info.type_name,
+        mode,
+        done: None,
+    };
+    visit_known_types(&mut watch);
+    if let Some(done) = watch.done {
+        return done;
+    }
     bail!(
         "channel {name:?} carries {}, which this hng does not know how to print",
         info.type_name
     )
 }
 
-fn type_name<T: ZeroCopySend>() -> String {
-    // SAFETY: only unsafe because implementors may lie; hng's are derived.
-    unsafe { <T as ZeroCopySend>::type_name() }.to_string()
+/// Watches channel `name` if it carries the type visited (`done` holds how that ended).
+struct Watch<'a> {
+    node: &'a Node,
+    name: &'a str,
+    type_name: &'a str,
+    mode: Mode,
+    done: Option<Result<()>>,
+}
+
+impl KnownTypes for Watch<'_> {
+    fn fixed<T: FixedCodec>(&mut self) {
+        if self.done.is_none() && self.type_name == type_name::<T>() {
+            self.done = Some(watch_fixed::<T>(self.node, self.name, self.mode));
+        }
+    }
+    fn slice<H: SliceCodec>(&mut self) {
+        if self.done.is_none() && self.type_name == type_name::<H>() {
+            self.done = Some(watch_slice::<H>(self.node, self.name, self.mode));
+        }
+    }
 }
 
 struct Rate {

@@ -278,48 +278,71 @@ impl SliceCodec for ControlInfo {
     }
 }
 
+/// What is done with each known type ([`visit_known_types`]): a generic function per kind.
+pub trait KnownTypes {
+    /// A fixed-size message type.
+    fn fixed<T: FixedCodec>(&mut self);
+    /// A slice message type (header and payload).
+    fn slice<H: SliceCodec>(&mut self);
+}
+
+/// Calls `v` with every type the recorder knows (the one list: `hng topic` prints the same
+/// types).
+pub fn visit_known_types(v: &mut impl KnownTypes) {
+    v.fixed::<msg::LaserScan>();
+    v.fixed::<msg::Odometry>();
+    v.fixed::<msg::PoseWithCovariance>();
+    v.fixed::<msg::Twist>();
+    v.fixed::<msg::BeaconObservation>();
+    v.fixed::<msg::Goal>();
+    v.fixed::<msg::Waypoint>();
+    v.fixed::<msg::Clock>();
+    v.fixed::<hng_runtime::clock::lockstep::ClockAck>();
+    v.fixed::<msg::ModuleReport>();
+    v.fixed::<system::SupervisorCommand>();
+    v.fixed::<system::ModuleEvent>();
+    v.fixed::<system::ResourceCosts>();
+    v.fixed::<system::EffectiveCosts>();
+    v.fixed::<system::ContractTable>();
+    v.fixed::<hng_simulator::module::SimStatus>();
+    v.fixed::<hng_simulator::module::SimCollision>();
+    v.fixed::<hng_modules::msgs::GoalStatus>();
+    v.fixed::<hng_modules::msgs::Mission>();
+    v.fixed::<hng_modules::msgs::MissionStatus>();
+    v.fixed::<msg::BeaconTrack>();
+    v.fixed::<msg::Designation>();
+    v.fixed::<hng_modules::reacher_module::ReachStatus>();
+    v.fixed::<hng_simulator::module::SimLighting>();
+    v.fixed::<hng_simulator::module::SimTeleport>();
+    v.fixed::<msg::FollowWallRequest>();
+    v.fixed::<hng_modules::planning::progress::NavProgress>();
+    v.fixed::<msg::Walls>();
+    v.fixed::<msg::Behaviours>();
+    v.fixed::<msg::Order>();
+    v.fixed::<msg::OrderStatus>();
+    v.fixed::<msg::SpeedEnvelope>();
+    v.slice::<msg::PathInfo>();
+    v.slice::<msg::GridInfo>();
+    v.slice::<msg::ImageInfo>();
+    v.slice::<msg::BytesInfo>();
+    v.slice::<system::JsonInfo>();
+    v.slice::<ControlInfo>();
+}
+
 /// Every type the recorder knows.
 pub fn registry() -> Vec<TypeEntry> {
-    vec![
-        fixed::<msg::LaserScan>(),
-        fixed::<msg::Odometry>(),
-        fixed::<msg::PoseWithCovariance>(),
-        fixed::<msg::Twist>(),
-        fixed::<msg::BeaconObservation>(),
-        fixed::<msg::Goal>(),
-        fixed::<msg::Waypoint>(),
-        fixed::<msg::Clock>(),
-        fixed::<hng_runtime::clock::lockstep::ClockAck>(),
-        fixed::<msg::ModuleReport>(),
-        fixed::<system::SupervisorCommand>(),
-        fixed::<system::ModuleEvent>(),
-        fixed::<system::ResourceCosts>(),
-        fixed::<system::EffectiveCosts>(),
-        fixed::<system::ContractTable>(),
-        fixed::<hng_simulator::module::SimStatus>(),
-        fixed::<hng_simulator::module::SimCollision>(),
-        fixed::<hng_modules::msgs::GoalStatus>(),
-        fixed::<hng_modules::msgs::Mission>(),
-        fixed::<hng_modules::msgs::MissionStatus>(),
-        fixed::<msg::BeaconTrack>(),
-        fixed::<msg::Designation>(),
-        fixed::<hng_modules::reacher_module::ReachStatus>(),
-        fixed::<hng_simulator::module::SimLighting>(),
-        fixed::<hng_simulator::module::SimTeleport>(),
-        fixed::<msg::FollowWallRequest>(),
-        fixed::<hng_modules::planning::progress::NavProgress>(),
-        fixed::<msg::Walls>(),
-        fixed::<msg::Behaviours>(),
-        fixed::<msg::Order>(),
-        fixed::<msg::OrderStatus>(),
-        fixed::<msg::SpeedEnvelope>(),
-        slice::<msg::PathInfo>(),
-        slice::<msg::GridInfo>(),
-        slice::<msg::ImageInfo>(),
-        slice::<msg::BytesInfo>(),
-        slice::<system::JsonInfo>(),
-        slice::<ControlInfo>(),
-    ]
+    struct Entries(Vec<TypeEntry>);
+    impl KnownTypes for Entries {
+        fn fixed<T: FixedCodec>(&mut self) {
+            self.0.push(fixed::<T>());
+        }
+        fn slice<H: SliceCodec>(&mut self) {
+            self.0.push(slice::<H>());
+        }
+    }
+    let mut entries = Entries(Vec::new());
+    visit_known_types(&mut entries);
+    entries.0
 }
 
 /// The entry of a type name.

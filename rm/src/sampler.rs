@@ -216,22 +216,31 @@ pub struct Sampler {
     pass: u64,
 }
 
-/// Fields of `/proc/PID/stat` the sampler uses.
+/// Fields of `/proc/PID/stat` the sampler (and `hng eval nav`'s CPU figures) use.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(crate) struct StatFields {
+pub struct StatFields {
+    /// Process state (`R`, `S`, `D`, `Z`, `T`, ...).
     pub state: u8,
+    /// Parent's pid.
+    pub ppid: u32,
+    /// Minor page faults.
     pub minflt: u64,
+    /// Major page faults.
     pub majflt: u64,
+    /// User CPU time, clock ticks.
     pub utime: u64,
+    /// System CPU time, clock ticks.
     pub stime: u64,
+    /// Start time, clock ticks after boot.
     pub starttime: u64,
+    /// Resident set size, pages.
     pub rss_pages: u64,
 }
 
 /// Parses the fields the sampler needs out of the text of `/proc/PID/stat`.
 /// The command name (field 2) may contain spaces and parentheses, so the fields are
 /// counted from the last `)`.
-pub(crate) fn parse_stat(text: &[u8]) -> Option<StatFields> {
+pub fn parse_stat(text: &[u8]) -> Option<StatFields> {
     let close = text.iter().rposition(|&b| b == b')')?;
     let rest = text.get(close + 1..)?;
     let mut it = rest
@@ -240,8 +249,9 @@ pub(crate) fn parse_stat(text: &[u8]) -> Option<StatFields> {
     // After ')': index 0 is field 3 (state); field k is index k - 3.
     let state = *it.next()?.first()?;
     let mut nth = |skip: usize| -> Option<u64> { parse_u64(it.nth(skip)?) };
-    // Field 10 (minflt) is index 7; we consumed index 0.
-    let minflt = nth(6)?; // index 7
+    let ppid = u32::try_from(nth(0)?).ok()?; // index 1 (field 4)
+    // Field 10 (minflt) is index 7; we consumed indexes 0 and 1.
+    let minflt = nth(5)?; // index 7
     let majflt = nth(1)?; // index 9
     let utime = nth(1)?; // index 11 (field 14)
     let stime = nth(0)?; // index 12 (field 15)
@@ -249,6 +259,7 @@ pub(crate) fn parse_stat(text: &[u8]) -> Option<StatFields> {
     let rss_pages = nth(1)?; // index 21 (field 24)
     Some(StatFields {
         state,
+        ppid,
         minflt,
         majflt,
         utime,
@@ -765,6 +776,7 @@ mod tests {
         let text = b"1234 (a b) c)) S 1 1234 1234 0 -1 4194560 111 0 7 0 250 30 0 0 20 0 1 0 98765 1000000 321 18446744073709551615 1 1 0 0 0 0 0 0 0 0 0 0 17 1 0 0 0 0 0\n";
         let f = parse_stat(text).expect("valid stat line");
         assert_eq!(f.state, b'S');
+        assert_eq!(f.ppid, 1);
         assert_eq!(f.minflt, 111);
         assert_eq!(f.majflt, 7);
         assert_eq!(f.utime, 250);

@@ -241,6 +241,20 @@ pub fn wrap_angle(a: f64) -> f64 {
     if w <= -PI { w + TAU } else { w }
 }
 
+/// The point of segment `a`-`b` closest to `p`: its parameter `t` in [0, 1] (0 at `a`, and
+/// for a segment of no length) and its distance from `p`, m.
+#[must_use]
+pub fn closest_on_segment(p: [f64; 2], a: [f64; 2], b: [f64; 2]) -> (f64, f64) {
+    let (dx, dy) = (b[0] - a[0], b[1] - a[1]);
+    let l2 = dx * dx + dy * dy;
+    let t = if l2 > 0.0 {
+        (((p[0] - a[0]) * dx + (p[1] - a[1]) * dy) / l2).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    (t, (a[0] + t * dx - p[0]).hypot(a[1] + t * dy - p[1]))
+}
+
 /// A planar velocity in the body frame: m/s and rad/s.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize, Deserialize)]
@@ -699,6 +713,23 @@ mod tests {
                 "wrap_angle({a}) = {got} outside (-π, π]"
             );
         }
+    }
+
+    #[test]
+    fn the_closest_point_of_a_segment_is_inside_it_or_an_end() {
+        let (a, b) = ([0.0, 0.0], [2.0, 0.0]);
+        for (p, want) in [
+            ([1.0, 1.0], (0.5, 1.0)),
+            ([-3.0, 4.0], (0.0, 5.0)),
+            ([5.0, -4.0], (1.0, 5.0)),
+        ] {
+            let (t, d) = closest_on_segment(p, a, b);
+            assert!(
+                (t - want.0).abs() < 1e-12 && (d - want.1).abs() < 1e-12,
+                "{p:?}: ({t}, {d}), want {want:?}"
+            );
+        }
+        assert_eq!(closest_on_segment([3.0, 4.0], a, a), (0.0, 5.0));
     }
 
     #[test]

@@ -2,6 +2,7 @@
 
 use std::time::Instant;
 
+use hng_runtime::msg::closest_on_segment;
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -33,22 +34,11 @@ pub fn wall_world(n_walls: usize, seed: u64) -> World {
             (a[0] + len * dir.cos()).clamp(0.2, 19.8),
             (a[1] + len * dir.sin()).clamp(0.2, 19.8),
         ];
-        if point_segment_distance([10.0, 10.0], a, b) > 1.5 {
+        if closest_on_segment([10.0, 10.0], a, b).1 > 1.5 {
             w.walls.push(Wall::new(a, b));
         }
     }
     w
-}
-
-fn point_segment_distance(p: [f64; 2], a: [f64; 2], b: [f64; 2]) -> f64 {
-    let (abx, aby) = (b[0] - a[0], b[1] - a[1]);
-    let len2 = abx * abx + aby * aby;
-    let t = if len2 > 0.0 {
-        (((p[0] - a[0]) * abx + (p[1] - a[1]) * aby) / len2).clamp(0.0, 1.0)
-    } else {
-        0.0
-    };
-    (p[0] - a[0] - t * abx).hypot(p[1] - a[1] - t * aby)
 }
 
 /// Times `iterations` lidar scans (360 beams, 10 m range) in a 100-wall world; one sample in

@@ -18,8 +18,8 @@ use serde_json::{Value, json};
 
 use super::problems::Problem;
 use super::runner::{
-    CPU_SAMPLE_PERIOD, ProblemResult, RunOptions, SUMMARY_POLL, Stopping, failed, from_summary,
-    last_lines, proc_stat, sample_children, stop_child, ticks_per_s,
+    CPU_SAMPLE_PERIOD, ProblemResult, RunCpu, RunOptions, SUMMARY_POLL, Stopping, duration_s,
+    failed, from_summary, last_lines, spawn_run, stop_child, wall_limit_s,
 };
 
 /// How a world's run ended.
@@ -31,23 +31,6 @@ pub struct WorldEnd {
     pub stopping: Option<Stopping>,
     /// The eval was asked to stop by this signal (the interrupted problem has no result).
     pub signal: Option<i32>,
-}
-
-/// Simulated time allowed for a problem, s.
-pub fn duration_s(p: &Problem, o: &RunOptions) -> f64 {
-    o.duration_base_s + o.duration_per_m_s * p.optimum_m.unwrap_or(30.0)
-}
-
-/// CPU seconds by module so far: the latest reading of every process seen (a restarted
-/// module's processes summed) and the run itself.
-fn cpu_now(seen: &BTreeMap<u32, (String, u64)>, own_ticks: u64) -> BTreeMap<String, f64> {
-    let tps = ticks_per_s();
-    let mut cpu: BTreeMap<String, f64> = BTreeMap::new();
-    for (name, t) in seen.values() {
-        *cpu.entry(name.clone()).or_default() += *t as f64 / tps;
-    }
-    cpu.insert("run".into(), own_ticks as f64 / tps);
-    cpu
 }
 
 /// Runs the problems `ps` (all of one world) on one system, calling `emit` with each result
@@ -87,13 +70,8 @@ pub fn run_world(
         .arg(&episodes)
         .arg("--episode-out")
         .arg(&out);
-    let started = Instant::now();
-    let mut child = cmd
-        .spawn()
-        .with_context(|| format!("starting {}", o.exe.display()))?;
-    let pid = child.id();
-    let mut seen = BTreeMap::new();
-    let mut own_ticks = 0;
+    let (mut child, started) = spawn_run(&mut cmd, o)?;
+    let mut cpu = RunCpu::new(child.id());
     let mut next_sample = started;
     let mut cpu_before: BTreeMap<String, f64> = BTreeMap::new();
     let mut mark = started;
@@ -102,22 +80,15 @@ pub fn run_world(
     let mut buf = String::new();
     let mut all_ok = true;
     let mut signal = None;
-    let sample = |seen: &mut BTreeMap<u32, (String, u64)>, own: &mut u64| {
-        sample_children(pid, seen);
-        if let Some((_, t)) = proc_stat(pid) {
-            *own = (*own).max(t);
-        }
-    };
     // Problem `k`'s result, with its CPU and wall time since the previous one.
     let mut finish = |k: usize,
                       r: Option<&Value>,
                       why: Option<String>,
-                      seen: &BTreeMap<u32, (String, u64)>,
-                      own: u64,
+                      cpu: &RunCpu,
                       mark: &mut Instant|
      -> Result<bool> {
-        let now = cpu_now(seen, own);
-        let cpu: BTreeMap<String, f64> = now
+        let now = cpu.seconds();
+        let spent: BTreeMap<String, f64> = now
             .iter()
             .map(|(n, v)| (n.clone(), v - cpu_before.get(n).copied().unwrap_or(0.0)))
             .collect();
@@ -126,8 +97,8 @@ pub fn run_world(
         *mark = Instant::now();
         let p = &ps[k];
         let result = match (r, why) {
-            (Some(v), _) => from_summary(p, v, "", wall_s, cpu),
-            (None, why) => failed(p, why.unwrap_or_else(|| "no result".into()), wall_s, cpu),
+            (Some(v), _) => from_summary(p, v, "", wall_s, spent),
+            (None, why) => failed(p, why.unwrap_or_else(|| "no result".into()), wall_s, spent),
         };
         let ok = result.success;
         emit(result)?;
@@ -152,26 +123,26 @@ pub fn run_world(
             if v.get("episode").and_then(Value::as_u64) != Some(ps[k].id as u64) {
                 tracing::warn!(line = %line, expected = ps[k].id, "an episode line out of order");
             }
-            sample(&mut seen, &mut own_ticks);
-            all_ok &= finish(k, Some(&v), None, &seen, own_ticks, &mut mark)?;
+            cpu.sample();
+            all_ok &= finish(k, Some(&v), None, &cpu, &mut mark)?;
             k += 1;
         }
         if k >= ps.len() {
             break None;
         }
         if let Some(st) = exited {
-            sample(&mut seen, &mut own_ticks);
+            cpu.sample();
             let why = format!(
                 "hng run ended ({st}) during this problem; stderr: {}",
                 last_lines(&dir.join("stderr.txt"), 3)
             );
-            finish(k, None, Some(why), &seen, own_ticks, &mut mark)?;
+            finish(k, None, Some(why), &cpu, &mut mark)?;
             all_ok = false;
             k += 1;
             break Some(st);
         }
         if Instant::now() >= next_sample {
-            sample(&mut seen, &mut own_ticks);
+            cpu.sample();
             next_sample = Instant::now() + CPU_SAMPLE_PERIOD;
         }
         if let Some(sig) = super::stop::requested() {
@@ -179,12 +150,12 @@ pub fn run_world(
             break stop_child(&mut child, sig);
         }
         // This problem's wall limit: its duration at 0.25x real time, and a minute.
-        let limit = 60.0 + 4.0 * duration_s(&ps[k], o);
+        let limit = wall_limit_s(duration_s(&ps[k], o));
         if mark.elapsed().as_secs_f64() > limit {
             let _ = child.kill();
             let st = child.wait().ok();
             let why = format!("no result after {limit:.0} s of wall time: the run was killed");
-            finish(k, None, Some(why), &seen, own_ticks, &mut mark)?;
+            finish(k, None, Some(why), &cpu, &mut mark)?;
             all_ok = false;
             k += 1;
             break st;

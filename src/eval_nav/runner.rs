@@ -86,20 +86,15 @@ pub(super) const CPU_SAMPLE_PERIOD: Duration = Duration::from_millis(200);
 
 /// Clock ticks per second of /proc's CPU times: USER_HZ, 100 on every Linux architecture
 /// this runs on (the kernel's ABI constant, whatever its internal HZ).
-pub(super) fn ticks_per_s() -> f64 {
+fn ticks_per_s() -> f64 {
     100.0
 }
 
 /// (ppid, utime + stime in ticks) of a process.
-pub(super) fn proc_stat(pid: u32) -> Option<(u32, u64)> {
-    let s = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
-    let rest = &s[s.rfind(')')? + 2..];
-    let f: Vec<&str> = rest.split_whitespace().collect();
-    // After the name: state(0) ppid(1) ... utime(11) stime(12).
-    let ppid = f.get(1)?.parse().ok()?;
-    let ut: u64 = f.get(11)?.parse().ok()?;
-    let st: u64 = f.get(12)?.parse().ok()?;
-    Some((ppid, ut + st))
+fn proc_stat(pid: u32) -> Option<(u32, u64)> {
+    let text = std::fs::read(format!("/proc/{pid}/stat")).ok()?;
+    let f = hng_rm::sampler::parse_stat(&text)?;
+    Some((f.ppid, f.utime + f.stime))
 }
 
 /// The module name of an `hng module NAME` process.
@@ -113,8 +108,71 @@ fn module_name(pid: u32) -> Option<String> {
     args.get(i + 1).cloned()
 }
 
+/// The CPU time of one `hng run` and of its module processes, read from /proc.
+pub(super) struct RunCpu {
+    pid: u32,
+    /// Ticks of each module process seen, by pid (the latest reading of each).
+    seen: BTreeMap<u32, (String, u64)>,
+    /// Ticks of the run itself.
+    own_ticks: u64,
+}
+
+impl RunCpu {
+    pub(super) fn new(pid: u32) -> Self {
+        RunCpu {
+            pid,
+            seen: BTreeMap::new(),
+            own_ticks: 0,
+        }
+    }
+
+    /// Reads the run's and its children's CPU times again.
+    pub(super) fn sample(&mut self) {
+        sample_children(self.pid, &mut self.seen);
+        if let Some((_, t)) = proc_stat(self.pid) {
+            self.own_ticks = self.own_ticks.max(t);
+        }
+    }
+
+    /// CPU seconds by module so far: the latest reading of every process seen (a restarted
+    /// module's processes summed) and the run itself (`run`).
+    pub(super) fn seconds(&self) -> BTreeMap<String, f64> {
+        let tps = ticks_per_s();
+        let mut cpu: BTreeMap<String, f64> = BTreeMap::new();
+        for (name, t) in self.seen.values() {
+            *cpu.entry(name.clone()).or_default() += *t as f64 / tps;
+        }
+        cpu.insert("run".into(), self.own_ticks as f64 / tps);
+        cpu
+    }
+}
+
+/// Simulated time allowed for a problem, s.
+pub fn duration_s(p: &Problem, o: &RunOptions) -> f64 {
+    o.duration_base_s + o.duration_per_m_s * p.optimum_m.unwrap_or(30.0)
+}
+
+/// Wall time allowed for a run of `duration_s` of simulated time, s: the run gives up by
+/// itself at its duration; this only guards against a system that never ends (0.25x real
+/// time or slower), with a minute for start-up.
+pub(super) fn wall_limit_s(duration_s: f64) -> f64 {
+    60.0 + 4.0 * duration_s
+}
+
+/// Starts `cmd` (`hng run`): the child and when it started.
+pub(super) fn spawn_run(
+    cmd: &mut std::process::Command,
+    o: &RunOptions,
+) -> Result<(std::process::Child, Instant)> {
+    let started = Instant::now();
+    let child = cmd
+        .spawn()
+        .with_context(|| format!("starting {}", o.exe.display()))?;
+    Ok((child, started))
+}
+
 /// CPU ticks of the children of `parent`, by pid (the latest reading of each).
-pub(super) fn sample_children(parent: u32, seen: &mut BTreeMap<u32, (String, u64)>) {
+fn sample_children(parent: u32, seen: &mut BTreeMap<u32, (String, u64)>) {
     let Ok(dir) = std::fs::read_dir("/proc") else {
         return;
     };
@@ -262,7 +320,7 @@ pub fn run(p: &Problem, o: &RunOptions) -> Result<(ProblemResult, Option<Stoppin
     std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
     let summary_path = dir.join("summary.json");
     let _ = std::fs::remove_file(&summary_path);
-    let duration = o.duration_base_s + o.duration_per_m_s * p.optimum_m.unwrap_or(30.0);
+    let duration = duration_s(p, o);
     let mut cmd = run_command(o, &prefix, &dir, &p.world, p.start)?;
     cmd.arg("--goal")
         .arg(format!("{},{}", p.goal[0], p.goal[1]))
@@ -270,16 +328,9 @@ pub fn run(p: &Problem, o: &RunOptions) -> Result<(ProblemResult, Option<Stoppin
         .arg(format!("{duration}"))
         .arg("--summary")
         .arg(&summary_path);
-    let started = Instant::now();
-    let mut child = cmd
-        .spawn()
-        .with_context(|| format!("starting {}", o.exe.display()))?;
-    let pid = child.id();
-    let mut seen = BTreeMap::new();
-    let mut own_ticks = 0;
-    // Wall limit: the run gives up by itself at its duration; this only guards against a
-    // system that never ends (0.25x real time or slower).
-    let wall_limit = Duration::from_secs_f64(60.0 + 4.0 * duration);
+    let (mut child, started) = spawn_run(&mut cmd, o)?;
+    let mut cpu = RunCpu::new(child.id());
+    let wall_limit = Duration::from_secs_f64(wall_limit_s(duration));
     // Set when the summary was written before `hng run` ended: it is still stopping.
     let mut finished = false;
     let mut next_sample = started;
@@ -290,10 +341,7 @@ pub fn run(p: &Problem, o: &RunOptions) -> Result<(ProblemResult, Option<Stoppin
         let done = summary_path.exists();
         // The CPU figures: every `CPU_SAMPLE_PERIOD`, and once more when the summary is there.
         if done || Instant::now() >= next_sample {
-            sample_children(pid, &mut seen);
-            if let Some((_, t)) = proc_stat(pid) {
-                own_ticks = own_ticks.max(t);
-            }
+            cpu.sample();
             next_sample = Instant::now() + CPU_SAMPLE_PERIOD;
         }
         if done {
@@ -316,12 +364,7 @@ pub fn run(p: &Problem, o: &RunOptions) -> Result<(ProblemResult, Option<Stoppin
     if !finished {
         hng_runtime::shm::remove_prefix_files(&prefix);
     }
-    let tps = ticks_per_s();
-    let mut cpu_s: BTreeMap<String, f64> = BTreeMap::new();
-    for (name, t) in seen.values() {
-        *cpu_s.entry(name.clone()).or_default() += *t as f64 / tps;
-    }
-    cpu_s.insert("run".into(), own_ticks as f64 / tps);
+    let cpu_s = cpu.seconds();
     let summary: Option<Value> = std::fs::read_to_string(&summary_path)
         .ok()
         .and_then(|t| serde_json::from_str(&t).ok());

@@ -1,7 +1,7 @@
 //! Planning's path geometry: the followed path (projection, the point at an arc length) and
 //! the nearest acceptable cell; the planned path's publisher.
 
-use hng_runtime::msg::{FrameId, Header, PathInfo, Pose2D};
+use hng_runtime::msg::{FrameId, Header, PathInfo, Pose2D, closest_on_segment};
 use hng_runtime::{Context, ModuleResult, SlicePublisher};
 
 /// Most poses a published path holds; a longer path is thinned (its last pose kept).
@@ -120,15 +120,7 @@ impl PathState {
         }
         let mut best = (f64::INFINITY, self.seg, 0.0);
         for i in self.seg..n - 1 {
-            let (a, b) = (self.points[i], self.points[i + 1]);
-            let (dx, dy) = (b[0] - a[0], b[1] - a[1]);
-            let l2 = dx * dx + dy * dy;
-            let t = if l2 > 0.0 {
-                (((p[0] - a[0]) * dx + (p[1] - a[1]) * dy) / l2).clamp(0.0, 1.0)
-            } else {
-                0.0
-            };
-            let d = (a[0] + t * dx - p[0]).hypot(a[1] + t * dy - p[1]);
+            let (t, d) = closest_on_segment(p, self.points[i], self.points[i + 1]);
             if d < best.0 {
                 best = (d, i, t);
             }

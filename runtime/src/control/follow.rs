@@ -25,6 +25,40 @@ use crate::msg::Message;
 /// module's contract protocol meanwhile.
 pub const PROVIDER_INPUT_CACHE: usize = 4;
 
+/// The ports (subscribers, publishers) a follower left, kept open for the way back: at most
+/// `keep`, the oldest closed first.
+#[derive(Debug)]
+struct Left<P> {
+    ports: Vec<P>,
+    keep: usize,
+}
+
+impl<P> Left<P> {
+    fn new() -> Self {
+        Left {
+            ports: Vec::new(),
+            keep: PROVIDER_INPUT_CACHE,
+        }
+    }
+
+    /// Keeps `port` (closes it when none are kept).
+    fn put(&mut self, port: P) {
+        if self.keep == 0 {
+            return;
+        }
+        if self.ports.len() >= self.keep {
+            self.ports.remove(0);
+        }
+        self.ports.push(port);
+    }
+
+    /// The kept port on `channel`, taken out.
+    fn take(&mut self, channel: &str, channel_of: impl Fn(&P) -> &str) -> Option<P> {
+        let pos = self.ports.iter().position(|p| channel_of(p) == channel)?;
+        Some(self.ports.remove(pos))
+    }
+}
+
 /// Whatever follows the data channel of a need's provider: an input that reads it
 /// ([`ProviderInput`], [`SliceProviderInput`]) or an output that writes to it
 /// ([`ProviderOutput`]). Call it from [`crate::Module::on_provider_changed`], or name the fields
@@ -59,8 +93,7 @@ pub type SliceProviderInput<H> = ProviderReceiver<Slice<H>>;
 ///   buffered meanwhile (it belongs to a former contract) and reuses it.
 pub struct ProviderReceiver<K: Kind> {
     sub: Option<Receiver<K>>,
-    cache: Vec<Receiver<K>>,
-    keep: usize,
+    left: Left<Receiver<K>>,
     provider: Option<ProviderInfo>,
     fallback: Option<String>,
     deadline: Option<Duration>,
@@ -74,7 +107,7 @@ impl<K: Kind> std::fmt::Debug for ProviderReceiver<K> {
             .field("channel", &self.channel())
             .field("provider", &self.provider)
             .field("fallback", &self.fallback)
-            .field("kept", &self.cache.len())
+            .field("kept", &self.left.ports.len())
             .field("foreign", &self.foreign)
             .finish_non_exhaustive()
     }
@@ -91,8 +124,7 @@ impl<K: Kind> ProviderReceiver<K> {
     pub fn new() -> Self {
         ProviderReceiver {
             sub: None,
-            cache: Vec::new(),
-            keep: PROVIDER_INPUT_CACHE,
+            left: Left::new(),
             provider: None,
             fallback: None,
             deadline: None,
@@ -115,8 +147,8 @@ impl<K: Kind> ProviderReceiver<K> {
     /// while it has readers (the Camera's images).
     #[must_use]
     pub fn keep_left(mut self, n: usize) -> Self {
-        self.keep = n;
-        self.cache.truncate(n);
+        self.left.keep = n;
+        self.left.ports.truncate(n);
         self
     }
 
@@ -141,18 +173,12 @@ impl<K: Kind> ProviderReceiver<K> {
         }
         if let Some(old) = self.sub.take() {
             ctx.unsubscribe(old.id())?;
-            if self.keep > 0 {
-                if self.cache.len() >= self.keep {
-                    self.cache.remove(0);
-                }
-                self.cache.push(old);
-            }
+            self.left.put(old);
         }
         if channel.is_empty() {
             return Ok(());
         }
-        if let Some(pos) = self.cache.iter().position(|s| s.channel() == channel) {
-            let sub = self.cache.remove(pos);
+        if let Some(sub) = self.left.take(channel, Receiver::channel) {
             // What arrived while nobody listened belongs to a former contract.
             while sub.receive()?.is_some() {}
             ctx.resubscribe(&sub, self.deadline)?;
@@ -247,7 +273,7 @@ impl<K: Kind> FollowProvider for ProviderReceiver<K> {
 #[derive(Debug)]
 pub struct ProviderOutput<T: Message> {
     out: Option<Publisher<T>>,
-    cache: Vec<Publisher<T>>,
+    left: Left<Publisher<T>>,
     fallback: Option<String>,
 }
 
@@ -262,7 +288,7 @@ impl<T: Message> ProviderOutput<T> {
     pub fn new() -> Self {
         ProviderOutput {
             out: None,
-            cache: Vec::new(),
+            left: Left::new(),
             fallback: None,
         }
     }
@@ -285,20 +311,15 @@ impl<T: Message> ProviderOutput<T> {
             return Ok(());
         }
         if let Some(old) = self.out.take() {
-            if self.cache.len() >= PROVIDER_INPUT_CACHE {
-                self.cache.remove(0);
-            }
-            self.cache.push(old);
+            self.left.put(old);
         }
         if channel.is_empty() {
             return Ok(());
         }
-        self.out = Some(
-            match self.cache.iter().position(|p| p.channel() == channel) {
-                Some(pos) => self.cache.remove(pos),
-                None => ctx.publisher(channel)?,
-            },
-        );
+        self.out = Some(match self.left.take(channel, Publisher::channel) {
+            Some(p) => p,
+            None => ctx.publisher(channel)?,
+        });
         Ok(())
     }
 
