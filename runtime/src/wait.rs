@@ -297,8 +297,12 @@ impl Waiter {
         // arrive (the common case on a busy pipeline) then costs no clock read at all. Kept
         // even when the CPUs are crowded: it measured faster than sleeping at once. A look at
         // an input without history reads its channel's publish count, and asks the port only
-        // when something was published since it was found empty (crate::wake).
-        for i in 0..64 {
+        // when something was published since it was found empty (crate::wake). A waiter that
+        // must not spin ([`WaitMode::SLEEP`]: a lockstep module between its rounds, a paced
+        // simulator, tools) looks once: the 64 looks were a tenth of a paced simulator's CPU
+        // (an input with history asks its port at every look).
+        let looks = if self.mode == WaitMode::SLEEP { 1 } else { 64 };
+        for i in 0..looks {
             if self.any_ready() {
                 if i == 0 {
                     self.stats.immediate += 1;

@@ -116,8 +116,60 @@ const PUBLISHED_ONE: u64 = 1 << 32;
 /// does not count, a restarted one, a late answer). So the last answer of a round always
 /// notifies; an answer that does not is seen by the simulator when the last one wakes it
 /// (it was published first), or at once if the simulator was not asleep.
+///
+/// A paced simulator (real time, a factor) that would only go back to sleep after a quiet
+/// round, its next step not being due yet, says until when (`quiet_until`, `CLOCK_MONOTONIC`
+/// ns) and which channels its participants read (a [`ReadFilter`]): the last answer then
+/// notifies only if the round may have given someone work (an answer wrote a channel the
+/// filter may hold) or that time has passed; otherwise the simulator finds the answers at its
+/// next step, on its own timer, when it would have looked anyway.
 pub(crate) struct Countdown {
     segment: Segment,
+}
+
+/// The words of the countdown segment.
+const COUNT: usize = 0;
+/// Until when (`CLOCK_MONOTONIC` ns) a quiet round need not wake the simulator (0: always).
+const QUIET_UNTIL: usize = 1;
+/// The latest round (its low 32 bits, plus one) in which an answer wrote what a participant
+/// may read.
+const WORK_ROUND: usize = 2;
+/// The [`ReadFilter`]'s words.
+const FILTER: usize = 3;
+const WORDS: usize = SEGMENT_LEN / 8;
+/// Bits of a [`ReadFilter`].
+const FILTER_BITS: u64 = ((WORDS - FILTER) * 64) as u64;
+
+/// The channels the participants of a lockstep barrier read, as a Bloom filter of their
+/// keys (two bits each): [`ReadFilter::may_read`] is never false for a key added, and true
+/// for every key once [`ReadFilter::all`] was set (a participant that reads every channel, or
+/// whose inputs are not known).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct ReadFilter([u64; WORDS - FILTER]);
+
+impl ReadFilter {
+    fn bits(key: u64) -> [u64; 2] {
+        [(key & 0xffff_ffff) % FILTER_BITS, (key >> 32) % FILTER_BITS]
+    }
+
+    /// Adds a channel's key.
+    pub fn add(&mut self, key: u64) {
+        for b in Self::bits(key) {
+            self.0[(b / 64) as usize] |= 1 << (b % 64);
+        }
+    }
+
+    /// Every channel may be read.
+    pub fn all(&mut self) {
+        self.0 = [u64::MAX; WORDS - FILTER];
+    }
+
+    /// May a participant read the channel of `key`?
+    pub fn may_read(&self, key: u64) -> bool {
+        Self::bits(key)
+            .iter()
+            .all(|b| self.0[(*b / 64) as usize] & (1 << (b % 64)) != 0)
+    }
 }
 
 impl Countdown {
@@ -131,34 +183,65 @@ impl Countdown {
     }
 
     #[inline]
-    fn word(&self) -> &AtomicU64 {
-        // SAFETY: as WakeFlag::word.
+    fn words(&self) -> &[AtomicU64; WORDS] {
+        // SAFETY: as WakeFlag::word; the segment is SEGMENT_LEN bytes, all atomic words.
         unsafe { self.segment.get() }
     }
 
-    /// Simulator side: round `round` waits for `answers` answers.
-    pub(crate) fn arm(&self, round: u64, answers: u32) {
-        self.word().store(
+    /// Simulator side: round `round` waits for `answers` answers; a last answer that finds
+    /// the round quiet (nothing written that `reads` may hold) before `quiet_until_ns`
+    /// (`CLOCK_MONOTONIC`; 0: never) need not wake the simulator.
+    pub(crate) fn arm(&self, round: u64, answers: u32, quiet_until_ns: u64, reads: &ReadFilter) {
+        let w = self.words();
+        for (word, bits) in w[FILTER..].iter().zip(reads.0) {
+            word.store(bits, Ordering::SeqCst);
+        }
+        w[QUIET_UNTIL].store(quiet_until_ns, Ordering::SeqCst);
+        w[COUNT].store(
             ((round as u32 as u64) << 32) | u64::from(answers),
             Ordering::SeqCst,
         );
     }
 
-    /// Participant side, after publishing its answer to `round`: should it notify?
-    pub(crate) fn answered(&self, round: u64) -> bool {
+    /// Participant side: may a participant read the channel of `key` (as of the open round)?
+    pub(crate) fn may_be_read(&self, key: u64) -> bool {
+        let mut f = ReadFilter::default();
+        for (bits, word) in f.0.iter_mut().zip(&self.words()[FILTER..]) {
+            *bits = word.load(Ordering::Relaxed);
+        }
+        f.may_read(key)
+    }
+
+    /// Participant side, after publishing its answer to `round` (`work`: it wrote a channel a
+    /// participant may read) at `now_ns` (`CLOCK_MONOTONIC`): should it notify?
+    pub(crate) fn answered(&self, round: u64, work: bool, now_ns: u64) -> bool {
+        let w = self.words();
         let round = round as u32;
+        if work {
+            // Before the count goes down: the last answer, which sees the count after ours,
+            // sees this too.
+            w[WORK_ROUND].store(u64::from(round) + 1, Ordering::SeqCst);
+        }
         let mut notify = true;
-        let _ = self
-            .word()
-            .fetch_update(Ordering::SeqCst, Ordering::SeqCst, |v| {
-                let left = v as u32;
-                if (v >> 32) as u32 != round || left == 0 {
-                    notify = true;
-                    return None;
-                }
-                notify = left == 1;
-                Some(v - 1)
-            });
+        let mut last = false;
+        let _ = w[COUNT].fetch_update(Ordering::SeqCst, Ordering::SeqCst, |v| {
+            let left = v as u32;
+            if (v >> 32) as u32 != round || left == 0 {
+                notify = true;
+                last = false;
+                return None;
+            }
+            notify = left == 1;
+            last = notify;
+            Some(v - 1)
+        });
+        if last
+            && w[WORK_ROUND].load(Ordering::SeqCst) != u64::from(round) + 1
+            && now_ns < w[QUIET_UNTIL].load(Ordering::SeqCst)
+        {
+            // Quiet, and the simulator wakes on its own before its next step is due.
+            return false;
+        }
         notify
     }
 }
@@ -196,20 +279,76 @@ mod tests {
         let prefix = crate::shm::unique_prefix("countdown");
         let sim = Countdown::open(&prefix, "t/ack").expect("open");
         let module = Countdown::open(&prefix, "t/ack").expect("open");
+        let none = ReadFilter::default();
         // Never armed (zeros): every answer notifies.
-        assert!(module.answered(1));
-        sim.arm(7, 3);
-        assert!(!module.answered(7));
-        assert!(module.answered(6), "an answer to another round notifies");
-        assert!(!module.answered(7));
-        assert!(module.answered(7), "the third answer completes the round");
+        assert!(module.answered(1, false, 0));
+        sim.arm(7, 3, 0, &none);
+        assert!(!module.answered(7, false, 0));
         assert!(
-            module.answered(7),
+            module.answered(6, false, 0),
+            "an answer to another round notifies"
+        );
+        assert!(!module.answered(7, false, 0));
+        assert!(
+            module.answered(7, false, 0),
+            "the third answer completes the round"
+        );
+        assert!(
+            module.answered(7, false, 0),
             "an extra answer (a left-out member) notifies"
         );
-        sim.arm(8, 0);
-        assert!(module.answered(8));
+        sim.arm(8, 0, 0, &none);
+        assert!(module.answered(8, false, 0));
         drop((sim, module));
         crate::shm::remove_prefix_files(&prefix);
+    }
+
+    #[test]
+    fn a_quiet_round_wakes_a_paced_simulator_only_once_its_next_step_is_due() {
+        let prefix = crate::shm::unique_prefix("quietwake");
+        let sim = Countdown::open(&prefix, "t/ack").expect("open");
+        let module = Countdown::open(&prefix, "t/ack").expect("open");
+        let mut reads = ReadFilter::default();
+        reads.add(11);
+        reads.add(22);
+        sim.arm(3, 2, 1_000, &reads);
+        assert!(module.may_be_read(11) && module.may_be_read(22));
+        // Quiet answers before the simulator's next step: nobody is woken.
+        assert!(!module.answered(3, false, 500));
+        assert!(
+            !module.answered(3, false, 500),
+            "quiet and early: no wake-up"
+        );
+        // Quiet, but late: the simulator is woken as before.
+        sim.arm(4, 2, 1_000, &reads);
+        assert!(!module.answered(4, false, 500));
+        assert!(module.answered(4, false, 1_000));
+        // A member that wrote something read, even if not the last: the last one notifies.
+        sim.arm(5, 2, 1_000, &reads);
+        assert!(!module.answered(5, true, 500));
+        assert!(module.answered(5, false, 500), "the round may be busy");
+        // Not paced (0): every last answer notifies.
+        sim.arm(6, 1, 0, &reads);
+        assert!(module.answered(6, false, 500));
+        // A participant reading everything: every channel may be read.
+        let mut all = ReadFilter::default();
+        all.all();
+        sim.arm(7, 1, 1_000, &all);
+        assert!(module.may_be_read(12_345));
+        drop((sim, module));
+        crate::shm::remove_prefix_files(&prefix);
+    }
+
+    #[test]
+    fn a_read_filter_holds_every_key_added() {
+        let mut f = ReadFilter::default();
+        let keys: Vec<u64> = (0..40u64)
+            .map(|i| i.wrapping_mul(0x9e37_79b9_7f4a_7c15))
+            .collect();
+        for k in &keys {
+            f.add(*k);
+        }
+        assert!(keys.iter().all(|k| f.may_read(*k)));
+        assert!(!ReadFilter::default().may_read(keys[3]));
     }
 }

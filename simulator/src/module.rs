@@ -595,9 +595,10 @@ impl SimulatorModule {
                 .lockstep
                 .as_mut()
                 .is_some_and(|l| l.step_wants_round(now, &written, data || image_sent));
+            let quiet_until = self.quiet_until_ns();
             match self.lockstep.as_mut() {
                 Some(l) if wants && sent.is_ok() => {
-                    l.open(now, false)?;
+                    l.open(now, false, quiet_until)?;
                     self.publish_clock()
                 }
                 Some(l) => {

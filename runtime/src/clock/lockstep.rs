@@ -82,6 +82,7 @@ use crate::error::Error;
 use crate::msg::{self, Header, MODULE_NAME_LEN};
 use crate::qos::ChannelKind;
 use crate::wake::Countdown;
+pub use crate::wake::ReadFilter;
 
 mod barrier;
 mod outside;
@@ -195,15 +196,32 @@ impl RoundCountdown {
         Ok(RoundCountdown(Countdown::open(node.prefix(), ACK_CHANNEL)?))
     }
 
-    /// Round `round` waits for `answers` answers (call before calling its members).
+    /// Round `round` waits for `answers` answers (call before calling its members). Every
+    /// last answer wakes the simulator.
     pub fn arm(&self, round: u64, answers: usize) {
-        self.0
-            .arm(round, u32::try_from(answers).unwrap_or(u32::MAX));
+        self.arm_paced(round, answers, 0, &ReadFilter::default());
     }
 
-    /// A participant answered `round` (its answer is out): should it wake the simulator?
-    fn answered(&self, round: u64) -> bool {
-        self.0.answered(round)
+    /// [`RoundCountdown::arm`] for a simulator that, if the round ends quiet before
+    /// `quiet_until_ns` (`CLOCK_MONOTONIC`), wakes on its own timer anyway before its next
+    /// step is due: the last answer then wakes it only if some answer wrote a channel that
+    /// `reads` (what the participants read) may hold. A round that was busy after all (a
+    /// member began reading a channel written in the same round) is then seen at the
+    /// simulator's next wake-up: later, never wrong.
+    pub fn arm_paced(&self, round: u64, answers: usize, quiet_until_ns: u64, reads: &ReadFilter) {
+        self.0.arm(
+            round,
+            u32::try_from(answers).unwrap_or(u32::MAX),
+            quiet_until_ns,
+            reads,
+        );
+    }
+
+    /// A participant answered `round` (its answer is out; `written`: the channels it wrote,
+    /// `None`: more than could be listed): should it wake the simulator?
+    fn answered(&self, round: u64, written: Option<&[u64]>) -> bool {
+        let work = written.is_none_or(|w| w.iter().any(|k| self.0.may_be_read(*k)));
+        self.0.answered(round, work, crate::clock::monotonic_ns())
     }
 }
 
@@ -318,9 +336,10 @@ impl Acker {
             ack.inputs_len = put_keys(&mut ack.inputs, inputs);
         }
         ack.written_len = put_keys(&mut ack.written, &self.written);
+        let written = (ack.written_len != TOO_MANY).then_some(self.written.as_slice());
         // Only the answer that completes the round wakes the simulator.
         self.publisher
-            .publish_gated(ack, || self.countdown.answered(round))?;
+            .publish_gated(ack, || self.countdown.answered(round, written))?;
         let _ = node.take_written();
         self.written.clear();
         self.out_seen = node.counters().msgs_out.get();

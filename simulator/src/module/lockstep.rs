@@ -13,6 +13,7 @@ use hng_runtime::system::{EventKind, ModuleEvent, SUPERVISOR_EVENTS};
 use hng_runtime::{Context, ModuleResult, Subscriber, msg};
 
 use super::{SimulatorModule, TICK_BUDGET};
+use crate::pacing::Speed;
 
 /// The barrier with its inputs.
 pub(super) struct Lockstep {
@@ -85,8 +86,14 @@ impl Lockstep {
 
     /// Opens a round at `sim_ns` (`again`: at the same simulated time as the last one) and
     /// calls its members on their own channels; returns its number, for the common clock
-    /// sample, which goes out after the calls.
-    pub(super) fn open(&mut self, sim_ns: u64, again: bool) -> ModuleResult<u64> {
+    /// sample, which goes out after the calls. A round that ends quiet before `quiet_until_ns`
+    /// (`CLOCK_MONOTONIC`; 0: never) does not wake us ([`RoundCountdown::arm_paced`]).
+    pub(super) fn open(
+        &mut self,
+        sim_ns: u64,
+        again: bool,
+        quiet_until_ns: u64,
+    ) -> ModuleResult<u64> {
         self.rounds += 1;
         if again {
             self.extra_rounds += 1;
@@ -97,8 +104,10 @@ impl Lockstep {
         let round = self.barrier.open_at(monotonic_ns(), sim_ns, again);
         let members = self.barrier.members();
         self.members += members as u64;
-        // Armed before the calls go out: the member whose answer completes the round wakes us.
-        self.countdown.arm(round, members);
+        // Armed before the calls go out: the member whose answer completes the round wakes us
+        // (if the round may be busy, or our next step is due).
+        self.countdown
+            .arm_paced(round, members, quiet_until_ns, &self.barrier.reads());
         let called: Vec<&str> = self.barrier.called().collect();
         tracing::trace!(round, sim_ns, again, ?called, "lockstep: round opened");
         for (name, publisher) in &self.calls {
@@ -195,20 +204,41 @@ impl Lockstep {
     }
 }
 
+/// How long before the next step is due a quiet round's last answer wakes us all the same
+/// (the clocks of two processes agree, but the margin keeps the step's timing as it was).
+const QUIET_MARGIN_NS: u64 = 500_000;
+
 impl SimulatorModule {
+    /// Until when (`CLOCK_MONOTONIC` ns) a round that ends quiet need not wake us: a paced
+    /// simulator woken before its next step is due would only look at the answers and sleep
+    /// again until its timer; it reads them at that timer instead, before it steps (one
+    /// wake-up a step fewer at 1x). 0 (always wake us) at `max` or when the step is due.
+    pub(super) fn quiet_until_ns(&self) -> u64 {
+        if self.speed == Speed::Unlimited {
+            return 0;
+        }
+        let next = self.sim.now_ns().saturating_add(self.sim.dt_ns());
+        let delay = u64::try_from(self.pacer.delay_until(next).as_nanos()).unwrap_or(u64::MAX);
+        if delay <= QUIET_MARGIN_NS {
+            return 0;
+        }
+        monotonic_ns().saturating_add(delay - QUIET_MARGIN_NS)
+    }
+
     /// Lockstep: looks at the open round; opens another one at the same time when someone
     /// was busy, and takes the next step (if it is due) when everyone was quiet.
     pub(super) fn lockstep_advance(&mut self, ctx: &mut Context) -> ModuleResult {
         if self.waiting.is_some() {
             return Ok(());
         }
+        let quiet_until = self.quiet_until_ns();
         let Some(l) = self.lockstep.as_mut() else {
             return Ok(());
         };
         match l.poll(ctx) {
             Verdict::Waiting => Ok(()),
             Verdict::Busy => {
-                l.open(self.sim.now_ns(), true)?;
+                l.open(self.sim.now_ns(), true, quiet_until)?;
                 self.publish_clock()
             }
             Verdict::Quiet => {

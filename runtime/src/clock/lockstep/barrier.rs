@@ -4,7 +4,7 @@
 use std::collections::BTreeMap;
 use std::time::Duration;
 
-use super::ClockAck;
+use super::{ClockAck, ReadFilter};
 
 /// What a [`Barrier`] says about the open round.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -214,6 +214,23 @@ impl Barrier {
                 p.reads != Reads::EveryRound && (p.member || p.membership == Membership::Out)
             })
             .map(|(n, _)| n.as_str())
+    }
+
+    /// What the participants read, as far as the barrier knows (every channel once one of
+    /// them reads every round, more than it can list, or has not said yet): a round whose
+    /// answers wrote none of these channels closes quiet.
+    pub fn reads(&self) -> ReadFilter {
+        let mut f = ReadFilter::default();
+        for p in self.participants.values() {
+            match &p.reads {
+                Reads::Channels(keys) => keys.iter().for_each(|k| f.add(*k)),
+                _ => {
+                    f.all();
+                    break;
+                }
+            }
+        }
+        f
     }
 
     /// The members of the open (or last) round.
@@ -470,6 +487,29 @@ mod tests {
             b.wants_round(5, false),
             "started again: unknown until it answers"
         );
+    }
+
+    #[test]
+    fn the_read_filter_holds_what_the_participants_read_and_everything_while_one_is_unknown() {
+        let mut b = Barrier::new(&["loc", "servo"], T).selective(Duration::from_nanos(1_000));
+        assert!(
+            b.reads().may_read(channel_key("anything")),
+            "nobody has said what it reads"
+        );
+        let r = b.open_at(0, 10, false);
+        b.ack(&sel("loc", r, &["sim/odom"], &[], u64::MAX));
+        assert!(b.reads().may_read(channel_key("anything")), "servo unknown");
+        b.ack(&sel("servo", r, &["loc/pose", "plan/path"], &[], u64::MAX));
+        let f = b.reads();
+        for c in ["sim/odom", "loc/pose", "plan/path"] {
+            assert!(f.may_read(channel_key(c)), "{c}");
+        }
+        assert!(
+            !f.may_read(channel_key("sim/cmd_vel")),
+            "nobody reads the wheels"
+        );
+        b.ack(&ack("loc", r, false)); // reads every round on the common channel
+        assert!(b.reads().may_read(channel_key("sim/cmd_vel")));
     }
 
     #[test]
