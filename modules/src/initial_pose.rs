@@ -29,6 +29,16 @@ pub struct EstimateId {
     pub seq: u64,
 }
 
+impl EstimateId {
+    /// The identity of estimate `p`.
+    pub fn of(p: &PoseWithCovariance) -> EstimateId {
+        EstimateId {
+            source: p.header.source,
+            seq: p.header.seq,
+        }
+    }
+}
+
 /// Why an estimate was refused.
 pub fn check(p: &PoseWithCovariance) -> Result<(), &'static str> {
     if p.header.frame_id != FrameId::MAP {
@@ -96,10 +106,7 @@ impl InitialPoseInput {
     ) -> ModuleResult<Option<PoseWithCovariance>> {
         let mut newest = None;
         while let Some(s) = self.sub.receive()? {
-            let id = EstimateId {
-                source: s.header.source,
-                seq: s.header.seq,
-            };
+            let id = EstimateId::of(&s);
             if self.applied == Some(id) {
                 continue;
             }
@@ -171,10 +178,7 @@ impl EstimateNotice {
         let Some(s) = self.sub.latest()? else {
             return Ok(false);
         };
-        let id = EstimateId {
-            source: s.header.source,
-            seq: s.header.seq,
-        };
+        let id = EstimateId::of(&s);
         Ok(self.seen.replace(id) != Some(id))
     }
 }

@@ -261,9 +261,16 @@ struct State {
     /// Least clearance since the current episode's goal was given, m.
     episode_min_clearance: f64,
     /// Simulated time (s) each goal was first seen in the Manager's documents and dealt with.
-    goal_times: HashMap<u32, (f64, Option<f64>)>,
-    /// The true path's length (m) at those two moments, where known.
-    goal_paths: HashMap<u32, (Option<f64>, Option<f64>)>,
+    goal_times: HashMap<u32, GoalTimes>,
+}
+
+/// When the Manager took a goal and when it dealt with it (reached or refused): the stamps
+/// of its documents, simulated s, and the true path's length then, m (where known).
+#[derive(Debug, Clone, Copy)]
+struct GoalTimes {
+    taken_s: f64,
+    taken_path_m: Option<f64>,
+    dealt: Option<(f64, Option<f64>)>,
 }
 
 impl State {
@@ -327,7 +334,6 @@ impl State {
             idle_since: None,
             episode_min_clearance: f64::INFINITY,
             goal_times: HashMap::new(),
-            goal_paths: HashMap::new(),
         })
     }
 
@@ -651,9 +657,12 @@ impl State {
                         reason: None,
                         true_error_m: None,
                     });
-                    self.goal_times.insert(e.id, (stamp_s, None));
-                    self.goal_paths
-                        .insert(e.id, (self.log.path_at(stamp_ns), None));
+                    let taken = GoalTimes {
+                        taken_s: stamp_s,
+                        taken_path_m: self.log.path_at(stamp_ns),
+                        dealt: None,
+                    };
+                    self.goal_times.insert(e.id, taken);
                     self.goals.len() - 1
                 }
             };
@@ -663,14 +672,10 @@ impl State {
                 continue;
             }
             g.state = e.state.clone();
-            if matches!(e.state.as_str(), "reached" | "refused") {
-                if let Some(t) = self.goal_times.get_mut(&e.id) {
-                    t.1 = Some(stamp_s);
-                }
-                let path = self.log.path_at(stamp_ns);
-                if let Some(p) = self.goal_paths.get_mut(&e.id) {
-                    p.1 = path;
-                }
+            if matches!(e.state.as_str(), "reached" | "refused")
+                && let Some(t) = self.goal_times.get_mut(&e.id)
+            {
+                t.dealt = Some((stamp_s, self.log.path_at(stamp_ns)));
             }
             let g = &mut self.goals[i];
             let error = truth.map(|(x, y)| (x - g.x).hypot(y - g.y));

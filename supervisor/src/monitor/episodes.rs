@@ -19,7 +19,7 @@ use hng_runtime::{Node, Publisher};
 use hng_simulator::module::SimTeleport;
 use serde::{Deserialize, Serialize};
 
-use super::{GoalSummary, State, Summary};
+use super::{GoalSummary, GoalTimes, State, Summary};
 use crate::error::{Context as _, Result};
 
 /// One episode: where the robot starts, where it goes, and the simulated time it has.
@@ -245,6 +245,9 @@ impl State {
                 return Ok(Some(failure));
             };
             let start = (ep.start[0], ep.start[1]);
+            let start_pose = Pose2D::new(ep.start[0], ep.start[1], ep.start[2]);
+            // The first episode starts where the run began: nothing to move or to tell.
+            let moved = !(r.next == 0 && r.first_placed);
             match r.phase {
                 Phase::Ready => {
                     // The simulator runs (a true pose came) and the Manager holds no goal.
@@ -253,13 +256,12 @@ impl State {
                         return Ok(None);
                     }
                     r.wall = Instant::now();
-                    if !(r.next == 0 && r.first_placed) {
-                        let pose = Pose2D::new(ep.start[0], ep.start[1], ep.start[2]);
+                    if moved {
                         Runner::send(
                             &r.teleport,
                             SimTeleport {
                                 header: map_header(),
-                                pose,
+                                pose: start_pose,
                             },
                         )?;
                     }
@@ -294,13 +296,12 @@ impl State {
                                 .next_back()
                                 .map_or(now, |(t, _, _)| *t as f64 * 1e-9);
                             settle = latest + SETTLE_S;
-                            if !(r.next == 0 && r.first_placed) {
-                                let pose = Pose2D::new(ep.start[0], ep.start[1], ep.start[2]);
+                            if moved {
                                 Runner::send(
                                     &r.estimate,
                                     PoseWithCovariance {
                                         header: map_header(),
-                                        pose,
+                                        pose: start_pose,
                                         covariance: [0.0; 9],
                                     },
                                 )?;
@@ -374,7 +375,10 @@ impl State {
                     };
                     let g = &self.goals[index];
                     // Dealt with: the counters must have caught up with that moment.
-                    if let Some((_, Some(t))) = self.goal_times.get(&g.id)
+                    if let Some(GoalTimes {
+                        dealt: Some((t, _)),
+                        ..
+                    }) = self.goal_times.get(&g.id)
                         && self.sim_time_s < *t
                     {
                         return Ok(None);
@@ -474,7 +478,7 @@ impl State {
             (0, 0)
         };
         let success = why.is_none();
-        let g_id = g.id;
+        let times = self.goal_times.get(&g.id).copied();
         let summary = match base {
             Some(b) => Summary {
                 success,
@@ -483,19 +487,16 @@ impl State {
                 goals: vec![g],
                 // From the Manager taking the goal to its dealing with it (the stamps of its
                 // documents): the monitor, outside the lockstep, may read them late.
-                sim_time_s: {
-                    let (from, to) = self
-                        .goal_times
-                        .get(&g_id)
-                        .copied()
-                        .unwrap_or((b.sim_s, None));
-                    (to.unwrap_or(self.sim_time_s) - from).max(0.0)
-                },
+                sim_time_s: match times {
+                    Some(t) => t.dealt.map_or(self.sim_time_s, |d| d.0) - t.taken_s,
+                    None => self.sim_time_s - b.sim_s,
+                }
+                .max(0.0),
                 wall_time_s: r.wall.elapsed().as_secs_f64(),
                 // Between the same two stamps where known (the goal dealt with).
-                path_length_m: match self.goal_paths.get(&g_id) {
-                    Some(&(Some(from), Some(to))) => (to - from).max(0.0),
-                    _ => (self.path_before_m + self.path_length_m - b.path_m).max(0.0),
+                path_length_m: match times.and_then(|t| Some((t.taken_path_m?, t.dealt?.1?))) {
+                    Some((from, to)) => (to - from).max(0.0),
+                    None => (self.path_before_m + self.path_length_m - b.path_m).max(0.0),
                 },
                 min_obstacle_distance_m: self
                     .episode_min_clearance
