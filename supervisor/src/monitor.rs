@@ -493,6 +493,11 @@ impl State {
         })
     }
 
+    fn on_progress(&mut self, m: &NavProgress) {
+        let line = self.nav.on_progress(m);
+        Self::say_at(m.header.stamp_ns as f64 * 1e-9, &line);
+    }
+
     fn read(&mut self) -> Result<()> {
         while let Some(s) = self.sim.receive()? {
             self.last_sim = Instant::now();
@@ -526,6 +531,14 @@ impl State {
                 Err(e) => self.say(&format!("unreadable mission document ignored: {e}")),
             }
         }
+        // Planning's progress messages after the documents for the same reason (a goal it
+        // gives up is reported by Planning before the Manager refuses it), printed in stamp
+        // order with them, the cause first at one stamp.
+        let mut progress = Vec::new();
+        while let Some(m) = self.progress.receive()? {
+            progress.push(*m);
+        }
+        let mut progress = progress.into_iter().peekable();
         let mut poses = Vec::new();
         while let Some(p) = self.truth.receive()? {
             poses.push((p.header.stamp_ns, p.pose.x, p.pose.y));
@@ -536,10 +549,14 @@ impl State {
             while let Some(pose) = poses.next_if(|(t, _, _)| *t <= stamp) {
                 self.on_truth(pose);
             }
+            while let Some(m) = progress.next_if(|m| m.header.stamp_ns <= stamp) {
+                self.on_progress(&m);
+            }
             let truth = self.truth_at(stamp);
             self.on_plan(&p, truth, stamp);
         }
         poses.for_each(|pose| self.on_truth(pose));
+        progress.for_each(|m| self.on_progress(&m));
         let lost = self.truth.stats().dropped;
         if lost > 0 && !self.truth_loss_said {
             self.truth_loss_said = true;
@@ -548,10 +565,6 @@ impl State {
                  loaded for it); goals are judged against the nearest pose it has, and the \
                  summary counts the losses (true_poses_lost)"
             ));
-        }
-        while let Some(m) = self.progress.receive()? {
-            let line = self.nav.on_progress(&m);
-            Self::say_at(m.header.stamp_ns as f64 * 1e-9, &line);
         }
         while let Some(e) = self.events.receive()? {
             let name = e.module().to_owned();
