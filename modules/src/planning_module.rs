@@ -117,6 +117,9 @@ pub struct PlanningModule {
     state: PlanningState,
     /// Scans, and the rating of the Mapping provider by them (client feedback).
     map_rating: crate::feedback::MapRating,
+    /// The Localization provider's poses against odometry: while they are in doubt the map is
+    /// not rated (a wrong pose would blame a right map).
+    pose_check: crate::feedback::PoseCheck,
 }
 
 impl PlanningModule {
@@ -253,12 +256,17 @@ impl Module for PlanningModule {
             last_pose: None,
             state: PlanningState::default(),
             map_rating: crate::feedback::MapRating::new(ctx, &cfg.scan, cfg.map_feedback)?,
+            pose_check: crate::feedback::PoseCheck::new(ctx, &cfg.odom, &cfg.initial_pose)?,
         })
     }
 
     fn on_input(&mut self, ctx: &mut Context, input: InputId) -> ModuleResult {
         if self.map_rating.is(input) {
-            return self.map_rating.on_input(ctx, self.last_pose, MAPPING_NEED);
+            let t = ctx.now().as_secs_f64();
+            let pose = self
+                .last_pose
+                .filter(|_| !self.pose_check.rater.in_doubt(t));
+            return self.map_rating.on_input(ctx, pose, MAPPING_NEED);
         }
         if self.map.is(input) {
             self.read_map(ctx)?;
@@ -271,7 +279,10 @@ impl Module for PlanningModule {
                 self.state.use_theta = g.use_theta;
             }
         } else if self.localization.is(input) {
+            let t = ctx.now().as_secs_f64();
+            self.pose_check.poll(t)?;
             while let Some(p) = self.localization.receive()? {
+                self.pose_check.on_pose(&p, t);
                 self.last_pose = Some(p.pose);
             }
         }
@@ -288,6 +299,7 @@ impl Module for PlanningModule {
         let _busy = hb.as_ref().map(|h| h.busy(ctx));
         if need == LOCALIZATION_NEED {
             self.localization.follow(ctx, provider)?;
+            self.pose_check.rater.reset();
         } else if need == MAPPING_NEED {
             let changed = self.map.provider() != provider;
             self.map.follow(ctx, provider)?;

@@ -215,12 +215,8 @@ pub struct ServoModule {
     wp_timeout: Duration,
     pose_timeout: Duration,
     state: ServoState,
-    /// Odometry (polled at each pose) and the rating of the Localization provider by it
-    /// (client feedback).
-    odom: Option<Subscriber<hng_runtime::msg::Odometry>>,
-    rater: crate::feedback::OdometryConsistency,
-    /// The operator's estimates, polled at each pose.
-    estimates: Option<crate::initial_pose::EstimateNotice>,
+    /// The rating of the Localization provider by odometry (client feedback).
+    check: crate::feedback::PoseCheck,
 }
 
 impl ServoModule {
@@ -296,13 +292,7 @@ impl Module for ServoModule {
             wp_timeout,
             pose_timeout,
             state: ServoState::default(),
-            odom: if cfg.odom.is_empty() {
-                None
-            } else {
-                Some(ctx.subscribe_polled(&cfg.odom)?)
-            },
-            rater: crate::feedback::OdometryConsistency::default(),
-            estimates: crate::initial_pose::EstimateNotice::new(ctx, &cfg.initial_pose)?,
+            check: crate::feedback::PoseCheck::new(ctx, &cfg.odom, &cfg.initial_pose)?,
         })
     }
 
@@ -313,23 +303,13 @@ impl Module for ServoModule {
         // The pose is the one trigger: the waypoint and the odometry are polled inputs, read
         // here (what was sent before the pose; in lockstep, before this round opened).
         let now = ctx.now();
-        if let Some(odom) = &self.odom
-            && let Some(o) = odom.latest()?
-        {
-            self.rater.on_odom(o.pose);
-        }
+        self.check.poll(now.as_secs_f64())?;
         if let Some(w) = self.waypoint.latest()? {
             self.last_wp = Some((*w, now));
         }
-        if let Some(e) = &mut self.estimates
-            && e.new_estimate()?
-        {
-            self.rater.hold(now.as_secs_f64());
-        }
         while let Some(p) = self.localization.receive()? {
             self.last_pose = Some((p.pose, now));
-            let sigma = crate::feedback::position_sigma(&p.covariance);
-            if let Some(e) = self.rater.on_pose(p.pose, sigma, now.as_secs_f64()) {
+            if let Some(e) = self.check.on_pose(&p, now.as_secs_f64()) {
                 ctx.evaluate_provider(LOCALIZATION_NEED, e);
             }
         }
@@ -356,7 +336,7 @@ impl Module for ServoModule {
     ) -> ModuleResult {
         if need == LOCALIZATION_NEED {
             self.localization.follow(ctx, provider)?;
-            self.rater.reset();
+            self.check.rater.reset();
         } else if need == ROBOT_CONTROL_NEED {
             self.cmd_out.follow(ctx, provider)?;
         }

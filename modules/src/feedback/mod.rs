@@ -18,10 +18,12 @@ mod scan_map;
 
 pub use scan_map::{MapFeedbackParams, MapRating, ScanMapAgreement};
 
-use hng_runtime::msg::Pose2D;
+use hng_runtime::msg::{Odometry, Pose2D, PoseWithCovariance};
+use hng_runtime::{Context, ModuleResult, Subscriber};
 use smart_default::SmartDefault;
 
 use crate::common::{relative, wrap_angle};
+use crate::initial_pose::EstimateNotice;
 
 /// Consistency of a pose source with odometry.
 #[derive(Debug, Clone, SmartDefault)]
@@ -56,6 +58,12 @@ impl OdometryConsistency {
     pub fn hold(&mut self, t: f64) {
         self.base = None;
         self.held_until = t + self.window_s;
+    }
+
+    /// Whether the provider's poses are in doubt at `t` s: within a hold, or the last window
+    /// found them inconsistent (until a window finds them consistent again).
+    pub fn in_doubt(&self, t: f64) -> bool {
+        t < self.held_until || self.last.is_some_and(|(e, _)| e < 0.0)
     }
 
     /// The latest odometry pose.
@@ -103,6 +111,54 @@ impl OdometryConsistency {
     }
 }
 
+/// A client's check of its "Localization" provider: the [`OdometryConsistency`] of the poses
+/// it receives, with the latest odometry and held over the operator's estimates. Both are
+/// polled inputs, read when a pose comes: they wake nobody.
+#[derive(Debug)]
+pub struct PoseCheck {
+    odom: Option<Subscriber<Odometry>>,
+    estimates: Option<EstimateNotice>,
+    /// The rating.
+    pub rater: OdometryConsistency,
+}
+
+impl PoseCheck {
+    /// Odometry from channel `odom`, estimates from channel `initial_pose` (an empty name:
+    /// none; without odometry nothing is judged).
+    pub fn new(ctx: &mut Context, odom: &str, initial_pose: &str) -> ModuleResult<PoseCheck> {
+        Ok(PoseCheck {
+            odom: if odom.is_empty() {
+                None
+            } else {
+                Some(ctx.subscribe_polled(odom)?)
+            },
+            estimates: EstimateNotice::new(ctx, initial_pose)?,
+            rater: OdometryConsistency::default(),
+        })
+    }
+
+    /// Reads the latest odometry and whether an estimate came (a hold from `t` s); call before
+    /// passing on the poses received with them.
+    pub fn poll(&mut self, t: f64) -> ModuleResult {
+        if let Some(odom) = &self.odom
+            && let Some(o) = odom.latest()?
+        {
+            self.rater.on_odom(o.pose);
+        }
+        if let Some(e) = &mut self.estimates
+            && e.new_estimate()?
+        {
+            self.rater.hold(t);
+        }
+        Ok(())
+    }
+
+    /// A pose of the provider at `t` s: an evaluation in [-1, 0] when a window closes.
+    pub fn on_pose(&mut self, p: &PoseWithCovariance, t: f64) -> Option<f64> {
+        self.rater.on_pose(p.pose, position_sigma(&p.covariance), t)
+    }
+}
+
 /// The position standard deviation of a row-major 3x3 (x, y, θ) covariance, m.
 pub fn position_sigma(cov: &[f64; 9]) -> f64 {
     (0.5 * (cov[0] + cov[4])).max(0.0).sqrt()
@@ -147,6 +203,33 @@ mod tests {
         assert!(
             (position_sigma(&[0.09, 0.0, 0.0, 0.0, 0.09, 0.0, 0.0, 0.0, 0.0]) - 0.3).abs() < 1e-12
         );
+    }
+
+    #[test]
+    fn poses_are_in_doubt_from_an_inconsistent_window_to_a_consistent_one_and_over_a_hold() {
+        let mut c = OdometryConsistency::default();
+        let mut doubt = Vec::new();
+        for k in 0..60 {
+            let t = k as f64 * 0.1;
+            // Odometry at 0.4 m/s; the source lies (30 % of the motion) from 1 s to 3 s.
+            c.on_odom(Pose2D::new(0.4 * t, 0.0, 0.0));
+            let lie = 0.7 * 0.4 * (t.clamp(1.0, 3.0) - 1.0);
+            c.on_pose(Pose2D::new(0.4 * t - lie, 0.0, 0.0), 0.02, t);
+            if k == 45 {
+                c.hold(t);
+            }
+            doubt.push(c.in_doubt(t));
+        }
+        let at = |t: f64| doubt[(t * 10.0).round() as usize];
+        assert!(!at(0.5) && !at(1.5), "nothing judged against it yet");
+        assert!(at(2.0) && at(2.9), "the window 1-2 s was inconsistent");
+        assert!(at(3.5), "so was 2-3 s");
+        assert!(
+            !at(4.2),
+            "3-4 s was consistent (the offset stays, the motion agrees)"
+        );
+        assert!(at(4.5) && at(5.4), "held over the estimate");
+        assert!(!at(5.5), "the hold is over");
     }
 
     /// A source that jumps 15 m at 2.05 s (the operator's estimate after the robot was

@@ -14,9 +14,9 @@
 //! `E = −1` at `disagree`. As for the Servo's rating, only the penalty side is used (a
 //! positive E sent at every refresh would pile up and entrench the provider in use).
 //!
-//! Limitation: a pose wrong by more than `search_m` blames the map too. The Servo's
-//! odometry check normally takes such a Localization provider away first (usually within
-//! 1-2 s of motion, tests/system/attention.rs).
+//! A pose wrong by more than `search_m` would blame the map too: Planning passes no pose
+//! while its [`super::PoseCheck`] has the Localization provider's poses in doubt (they
+//! disagree with the odometry, or jumped to an operator's estimate), so nothing is judged then.
 
 use hng_runtime::channel::InputId;
 use hng_runtime::map::{OCCUPIED, OccupancyGrid, UNKNOWN};

@@ -46,6 +46,15 @@ pub struct PlanningModuleConfig {
     pub scan: String,
     /// The rating's parameters.
     pub map_feedback: crate::feedback::MapFeedbackParams,
+    /// Odometry, to check the "Localization" provider's poses: while they disagree with it
+    /// the map is not rated ([`crate::feedback::PoseCheck`]; default `robot/odom`, empty: no
+    /// check).
+    #[default("robot/odom".into())]
+    pub odom: String,
+    /// The operator's pose estimates (default `operator/initial_pose`, empty: none): the
+    /// Localization provider jumps to one, and the map is not rated for a window.
+    #[default(crate::initial_pose::INITIAL_POSE_CHANNEL.into())]
+    pub initial_pose: String,
     /// Longest computation (map inflation, a search) during which heartbeats go on, s
     /// (default 120); a longer one is a hang for the watchdog. See [`crate::heartbeat`].
     #[default(120.0)]
