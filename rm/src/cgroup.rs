@@ -157,6 +157,54 @@ fn mkdir_run(run: &Path) -> Result<()> {
     }
 }
 
+/// The pid of the process that created run `name` (`<system>-<pid>-<ns>`, [`unique_run_id`]).
+fn creator_pid(name: &str) -> Option<i32> {
+    let mut parts = name.rsplitn(3, '-');
+    let ns = parts.next()?;
+    let pid = parts.next()?;
+    parts.next().filter(|system| !system.is_empty())?;
+    ns.parse::<u128>().ok()?;
+    pid.parse::<i32>().ok().filter(|p| *p > 0)
+}
+
+/// Removes the runs under `hng` whose creator is dead (a supervisor killed by SIGKILL
+/// removes nothing): each `<system>-<pid>-<ns>` directory whose pid no longer exists, its
+/// module directories first. A cgroup that still holds a process is not removable
+/// (`EBUSY`): such a run, a run of a live pid (or of a pid reused since) and anything not
+/// named like a run are left alone, and so is `own` (the run being created). Returns the
+/// runs removed.
+fn remove_stale_runs(hng: &Path, own: &str) -> usize {
+    let Ok(entries) = fs::read_dir(hng) else {
+        return 0;
+    };
+    let mut removed = 0;
+    for run in entries.flatten() {
+        let name = run.file_name();
+        let Some(pid) = name.to_str().filter(|n| *n != own).and_then(creator_pid) else {
+            continue;
+        };
+        // ESRCH: no such process; 0 or EPERM: alive.
+        // SAFETY: kill with signal 0 only checks that the pid exists.
+        let dead = unsafe { libc::kill(pid, 0) } == -1
+            && std::io::Error::last_os_error().raw_os_error() == Some(libc::ESRCH);
+        if !dead || !run.file_type().is_ok_and(|t| t.is_dir()) {
+            continue;
+        }
+        let path = run.path();
+        if let Ok(modules) = fs::read_dir(&path) {
+            for m in modules.flatten() {
+                if m.file_type().is_ok_and(|t| t.is_dir()) {
+                    let _ = fs::remove_dir(m.path());
+                }
+            }
+        }
+        if fs::remove_dir(&path).is_ok() {
+            removed += 1;
+        }
+    }
+    removed
+}
+
 /// Removes the shared `hng` parent if this was the last run in it.
 fn rmdir_shared_parent(run: &Path) {
     if let Some(parent) = run.parent() {
@@ -218,7 +266,8 @@ pub fn unique_run_id() -> String {
 }
 
 impl CgroupRun {
-    /// Creates `hng/<system>-<run_id>` in every usable hierarchy. Without cgroups this
+    /// Creates `hng/<system>-<run_id>` in every usable hierarchy, after removing the runs
+    /// dead processes left there (one log line says how many). Without cgroups this
     /// succeeds and creates nothing (every module cap then falls to software).
     pub fn create(support: &CgroupSupport, system: &str, run_id: &str) -> Result<Self> {
         let name = format!("{system}-{run_id}");
@@ -253,6 +302,16 @@ impl CgroupRun {
                     dirs.push((run, set));
                 }
             }
+        }
+        let stale: usize = dirs
+            .iter()
+            .filter_map(|(run, _)| run.parent())
+            .map(|hng| remove_stale_runs(hng, &name))
+            .sum();
+        if stale > 0 {
+            tracing::info!(
+                "removed {stale} cgroup(s) of runs whose supervisor died without removing them"
+            );
         }
         Ok(CgroupRun {
             support: support.clone(),
@@ -538,6 +597,21 @@ mod tests {
             v2.parse_ns(b"usage_usec 1500\nuser_usec 1000\nsystem_usec 500\n"),
             Some(1_500_000)
         );
+    }
+
+    #[test]
+    fn a_runs_creator_is_read_from_its_name() {
+        assert_eq!(
+            creator_pid("hng-mission-16257-1796001200572537355"),
+            Some(16257)
+        );
+        assert_eq!(
+            creator_pid(&format!("sys-{}", unique_run_id())),
+            Some(std::process::id() as i32)
+        );
+        for not_a_run in ["sys", "sys-1", "sys-x-1", "sys-1-x", "sys-0-5", "-1-2"] {
+            assert_eq!(creator_pid(not_a_run), None, "{not_a_run}");
+        }
     }
 
     #[test]

@@ -513,3 +513,62 @@ fn an_opened_run_reads_caps_back_and_removes_nothing() {
     cg.remove().expect("remove");
     run.remove().expect("remove run");
 }
+
+/// A supervisor killed by SIGKILL removes none of its cgroups; the next run removes them
+/// (their creator's pid is dead) and leaves alone a run that still holds a process and the
+/// runs of live processes.
+#[test]
+fn the_cgroups_of_a_dead_supervisor_are_removed_by_the_next_run() {
+    let Some(support) = support_with(&[Controller::Pids]) else {
+        return;
+    };
+    // A pid that is no more: a child, reaped.
+    let mut gone = Command::new("true").spawn().expect("spawn true");
+    gone.wait().expect("reap");
+    let dead_id = format!("{}-1", gone.id());
+    // Its runs: one that still holds a process (an orphaned module), one empty.
+    let busy = CgroupRun::create(&support, "test-stalebusy", &dead_id).expect("busy run");
+    let busy_cg = busy.module("m").expect("module cgroup");
+    let mut orphan = spawn_in(
+        Some(&busy_cg),
+        Command::new("sh").args(["-c", "echo ready; while :; do read x; done"]),
+    );
+    orphan.wait_ready();
+    let stale = CgroupRun::create(&support, "test-stale", &dead_id).expect("stale run");
+    let stale_cg = stale.module("m").expect("module cgroup");
+    // Killed: nothing removed.
+    std::mem::forget(stale_cg);
+    std::mem::forget(stale);
+    std::mem::forget(busy_cg);
+    std::mem::forget(busy);
+    let stale_name = format!("test-stale-{dead_id}");
+    let busy_name = format!("test-stalebusy-{dead_id}");
+    assert!(
+        CgroupRun::open(&support, &stale_name).is_ok(),
+        "left behind"
+    );
+
+    let live = CgroupRun::create(&support, "test-live", &unique_run_id()).expect("next run");
+    assert!(
+        CgroupRun::open(&support, &stale_name).is_err(),
+        "the dead supervisor's empty run is removed"
+    );
+    let busy = CgroupRun::open(&support, &busy_name).expect("a run holding a process stays");
+    let busy_cg = busy
+        .existing_module("m")
+        .expect("name")
+        .expect("its module cgroup stays");
+    assert_eq!(busy_cg.pids().expect("pids"), vec![orphan.pid()]);
+    assert!(
+        CgroupRun::open(&support, live.name()).is_ok(),
+        "the live run stays"
+    );
+
+    busy_cg.kill_all().expect("kill the orphan");
+    let _ = orphan.0.wait();
+    // The orphan gone, its run is removed by the next run too.
+    let next = CgroupRun::create(&support, "test-live2", &unique_run_id()).expect("run");
+    assert!(CgroupRun::open(&support, &busy_name).is_err(), "removed");
+    next.remove().expect("remove");
+    live.remove().expect("remove");
+}
