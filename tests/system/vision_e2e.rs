@@ -608,28 +608,48 @@ fn track_beacon_moves_to_the_histogram_tracker_in_the_dark_and_back_in_the_light
         .expect("hng contracts --follow");
     let lines = crate::common::stdout_lines(follow.stdout.take().expect("stdout"));
     r.designate(BEACON_ID);
-    assert!(
-        r.until(3.0, |r| r.tracker().as_deref() == Some("tracker_colour")),
+    // Timed by the stamps of the reacher's tables, not by when the test read them (at `max`
+    // the simulation runs on while the test waits for a core: once at load 30 it read the
+    // switch more than 1 s after dusk; the stamps said 0.61 s).
+    r.until(3.0, |_| false);
+    let at_dusk = r
+        .switches
+        .iter()
+        .rev()
+        .find(|(t, _)| *t < 3.0)
+        .map(|(_, id)| r.name(*id));
+    assert_eq!(
+        at_dusk.as_deref(),
+        Some("tracker_colour"),
         "the colour tracker first: {:?}",
         r.log()
     );
-    let moved = r.until(7.0, |r| r.tracker().as_deref() == Some("tracker_histogram"));
-    let t_dark = r.now_s() - 3.0;
+    let switched = |r: &Run, to: &str, after: f64| {
+        r.switches
+            .iter()
+            .find(|(t, id)| *t >= after && r.name(*id) == to)
+            .map(|(t, _)| t - after)
+    };
+    r.until(7.0, |r| switched(r, "tracker_histogram", 3.0).is_some());
+    let t_dark = switched(&r, "tracker_histogram", 3.0);
     println!(
-        "dusk at 3 s: Track beacon moved to the histogram tracker after {t_dark:.2} s simulated"
+        "dusk at 3 s: Track beacon moved to the histogram tracker after {t_dark:.2?} s simulated"
     );
-    assert!(moved, "{:?}", r.log());
+    let Some(t_dark) = t_dark.filter(|t| *t < 4.0) else {
+        panic!(
+            "no switch to the histogram tracker in the dark: {:?}",
+            r.log()
+        );
+    };
     assert!(t_dark <= 1.0, "within 1 s of simulated time: {t_dark:.2} s");
-    r.until(7.0, |_| false);
-    let back = r.until(12.0, |r| r.tracker().as_deref() == Some("tracker_colour"));
-    let t_back = r.now_s() - 7.0;
-    println!("light at 7 s: Track beacon back to the colour tracker after {t_back:.2} s simulated");
-    assert!(back, "{:?}", r.log());
+    r.until(12.0, |r| switched(r, "tracker_colour", 7.0).is_some());
+    let t_back = switched(&r, "tracker_colour", 7.0);
+    println!(
+        "light at 7 s: Track beacon back to the colour tracker after {t_back:.2?} s simulated"
+    );
+    assert!(t_back.is_some_and(|t| t < 5.0), "{:?}", r.log());
     println!("contract log: {:?}", r.log());
     // The stream saw the same switches of the reacher's "Track beacon", at the same times.
-    // Before dusk it may show the contract settling (under load the histogram tracker's answer
-    // can come first and the colour tracker's better one replace it at once): from the stream
-    // before 3 s only the contract holding at dusk counts.
     let mut seen: Vec<(f64, String)> = Vec::new();
     let deadline = Instant::now() + Duration::from_secs(20);
     let back_seen = |seen: &[(f64, String)]| {
@@ -651,16 +671,16 @@ fn track_beacon_moves_to_the_histogram_tracker_in_the_dark_and_back_in_the_light
     let _ = follow.kill();
     let _ = follow.wait();
     println!("hng contracts --follow: {seen:?}");
-    let settled = seen.iter().rposition(|(t, _)| *t < 3.0).unwrap_or(0);
+    // The stream's first lines may come after the colour tracker took the contract (a process
+    // started under load, while the simulation runs at `max`: once at load 27 it printed only
+    // the two switches after dusk), so the stream is held to what followed dusk; who held the
+    // contract then is the test's own record above.
+    let settled = seen.partition_point(|(t, _)| *t < 3.0);
     let to: Vec<&str> = seen[settled..].iter().map(|s| s.1.as_str()).collect();
-    assert_eq!(
-        to,
-        ["tracker_colour", "tracker_histogram", "tracker_colour"],
-        "{seen:?}"
-    );
+    assert_eq!(to, ["tracker_histogram", "tracker_colour"], "{seen:?}");
     // The two switches at the times the test saw them.
     let switches = r.switches.iter().filter(|(when, _)| *when >= 3.0);
-    for ((t, to), (when, id)) in seen[settled + 1..].iter().zip(switches) {
+    for ((t, to), (when, id)) in seen[settled..].iter().zip(switches) {
         assert_eq!(*to, r.name(*id), "stream {seen:?}, test {:?}", r.log());
         assert!((t - when).abs() <= 0.5, "stream {t:.2} s, test {when:.2} s");
     }
