@@ -53,8 +53,10 @@ impl Observer {
     /// Subscribes before anything starts, so no command or report is missed.
     fn new(prefix: &str) -> Observer {
         let node = Node::new(NodeOptions::new("rm-test").prefix(prefix)).expect("node");
+        // Every status, not only the latest few (the CPU test weighs each figure by its
+        // interval).
         let status = node
-            .slice_subscriber::<JsonInfo>(RM_STATUS)
+            .slice_tap_subscriber::<JsonInfo>(RM_STATUS)
             .expect("rm status");
         let costs = node.subscriber::<ResourceCosts>(RM_COSTS).expect("costs");
         let commands = node
@@ -87,9 +89,15 @@ impl Observer {
 
     /// The next RM status document.
     fn next_status(&mut self, deadline: Instant) -> Value {
+        self.next_stamped_status(deadline).1
+    }
+
+    /// The next RM status document with its stamp (`CLOCK_MONOTONIC` s, the RM's clock).
+    fn next_stamped_status(&mut self, deadline: Instant) -> (f64, Value) {
         loop {
             if let Some(s) = self.status.receive().expect("receive status") {
-                return serde_json::from_slice(s.data()).expect("RM status is JSON");
+                let doc = serde_json::from_slice(s.data()).expect("RM status is JSON");
+                return (s.header().header.stamp_ns as f64 * 1e-9, doc);
             }
             self.wait(deadline, "an RM status");
         }
@@ -144,13 +152,20 @@ fn clock_ticks_per_second() -> f64 {
         .unwrap_or(100.0)
 }
 
-/// The RM's CPU % for a module burning 30 % of a core agrees within 5 points with the
-/// kernel's accounting over the same window, and with the known fraction when the machine
-/// lets the module have it.
+/// The RM's CPU % of a module burning (up to) 30 % of a core is what the kernel accounts for
+/// that process (utime + stime, read by the test) over the same window, within 2 points.
+///
+/// How much the burner gets is the kernel's choice (under load far less than 30 %), not the
+/// RM's: the test compares the RM with the kernel only. The window is the RM's own: from the
+/// stamp of one status to that of a later one, each figure weighed by its interval (the RM's
+/// figures are over 100 ms, shorter or longer when it runs late, and a figure over 20 ms is
+/// 0 or 50 % by the kernel's 10 ms ticks: an unweighted mean of such figures was 11.9 % for
+/// the kernel's 6.2 % at load 17). The test reads the kernel's figure as each of the two
+/// statuses arrives. Measured: |RM - kernel| at most 1.15 points in 44 runs at load 14-27
+/// (the kernel gave the burner 0.8-23 %), 2 points with a margin.
 #[test]
-fn rm_measures_a_burning_module_within_5_points() {
+fn rm_measures_a_burning_module_as_the_kernel_accounts_it() {
     let _heavy = crate::common::heavy();
-    const FRACTION: f64 = 30.0;
     let mut sys = TestSystem::new("rmcpu");
     let mut obs = Observer::new(&sys.prefix);
     let pid = sys.spawn_testmod("burn", "burner", "fraction = 0.3");
@@ -159,31 +174,38 @@ fn rm_measures_a_burning_module_within_5_points() {
     obs.status_where("burner's cpu_percent", |d| {
         module(d, "burner")["cpu_percent"].is_number()
     });
-    let t0 = Instant::now();
-    let c0 = cpu_seconds(pid);
+    // Start at the next status (the ones before were read late).
+    while obs.status.receive().expect("receive status").is_some() {}
+    let (s0, _) = obs.next_stamped_status(Instant::now() + TIMEOUT);
+    let (m0, c0) = (Instant::now(), cpu_seconds(pid));
     let mut figures = Vec::new();
-    let deadline = t0 + Duration::from_secs(3);
-    while Instant::now() < deadline {
-        let doc = obs.next_status(deadline + TIMEOUT);
-        if let Some(c) = module(&doc, "burner")["cpu_percent"].as_f64() {
-            figures.push(c);
-        }
+    let mut last = s0;
+    // 3 s and 20 figures at least (a starved RM published 7 in 3 s at load 16).
+    while m0.elapsed() < Duration::from_secs(3) || figures.len() < 20 {
+        let (stamp, doc) = obs.next_stamped_status(Instant::now() + TIMEOUT);
+        let c = module(&doc, "burner")["cpu_percent"].as_f64();
+        figures.push((stamp - last, c.expect("a figure in every status")));
+        last = stamp;
     }
-    let truth = 100.0 * (cpu_seconds(pid) - c0) / t0.elapsed().as_secs_f64();
-    assert!(figures.len() >= 20, "{} RM figures in 3 s", figures.len());
-    let rm = figures.iter().sum::<f64>() / figures.len() as f64;
-    println!("burner: RM {rm:.1}%, kernel {truth:.1}%, nominal {FRACTION}%");
-    assert!(
-        (rm - truth).abs() < 5.0,
-        "RM says {rm:.1}%, the kernel {truth:.1}%"
+    let (m1, c1) = (Instant::now(), cpu_seconds(pid));
+    let kernel = 100.0 * (c1 - c0) / (m1 - m0).as_secs_f64();
+    assert_eq!(obs.status.stats().dropped, 0, "the test lost RM statuses");
+    let span: f64 = figures.iter().map(|f| f.0).sum();
+    let rm = figures.iter().map(|(dt, c)| dt * c).sum::<f64>() / span;
+    let unweighted = figures.iter().map(|f| f.1).sum::<f64>() / figures.len() as f64;
+    println!(
+        "burner (nominal 30 %): RM {rm:.2} % over {span:.2} s ({} figures, unweighted mean \
+         {unweighted:.2} %), kernel {kernel:.2} %",
+        figures.len()
     );
-    if (truth - FRACTION).abs() < 5.0 {
-        assert!((rm - FRACTION).abs() < 5.0, "RM {rm:.1}% for a 30% burner");
-    } else {
-        println!(
-            "NOTE: the machine gave the burner {truth:.1}% instead of 30%; compared with the kernel only"
-        );
-    }
+    assert!(
+        kernel > 0.5,
+        "the burner burned nothing: kernel {kernel:.2} %"
+    );
+    assert!(
+        (rm - kernel).abs() < 2.0,
+        "RM says {rm:.2} %, the kernel {kernel:.2} %"
+    );
     // The RM samples itself too (it is a module).
     let doc = obs.next_status(Instant::now() + TIMEOUT);
     assert!(module(&doc, "rm")["pid"].is_number(), "{doc:#}");

@@ -6,6 +6,10 @@
 //! designates the beacon on `operator/designation`; it reads the true pose (`sim/ground_truth`), the reacher's `reacher/status` and the contract
 //! tables (`hng/contracts`: which tracker holds the reacher's "Track beacon" contract, the
 //! contract log), all stamped in simulated time.
+//!
+//! The test is outside lockstep: the simulation runs on while it waits for a core. So it reads
+//! every message (recorder's buffers, `tap_subscriber`), takes every time from the messages'
+//! own stamps, never from when it noticed them, and checks that it lost none.
 
 use std::io::Read as _;
 use std::path::PathBuf;
@@ -81,8 +85,9 @@ fov = 1.0
     path
 }
 
-/// The launch file; `reacher` and `colour` are extra config lines of those modules.
-fn launch(world: &std::path::Path, reacher: &str, colour: &str) -> String {
+/// The launch file; `reacher` and `colour` are extra config lines of those modules, `speed` the
+/// simulator's (`"max"` or a factor).
+fn launch(world: &std::path::Path, reacher: &str, colour: &str, speed: &str) -> String {
     let modules = [
         "camera",
         "robot",
@@ -113,7 +118,7 @@ command = ["hng", "module", "simulator"]
 
 [module.config]
 world = {:?}
-speed = "max"
+speed = {speed}
 wait_for = [{list}]
 lockstep = [{list}]
 "#,
@@ -158,15 +163,20 @@ struct Run {
     now_ns: u64,
     /// True pose.
     pose: (f64, f64),
+    /// Every true pose read: (its stamp in s, x, y).
+    poses: Vec<(f64, f64, f64)>,
     /// Latest reacher status.
     last_status: Option<ReachStatus>,
+    /// Every reacher status read: (its stamp in s, state).
+    statuses: Vec<(f64, u8)>,
     /// Module names by id, from the contract tables.
     names: std::collections::BTreeMap<u32, String>,
-    /// The contract log: (simulated time, module id of the tracker holding the reacher's
-    /// "Track beacon").
+    /// The contract log: (the reacher's table's stamp in s, module id of the tracker holding
+    /// its "Track beacon").
     switches: Vec<(f64, u32)>,
-    /// Colour tracker's track states seen of the designated beacon (the trackers also
-    /// publish the beacons they discover while none is designated).
+    /// Colour tracker's track states of the designated beacon, each change with the stamp of
+    /// the track that made it (the trackers also publish the beacons they discover while none
+    /// is designated).
     colour_states: Vec<(f64, u8)>,
     /// The beacon designated last.
     designated: Option<u32>,
@@ -174,22 +184,27 @@ struct Run {
 
 impl Run {
     fn start(tag: &str, script: &str, reacher: &str, colour: &str) -> Run {
+        Run::start_at("\"max\"", tag, script, reacher, colour)
+    }
+
+    /// [`Run::start`] with the simulator at `speed` (`"max"` or a factor).
+    fn start_at(speed: &str, tag: &str, script: &str, reacher: &str, colour: &str) -> Run {
         let prefix = shm::unique_prefix(tag);
         let dir = std::env::temp_dir().join(format!("hng-test-{}", prefix.trim_end_matches('_')));
         std::fs::create_dir_all(&dir).expect("test dir");
         let w = world(&dir, script);
         let file = dir.join("vision.launch.toml");
-        std::fs::write(&file, launch(&w, reacher, colour)).expect("launch file");
+        std::fs::write(&file, launch(&w, reacher, colour, speed)).expect("launch file");
         let node = Node::new(NodeOptions::new("operator").prefix(&prefix)).expect("node");
         let truth = node
-            .subscriber::<PoseWithCovariance>("sim/ground_truth")
+            .tap_subscriber::<PoseWithCovariance>("sim/ground_truth")
             .expect("truth");
         let mut waiter = Waiter::new(WaitMode::default()).expect("waiter");
         waiter.attach(&truth).expect("attach");
         let run = Run {
-            status: node.subscriber("reacher/status").expect("status"),
-            tables: node.subscriber(CONTRACTS).expect("tables"),
-            colour_track: node.subscriber("tracker_colour/track").expect("track"),
+            status: node.tap_subscriber("reacher/status").expect("status"),
+            tables: node.tap_subscriber(CONTRACTS).expect("tables"),
+            colour_track: node.tap_subscriber("tracker_colour/track").expect("track"),
             designation: node.publisher(DESIGNATION_CHANNEL).expect("designation"),
             truth,
             waiter,
@@ -197,7 +212,9 @@ impl Run {
             child: None,
             now_ns: 0,
             pose: (1.0, 3.0),
+            poses: Vec::new(),
             last_status: None,
+            statuses: Vec::new(),
             names: Default::default(),
             switches: Vec::new(),
             colour_states: Vec::new(),
@@ -232,6 +249,12 @@ impl Run {
 
     fn distance_to_beacon(&self) -> f64 {
         (self.pose.0 - BEACON[0]).hypot(self.pose.1 - BEACON[1])
+    }
+
+    /// The true distance to the beacon at `t_s` of simulated time.
+    fn distance_at(&self, t_s: f64) -> f64 {
+        let p = self.pose_at(t_s);
+        (p.0 - BEACON[0]).hypot(p.1 - BEACON[1])
     }
 
     fn designate(&mut self, id: u32) {
@@ -273,17 +296,19 @@ impl Run {
         while let Some(g) = self.truth.receive().expect("truth") {
             self.now_ns = self.now_ns.max(g.header.stamp_ns);
             self.pose = (g.pose.x, g.pose.y);
+            self.poses
+                .push((secs(g.header.stamp_ns), g.pose.x, g.pose.y));
         }
         while let Some(s) = self.status.receive().expect("status") {
             self.last_status = Some(*s);
+            self.statuses.push((secs(s.header.stamp_ns), s.state));
         }
         while let Some(t) = self.colour_track.receive().expect("track") {
-            let now = self.now_s();
             if Some(t.beacon_id) != self.designated {
                 continue;
             }
             if self.colour_states.last().is_none_or(|(_, s)| *s != t.state) {
-                self.colour_states.push((now, t.state));
+                self.colour_states.push((secs(t.header.stamp_ns), t.state));
             }
         }
         while let Some(t) = self.tables.receive().expect("tables") {
@@ -296,10 +321,34 @@ impl Run {
                     && e.service() == "Track beacon"
                     && self.switches.last().map(|s| s.1) != Some(e.peer)
                 {
-                    self.switches.push((self.now_s(), e.peer));
+                    self.switches.push((secs(t.header.stamp_ns), e.peer));
                 }
             }
         }
+    }
+
+    /// The true pose at `t_s` (the first one stamped then or later; the latest if none is).
+    fn pose_at(&self, t_s: f64) -> (f64, f64) {
+        self.poses
+            .iter()
+            .find(|p| p.0 >= t_s)
+            .or(self.poses.last())
+            .map_or(self.pose, |p| (p.1, p.2))
+    }
+
+    /// Panics if the test lost messages it reads (its buffers overflowed while it waited for
+    /// a core): what it concludes from the stamps would then be missing a part.
+    fn assert_nothing_lost(&self) {
+        let lost = [
+            ("sim/ground_truth", self.truth.stats().dropped),
+            ("reacher/status", self.status.stats().dropped),
+            ("tracker_colour/track", self.colour_track.stats().dropped),
+            ("hng/contracts", self.tables.stats().dropped),
+        ];
+        assert!(
+            lost.iter().all(|(_, n)| *n == 0),
+            "the test lost messages (lost per channel: {lost:?})"
+        );
     }
 
     /// Pumps until `done` or `limit_s` of simulated time (or 240 s of wall time) has passed.
@@ -350,6 +399,11 @@ impl Run {
         let status = c.wait().expect("wait");
         assert!(status.success(), "hng run: {status}\n{err}");
     }
+}
+
+/// Nanoseconds to seconds.
+fn secs(ns: u64) -> f64 {
+    ns as f64 * 1e-9
 }
 
 impl Drop for Run {
@@ -454,13 +508,15 @@ remove_box = "screen2"
 #[test]
 fn the_track_survives_a_one_second_occlusion_and_the_reacher_stops_after_a_longer_one() {
     let _heavy = crate::common::heavy();
-    let mut r = Run::start("vis_occl", SCREENS, "", "");
+    // At 2x, not `max`: the test reads everything from its buffers (64 tracks, 4.3 s of
+    // simulated time) and must not be left behind by more than that while it waits for a core;
+    // at `max` (about 12x) a 0.4 s wait under load was enough to lose the occlusion's tracks.
+    let mut r = Run::start_at("2", "vis_occl", SCREENS, "", "");
     assert!(r.until(30.0, |r| r.now_ns > 0), "the simulation started");
     r.designate(BEACON_ID);
-    r.until(4.0, |_| false);
-    let d_before = r.distance_to_beacon();
-    r.until(5.0, |_| false);
     r.until(6.0, |_| false);
+    r.assert_nothing_lost();
+    // Every time below is a stamp: of the tracks, the reacher's statuses and the true poses.
     let hidden: Vec<_> = r
         .colour_states
         .iter()
@@ -473,41 +529,56 @@ fn the_track_survives_a_one_second_occlusion_and_the_reacher_stops_after_a_longe
         "predicted through the occlusion, never lost: {:?}",
         r.colour_states
     );
-    assert_ne!(
-        r.last_status.map(|s| s.state),
-        Some(REACH_LOST),
-        "the reacher goes on through 1 s"
-    );
+    let lost_early: Vec<_> = r
+        .statuses
+        .iter()
+        .filter(|(t, s)| *t >= 4.0 && *t <= 6.0 && *s == REACH_LOST)
+        .collect();
     assert!(
-        r.distance_to_beacon() < d_before - 0.3,
-        "and keeps approaching: {} -> {}",
-        d_before,
-        r.distance_to_beacon()
+        lost_early.is_empty(),
+        "the reacher goes on through 1 s: lost at {lost_early:?}"
+    );
+    let (d_before, d_after) = (r.distance_at(4.0), r.distance_at(6.0));
+    assert!(
+        d_after < d_before - 0.3,
+        "and keeps approaching: {d_before:.3} m at 4 s -> {d_after:.3} m at 6 s"
     );
     // Hidden again from 7 s, for 4 s: the reacher stops once the beacon is unseen for its
     // timeout (1.5 s).
-    let stopped = r.until(11.0, |r| {
-        r.last_status.is_some_and(|s| s.state == REACH_LOST)
-    });
-    let t_lost = r.now_s() - 7.0;
-    println!("long occlusion: reacher reported the beacon lost {t_lost:.2} s after it was hidden");
+    let lost_at = |r: &Run| {
+        r.statuses
+            .iter()
+            .find(|(t, s)| *t >= 7.0 && *s == REACH_LOST)
+            .map(|(t, _)| *t)
+    };
+    r.until(11.0, |r| lost_at(r).is_some());
+    let t_lost = lost_at(&r).map(|t| t - 7.0);
+    println!("long occlusion: reacher reported the beacon lost {t_lost:.2?} s after it was hidden");
+    let Some(t_lost) = t_lost.filter(|t| *t < 4.0) else {
+        panic!(
+            "the reacher reports the beacon lost while hidden: {:?}",
+            r.statuses
+                .iter()
+                .filter(|(t, _)| *t >= 7.0)
+                .collect::<Vec<_>>()
+        );
+    };
+    // The timeout runs from the last sighting, at most one image (1/15 s) before 7 s, and the
+    // loss is reported with the first track past it, at most one image later: 1.43-1.57 s
+    // (1.47 s in each of 40 runs at load 14-18).
     assert!(
-        stopped,
-        "the reacher reports the beacon lost: {:?}",
-        r.last_status
+        (1.4..1.6).contains(&t_lost),
+        "lost after {t_lost:.2} s (timeout 1.5 s)"
     );
-    assert!(
-        t_lost > 1.0 && t_lost < 2.5,
-        "lost after {t_lost} s (timeout 1.5 s)"
-    );
-    let at = r.pose;
-    let t3 = r.now_s();
+    let t3 = 7.0 + t_lost;
     r.until(t3 + 1.0, |_| false);
-    let drift = (r.pose.0 - at.0).hypot(r.pose.1 - at.1);
+    let (at, then) = (r.pose_at(t3), r.pose_at(t3 + 1.0));
+    let drift = (then.0 - at.0).hypot(then.1 - at.1);
     assert!(
         drift < 0.1,
-        "stopped: moved {drift} m after reporting the loss"
+        "stopped: moved {drift} m in the 1 s after reporting the loss"
     );
+    r.assert_nothing_lost();
     r.finish();
 }
 
@@ -537,28 +608,48 @@ fn track_beacon_moves_to_the_histogram_tracker_in_the_dark_and_back_in_the_light
         .expect("hng contracts --follow");
     let lines = crate::common::stdout_lines(follow.stdout.take().expect("stdout"));
     r.designate(BEACON_ID);
-    assert!(
-        r.until(3.0, |r| r.tracker().as_deref() == Some("tracker_colour")),
+    // Timed by the stamps of the reacher's tables, not by when the test read them (at `max`
+    // the simulation runs on while the test waits for a core: once at load 30 it read the
+    // switch more than 1 s after dusk; the stamps said 0.61 s).
+    r.until(3.0, |_| false);
+    let at_dusk = r
+        .switches
+        .iter()
+        .rev()
+        .find(|(t, _)| *t < 3.0)
+        .map(|(_, id)| r.name(*id));
+    assert_eq!(
+        at_dusk.as_deref(),
+        Some("tracker_colour"),
         "the colour tracker first: {:?}",
         r.log()
     );
-    let moved = r.until(7.0, |r| r.tracker().as_deref() == Some("tracker_histogram"));
-    let t_dark = r.now_s() - 3.0;
+    let switched = |r: &Run, to: &str, after: f64| {
+        r.switches
+            .iter()
+            .find(|(t, id)| *t >= after && r.name(*id) == to)
+            .map(|(t, _)| t - after)
+    };
+    r.until(7.0, |r| switched(r, "tracker_histogram", 3.0).is_some());
+    let t_dark = switched(&r, "tracker_histogram", 3.0);
     println!(
-        "dusk at 3 s: Track beacon moved to the histogram tracker after {t_dark:.2} s simulated"
+        "dusk at 3 s: Track beacon moved to the histogram tracker after {t_dark:.2?} s simulated"
     );
-    assert!(moved, "{:?}", r.log());
+    let Some(t_dark) = t_dark.filter(|t| *t < 4.0) else {
+        panic!(
+            "no switch to the histogram tracker in the dark: {:?}",
+            r.log()
+        );
+    };
     assert!(t_dark <= 1.0, "within 1 s of simulated time: {t_dark:.2} s");
-    r.until(7.0, |_| false);
-    let back = r.until(12.0, |r| r.tracker().as_deref() == Some("tracker_colour"));
-    let t_back = r.now_s() - 7.0;
-    println!("light at 7 s: Track beacon back to the colour tracker after {t_back:.2} s simulated");
-    assert!(back, "{:?}", r.log());
+    r.until(12.0, |r| switched(r, "tracker_colour", 7.0).is_some());
+    let t_back = switched(&r, "tracker_colour", 7.0);
+    println!(
+        "light at 7 s: Track beacon back to the colour tracker after {t_back:.2?} s simulated"
+    );
+    assert!(t_back.is_some_and(|t| t < 5.0), "{:?}", r.log());
     println!("contract log: {:?}", r.log());
     // The stream saw the same switches of the reacher's "Track beacon", at the same times.
-    // Before dusk it may show the contract settling (under load the histogram tracker's answer
-    // can come first and the colour tracker's better one replace it at once): from the stream
-    // before 3 s only the contract holding at dusk counts.
     let mut seen: Vec<(f64, String)> = Vec::new();
     let deadline = Instant::now() + Duration::from_secs(20);
     let back_seen = |seen: &[(f64, String)]| {
@@ -580,16 +671,16 @@ fn track_beacon_moves_to_the_histogram_tracker_in_the_dark_and_back_in_the_light
     let _ = follow.kill();
     let _ = follow.wait();
     println!("hng contracts --follow: {seen:?}");
-    let settled = seen.iter().rposition(|(t, _)| *t < 3.0).unwrap_or(0);
+    // The stream's first lines may come after the colour tracker took the contract (a process
+    // started under load, while the simulation runs at `max`: once at load 27 it printed only
+    // the two switches after dusk), so the stream is held to what followed dusk; who held the
+    // contract then is the test's own record above.
+    let settled = seen.partition_point(|(t, _)| *t < 3.0);
     let to: Vec<&str> = seen[settled..].iter().map(|s| s.1.as_str()).collect();
-    assert_eq!(
-        to,
-        ["tracker_colour", "tracker_histogram", "tracker_colour"],
-        "{seen:?}"
-    );
+    assert_eq!(to, ["tracker_histogram", "tracker_colour"], "{seen:?}");
     // The two switches at the times the test saw them.
     let switches = r.switches.iter().filter(|(when, _)| *when >= 3.0);
-    for ((t, to), (when, id)) in seen[settled + 1..].iter().zip(switches) {
+    for ((t, to), (when, id)) in seen[settled..].iter().zip(switches) {
         assert_eq!(*to, r.name(*id), "stream {seen:?}, test {:?}", r.log());
         assert!((t - when).abs() <= 0.5, "stream {t:.2} s, test {when:.2} s");
     }
