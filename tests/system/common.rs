@@ -233,6 +233,11 @@ pub(crate) fn terminate(child: &mut Child, timeout: Duration) -> Option<std::pro
 pub(crate) struct Reaped(pub(crate) Child);
 
 impl Reaped {
+    /// Whether the child still runs (it has not exited).
+    pub(crate) fn running(&mut self) -> bool {
+        self.0.try_wait().expect("try_wait").is_none()
+    }
+
     /// Waits for the child to end: its exit status, stdout and stderr (each empty unless
     /// piped).
     pub(crate) fn finish(&mut self) -> (std::process::ExitStatus, String, String) {
