@@ -62,35 +62,58 @@ pub(crate) fn room_walls(width: f64, height: f64) -> String {
 /// Generous: a whole robot in accelerated simulation on two loaded cores.
 pub(crate) const TIMEOUT: Duration = Duration::from_secs(150);
 
+/// Waits on `waiter` (its channels) until `poll`, which reads what arrived, gives a value;
+/// panics with `why()` when `timeout` passes first.
+pub(crate) fn wait_until<T>(
+    waiter: &mut Waiter,
+    timeout: Duration,
+    mut poll: impl FnMut() -> Option<T>,
+    why: impl FnOnce() -> String,
+) -> T {
+    waiter
+        .wait_for(timeout, || Ok(poll()))
+        .expect("wait")
+        .unwrap_or_else(|| panic!("{}", why()))
+}
+
+/// Polls `done` every `every` until it holds, for what no channel announces (a process's
+/// end, a file's content); panics with `why()` when `timeout` passes first.
+pub(crate) fn poll_until(
+    timeout: Duration,
+    every: Duration,
+    mut done: impl FnMut() -> bool,
+    why: impl FnOnce() -> String,
+) {
+    let deadline = Instant::now() + timeout;
+    while !done() {
+        assert!(Instant::now() < deadline, "{}", why());
+        std::thread::sleep(every);
+    }
+}
+
 /// Waits (blocking, with a deadline) for the first report of module `name` that satisfies
 /// `pred`.
 pub fn wait_for_report(
     node: &hng_runtime::Node,
     name: &str,
     timeout: Duration,
-    mut pred: impl FnMut(&hng_runtime::msg::ModuleReport) -> bool,
-) -> hng_runtime::msg::ModuleReport {
-    use hng_runtime::module::REPORT_CHANNEL;
-    use hng_runtime::wait::{WaitMode, Waiter};
+    mut pred: impl FnMut(&ModuleReport) -> bool,
+) -> ModuleReport {
     let sub = node
-        .subscriber::<hng_runtime::msg::ModuleReport>(REPORT_CHANNEL)
+        .subscriber::<ModuleReport>(REPORT_CHANNEL)
         .expect("report subscriber");
     let mut waiter = Waiter::new(WaitMode::default()).expect("waiter");
     waiter.attach(&sub).expect("attach");
-    let deadline = Instant::now() + timeout;
-    loop {
-        while let Some(r) = sub.receive().expect("receive report") {
-            if r.name() == name && pred(&r) {
-                return *r;
-            }
-        }
-        let left = deadline.saturating_duration_since(Instant::now());
-        assert!(
-            !left.is_zero(),
-            "no matching report from {name} within {timeout:?}"
-        );
-        waiter.wait(Some(left)).expect("wait");
-    }
+    wait_until(
+        &mut waiter,
+        timeout,
+        || {
+            std::iter::from_fn(|| sub.receive().expect("receive report"))
+                .find(|r| r.name() == name && pred(r))
+                .map(|r| *r)
+        },
+        || format!("no matching report from {name} within {timeout:?}"),
+    )
 }
 
 /// A test's isolated system: its prefix, and the processes it started.

@@ -6,7 +6,9 @@
 
 use std::path::Path;
 
+use crate::common::poll_until;
 use crate::mission::{MissionRun as Run, hng};
+use crate::signals::is_alive;
 
 /// A corridor 12 m long and 2 m wide (y 0..2) along x, closed at both ends; `extra` is
 /// appended (events, ...). Start at `start`.
@@ -257,15 +259,8 @@ fn eval_run_child(parent: u32) -> Option<(u32, String)> {
         let Some(pid) = e.file_name().to_str().and_then(|s| s.parse::<u32>().ok()) else {
             continue;
         };
-        let Ok(stat) = std::fs::read_to_string(format!("/proc/{pid}/stat")) else {
-            continue;
-        };
-        // Fields after the command's closing parenthesis: state, ppid, ...
-        let ppid = stat
-            .rsplit_once(')')
-            .and_then(|(_, rest)| rest.split_whitespace().nth(1))
-            .and_then(|p| p.parse::<u32>().ok());
-        if ppid != Some(parent) {
+        let stat = std::fs::read(format!("/proc/{pid}/stat")).unwrap_or_default();
+        if hng_rm::sampler::parse_stat(&stat).map(|s| s.ppid) != Some(parent) {
             continue;
         }
         let cmdline = std::fs::read(format!("/proc/{pid}/cmdline")).unwrap_or_default();
@@ -295,17 +290,6 @@ fn run_has_started(runs: &Path) -> bool {
         .any(|d| {
             std::fs::read_to_string(d.path().join("stdout.txt")).is_ok_and(|t| t.contains("logs:"))
         })
-}
-
-fn alive(pid: u32) -> bool {
-    // A zombie has exited: only its parent's wait is missing.
-    std::fs::read_to_string(format!("/proc/{pid}/stat"))
-        .ok()
-        .and_then(|s| {
-            s.rsplit_once(')')
-                .and_then(|(_, r)| r.split_whitespace().next().map(|st| st != "Z"))
-        })
-        .unwrap_or(false)
 }
 
 /// `hng eval nav` stopped by SIGTERM stops its current problem's `hng run` in order and exits
@@ -356,15 +340,17 @@ fn an_eval_stopped_by_sigterm_or_killed_leaves_no_run_and_no_files() {
         }
         // The run stops in order (a clean stop takes seconds on a loaded machine); after a
         // SIGKILL of the eval nobody but the run itself removes its files.
-        let deadline = Instant::now() + Duration::from_secs(60);
-        while alive(run_pid) || !hng_runtime::shm::prefix_files(&prefix).is_empty() {
-            assert!(
-                Instant::now() < deadline,
-                "after {sig}: run {run_pid} alive {}, files left {:?}",
-                alive(run_pid),
-                hng_runtime::shm::prefix_files(&prefix)
-            );
-            std::thread::sleep(Duration::from_millis(200));
-        }
+        poll_until(
+            Duration::from_secs(60),
+            Duration::from_millis(200),
+            || !is_alive(run_pid as i32) && hng_runtime::shm::prefix_files(&prefix).is_empty(),
+            || {
+                format!(
+                    "after {sig}: run {run_pid} alive {}, files left {:?}",
+                    is_alive(run_pid as i32),
+                    hng_runtime::shm::prefix_files(&prefix)
+                )
+            },
+        );
     }
 }

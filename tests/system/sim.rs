@@ -11,7 +11,7 @@ use hng_runtime::wait::{WaitMode, Waiter};
 use hng_runtime::{Node, NodeOptions, SliceSubscriber, Subscriber};
 use hng_simulator::{SimStatus, World};
 
-use crate::common::TestSystem;
+use crate::common::{TestSystem, wait_until};
 
 const SEC: u64 = 1_000_000_000;
 
@@ -91,14 +91,12 @@ struct Watch<T: Message> {
 impl<T: Message> Watch<T> {
     /// The next message, waiting at most until `deadline`.
     fn next(&mut self, deadline: Instant, what: &str) -> T {
-        loop {
-            if let Some(s) = self.sub.receive().expect("receive") {
-                return *s;
-            }
-            let left = deadline.saturating_duration_since(Instant::now());
-            assert!(!left.is_zero(), "timed out waiting for {what}");
-            self.waiter.wait(Some(left)).expect("wait");
-        }
+        wait_until(
+            &mut self.waiter,
+            deadline.saturating_duration_since(Instant::now()),
+            || self.sub.receive().expect("receive").map(|s| *s),
+            || format!("timed out waiting for {what}"),
+        )
     }
 
     /// Messages until one satisfies `done` (included).
