@@ -596,6 +596,19 @@ pub(crate) fn goal(kind: OrderKind, pts: &[(f64, f64)]) -> Order {
     o
 }
 
+/// The JSON documents, one a line, that a command wrote on stdout; it must have succeeded.
+pub(crate) fn json_lines(out: &std::process::Output) -> Vec<serde_json::Value> {
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .map(|l| serde_json::from_str(l).expect("one JSON document per line"))
+        .collect()
+}
+
 /// The lines a child writes on `stdout`, read by a thread of their own and handed out in order
 /// (the receiver's `recv_timeout` waits for the next one with a deadline).
 pub fn stdout_lines(stdout: std::process::ChildStdout) -> std::sync::mpsc::Receiver<String> {

@@ -138,12 +138,7 @@ fn a_sample_of_generated_worlds_is_navigated_and_every_failure_has_a_reason() {
         "{text}\n{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    let lines: Vec<serde_json::Value> = text
-        .lines()
-        .map(|l| serde_json::from_str(l).expect("a JSON line"))
-        .collect();
-    let (summary, problems) = lines.split_last().expect("lines");
-    assert_eq!(summary["summary"], true, "{summary}");
+    let (problems, summary) = eval_lines(&text);
     assert_eq!(problems.len(), 5, "{text}");
     for p in problems {
         for k in [
@@ -206,12 +201,7 @@ fn an_eval_reuses_one_system_and_each_problem_has_figures_of_its_own() {
         .expect("hng eval nav");
     let text = String::from_utf8_lossy(&out.stdout);
     let all = format!("{text}\n{}", String::from_utf8_lossy(&out.stderr));
-    let lines: Vec<serde_json::Value> = text
-        .lines()
-        .map(|l| serde_json::from_str(l).expect("a JSON line"))
-        .collect();
-    let (summary, p) = lines.split_last().expect("lines");
-    assert_eq!(summary["summary"], true, "{all}");
+    let (p, summary) = eval_lines(&text);
     assert_eq!(p.len(), 4, "{all}");
     // One system: one run directory.
     let runs: Vec<_> = std::fs::read_dir(r.dir.join("eval/runs"))
@@ -229,7 +219,7 @@ fn an_eval_reuses_one_system_and_each_problem_has_figures_of_its_own() {
     );
     let f = |i: usize, k: &str| p[i][k].as_f64().unwrap_or(f64::NAN);
     let reason = |i: usize| p[i]["reason"].as_str().unwrap_or("").to_owned();
-    for q in p {
+    for q in &p {
         assert_eq!(q["collisions"], 0, "{all}");
     }
     assert_eq!(p[0]["success"], true, "{all}");
@@ -251,6 +241,18 @@ fn an_eval_reuses_one_system_and_each_problem_has_figures_of_its_own() {
     assert!(ratio > 0.8 && ratio < 1.5, "{all}");
     assert!(f(3, "min_clearance_m") > 0.0, "{all}");
     assert_eq!(summary["successes"], 2, "{all}");
+}
+
+/// The JSON lines of `hng eval nav --json`: one per problem, then the summary (checked to be
+/// one).
+fn eval_lines(text: &str) -> (Vec<serde_json::Value>, serde_json::Value) {
+    let mut lines: Vec<serde_json::Value> = text
+        .lines()
+        .map(|l| serde_json::from_str(l).expect("a JSON line"))
+        .collect();
+    let summary = lines.pop().expect("lines");
+    assert_eq!(summary["summary"], true, "{text}");
+    (lines, summary)
 }
 
 /// The `hng run` child of process `parent` and its `--prefix`, from /proc.

@@ -7,7 +7,7 @@ use hng_runtime::msg::Goal;
 use hng_runtime::wait::{WaitMode, Waiter};
 use hng_runtime::{Node, NodeOptions};
 
-use crate::common::TestSystem;
+use crate::common::{TestSystem, json_lines};
 
 fn hng(prefix: &str, args: &[&str]) -> std::process::Output {
     Command::new(env!("CARGO_BIN_EXE_hng"))
@@ -36,39 +36,24 @@ fn topic_list_echo_and_hz_see_a_running_channel() {
     let mut sys = TestSystem::new("topic");
     running_counter(&mut sys);
 
-    let out = hng(&sys.prefix, &["topic", "list", "--json"]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let list = String::from_utf8_lossy(&out.stdout);
-    let count: serde_json::Value = list
-        .lines()
-        .map(|l| serde_json::from_str::<serde_json::Value>(l).expect("one JSON object per line"))
+    let list = json_lines(&hng(&sys.prefix, &["topic", "list", "--json"]));
+    let count = list
+        .iter()
         .find(|v| v["name"] == "test/count")
         .expect("test/count is listed");
     assert_eq!(count["type"], "hng/Goal/v1");
     assert!(
-        list.contains("hng/report"),
+        list.iter().any(|v| v["name"] == "hng/report"),
         "the report channel is listed too"
     );
 
-    let out = hng(
+    let echoed = json_lines(&hng(
         &sys.prefix,
         &["topic", "echo", "test/count", "--count", "3", "--json"],
-    );
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let ids: Vec<u64> = String::from_utf8_lossy(&out.stdout)
-        .lines()
-        .map(|l| {
-            let v: serde_json::Value = serde_json::from_str(l).expect("json");
-            v["id"].as_u64().expect("id")
-        })
+    ));
+    let ids: Vec<u64> = echoed
+        .iter()
+        .map(|v| v["id"].as_u64().expect("id"))
         .collect();
     assert!(ids.len() >= 3, "{ids:?}");
     assert!(
