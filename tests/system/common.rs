@@ -130,6 +130,11 @@ impl TestSystem {
         }
     }
 
+    /// A node of the test's own on this system's prefix.
+    pub fn node(&self, name: &str) -> Node {
+        Node::new(NodeOptions::new(name).prefix(&self.prefix)).expect("node")
+    }
+
     /// Starts the fixture module `role` with `HNG_*` settings for this system.
     pub fn spawn_testmod(&mut self, role: &str, name: &str, config: &str) -> u32 {
         self.spawn_testmod_with(role, name, config, &[])
@@ -143,22 +148,17 @@ impl TestSystem {
         config: &str,
         env: &[(&str, &str)],
     ) -> u32 {
-        let child = Command::new(env!("CARGO_BIN_EXE_hng-testmod"))
-            .arg(role)
-            .envs(env.iter().copied())
-            .env("HNG_PREFIX", &self.prefix)
-            .env("HNG_MODULE_NAME", name)
-            .env("HNG_MODULE_CONFIG", config)
-            .env(
-                "HNG_LOG",
-                std::env::var("HNG_TEST_LOG").unwrap_or("warn".into()),
-            )
-            .stdin(Stdio::null())
-            .spawn()
-            .expect("spawn hng-testmod");
-        let pid = child.id();
-        self.children.push(child);
-        pid
+        self.spawn(
+            Command::new(env!("CARGO_BIN_EXE_hng-testmod"))
+                .arg(role)
+                .envs(env.iter().copied())
+                .env("HNG_MODULE_NAME", name)
+                .env("HNG_MODULE_CONFIG", config)
+                .env(
+                    "HNG_LOG",
+                    std::env::var("HNG_TEST_LOG").unwrap_or("warn".into()),
+                ),
+        )
     }
 
     /// Starts `cmd` with this system's prefix; it is stopped with the system.
@@ -171,6 +171,15 @@ impl TestSystem {
         let pid = child.id();
         self.children.push(child);
         pid
+    }
+
+    /// Stops every child ([`TestSystem::stop_all`]); each must exit successfully.
+    pub fn stop_cleanly(&mut self) {
+        let statuses = self.stop_all();
+        assert!(
+            statuses.iter().all(|s| s.success()),
+            "not every child stopped cleanly: {statuses:?}"
+        );
     }
 
     /// Sends SIGTERM to every child and waits for each; returns their exit statuses.

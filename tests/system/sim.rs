@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 use hng_runtime::clock::CLOCK_CHANNEL;
 use hng_runtime::msg::{self, GridInfo, LaserScan, Message, PoseWithCovariance, Twist};
 use hng_runtime::wait::{WaitMode, Waiter};
-use hng_runtime::{Node, NodeOptions, SliceSubscriber, Subscriber};
+use hng_runtime::{Node, SliceSubscriber, Subscriber};
 use hng_simulator::{SimStatus, World};
 
 use crate::common::{TestSystem, wait_until};
@@ -25,7 +25,7 @@ struct SimSystem {
 impl SimSystem {
     fn new(tag: &str) -> SimSystem {
         let sys = TestSystem::new(tag);
-        let node = Node::new(NodeOptions::new("observer").prefix(&sys.prefix)).expect("node");
+        let node = sys.node("observer");
         SimSystem {
             sims: Vec::new(),
             observer: Some(node),
@@ -484,7 +484,7 @@ fn a_module_on_the_sim_clock_ticks_in_simulated_time() {
         last.header.stamp_ns
     );
     assert_clean_exit(&s.stop_sims());
-    assert!(s.sys.stop_all().iter().all(|st| st.success()));
+    s.sys.stop_cleanly();
 }
 
 #[test]

@@ -5,7 +5,6 @@ use std::time::Duration;
 
 use hng_runtime::msg::Goal;
 use hng_runtime::wait::{WaitMode, Waiter};
-use hng_runtime::{Node, NodeOptions};
 
 use crate::common::{TestSystem, json_lines};
 
@@ -20,7 +19,7 @@ fn hng(prefix: &str, args: &[&str]) -> std::process::Output {
 
 /// Starts the counter fixture and waits until its first message is out.
 fn running_counter(sys: &mut TestSystem) {
-    let node = Node::new(NodeOptions::new("topic-test").prefix(&sys.prefix)).expect("node");
+    let node = sys.node("topic-test");
     let sub = node.subscriber::<Goal>("test/count").expect("subscriber");
     let mut waiter = Waiter::new(WaitMode::default()).expect("waiter");
     waiter.attach(&sub).expect("attach");
@@ -91,5 +90,5 @@ fn topic_list_echo_and_hz_see_a_running_channel() {
     );
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("no/such/channel"));
-    assert!(sys.stop_all().iter().all(|s| s.success()));
+    sys.stop_cleanly();
 }
