@@ -51,6 +51,20 @@ fn spawn_in(cg: Option<&ModuleCgroup>, cmd: &mut Command) -> Proc {
     Proc(cmd.stdout(Stdio::piped()).spawn().expect("spawn"))
 }
 
+/// A cgroup run of the test's own (`hng/SYSTEM-<pid>-<ns>`) with the cgroup of `module` in
+/// it.
+fn module_cgroup(support: &CgroupSupport, system: &str, module: &str) -> (CgroupRun, ModuleCgroup) {
+    let run = CgroupRun::create(support, system, &unique_run_id()).expect("run");
+    let cg = run.module(module).expect("module cgroup");
+    (run, cg)
+}
+
+/// Removes the module's cgroup, then its run.
+fn remove(run: CgroupRun, cg: ModuleCgroup) {
+    cg.remove().expect("remove module cgroup");
+    run.remove().expect("remove run");
+}
+
 fn support_with(controllers: &[Controller]) -> Option<CgroupSupport> {
     let s = CgroupSupport::detect();
     let missing: Vec<&str> = controllers
@@ -120,8 +134,7 @@ fn cpu_hog_with_20_percent_quota_measures_15_to_25() {
     let Some(support) = support_with(&[Controller::Cpu]) else {
         return;
     };
-    let run = CgroupRun::create(&support, "test-cpuquota", &unique_run_id()).expect("run");
-    let cg = run.module("hog").expect("module cgroup");
+    let (run, cg) = module_cgroup(&support, "test-cpuquota", "hog");
     let applied = cg.apply_limits(&ResourceLimits {
         cpu_percent: Some(20.0),
         ..Default::default()
@@ -161,8 +174,7 @@ fn cpu_hog_with_20_percent_quota_measures_15_to_25() {
         exited_after.is_some(),
         "exit not seen within {every} passes"
     );
-    cg.remove().expect("remove module cgroup");
-    run.remove().expect("remove run");
+    remove(run, cg);
 }
 
 /// Burns `FRACTION` of one core: whenever its CPU time (CLOCK_PROCESS_CPUTIME_ID) is
@@ -194,8 +206,7 @@ fn duty_cycle_is_measured_within_5_points() {
         return;
     };
     let support = CgroupSupport::detect();
-    let run = CgroupRun::create(&support, "test-duty", &unique_run_id()).expect("run");
-    let cg = run.module("duty").expect("module cgroup");
+    let (run, cg) = module_cgroup(&support, "test-duty", "duty");
     let mut p = spawn_in(
         cg.is_real().then_some(&cg),
         Command::new(py).args(["-c", DUTY_CYCLE, &FRACTION.to_string()]),
@@ -217,13 +228,7 @@ fn duty_cycle_is_measured_within_5_points() {
             support.describe()
         );
     }
-    sampler.sample(Instant::now());
-    std::thread::sleep(Duration::from_secs(4));
-    sampler.sample(Instant::now());
-    let proc_cpu = sampler
-        .get("proc")
-        .and_then(|s| s.cpu_percent)
-        .expect("cpu from /proc");
+    let (proc_cpu, _) = measure(&mut sampler, "proc", Duration::from_secs(4));
     let want = FRACTION * 100.0;
     println!("{want}% duty cycle: /proc/PID/stat {proc_cpu:.1}%");
     assert!(
@@ -241,8 +246,7 @@ fn duty_cycle_is_measured_within_5_points() {
         );
     }
     drop(p);
-    cg.remove().expect("remove module cgroup");
-    run.remove().expect("remove run");
+    remove(run, cg);
 }
 
 /// (c) A memory hog over its cgroup memory limit is OOM-killed and the kill is read back.
@@ -254,8 +258,7 @@ fn memory_hog_over_limit_is_oom_killed_and_read_back() {
     let Some(py) = python3() else {
         return;
     };
-    let run = CgroupRun::create(&support, "test-oom", &unique_run_id()).expect("run");
-    let cg = run.module("hog").expect("module cgroup");
+    let (run, cg) = module_cgroup(&support, "test-oom", "hog");
     let applied = cg.apply_limits(&ResourceLimits {
         memory_bytes: Some(64 << 20),
         pids: Some(16),
@@ -278,8 +281,7 @@ fn memory_hog_over_limit_is_oom_killed_and_read_back() {
     let kills = cg.oom_kills().expect("read oom counter");
     println!("OOM kills read back: {kills:?}");
     assert!(kills.is_some_and(|k| k >= 1), "{kills:?}");
-    cg.remove().expect("remove module cgroup");
-    run.remove().expect("remove run");
+    remove(run, cg);
 }
 
 /// Placement from the pre-exec hook puts the child (and what it forks) in the group;
@@ -289,8 +291,7 @@ fn placement_kill_all_and_teardown() {
     let Some(support) = support_with(&[Controller::Pids]) else {
         return;
     };
-    let run = CgroupRun::create(&support, "test-kill", &unique_run_id()).expect("run");
-    let cg = run.module("family").expect("module cgroup");
+    let (run, cg) = module_cgroup(&support, "test-kill", "family");
     let mut sh = spawn_in(
         Some(&cg),
         Command::new("sh").args(["-c", "sleep 100 & sleep 100 & echo ready; wait"]),
@@ -323,8 +324,7 @@ fn placement_kill_all_and_teardown() {
         std::thread::sleep(Duration::from_millis(5));
     }
     let dirs: Vec<_> = cg.dirs().map(std::path::Path::to_path_buf).collect();
-    cg.remove().expect("remove module cgroup");
-    run.remove().expect("remove run");
+    remove(run, cg);
     for d in dirs {
         assert!(!d.exists(), "{} left behind", d.display());
     }
@@ -336,8 +336,7 @@ fn refused_cap_falls_back_to_software() {
     let Some(support) = support_with(&[Controller::Cpu]) else {
         return;
     };
-    let run = CgroupRun::create(&support, "test-refuse", &unique_run_id()).expect("run");
-    let cg = run.module("tiny").expect("module cgroup");
+    let (run, cg) = module_cgroup(&support, "test-refuse", "tiny");
     let req = ResourceLimits {
         cpu_percent: Some(0.05),
         ..Default::default()
@@ -354,8 +353,7 @@ fn refused_cap_falls_back_to_software() {
         ..Default::default()
     });
     assert_eq!(applied.cpu, Cap::Kernel);
-    cg.remove().expect("remove");
-    run.remove().expect("remove run");
+    remove(run, cg);
 }
 
 /// Without cgroups: measuring only, and the software check flags a module over its
@@ -366,8 +364,7 @@ fn software_enforcement_without_cgroups() {
         return;
     };
     let support = CgroupSupport::none("forced by the test");
-    let run = CgroupRun::create(&support, "test-soft", &unique_run_id()).expect("run");
-    let cg = run.module("hog").expect("module");
+    let (run, cg) = module_cgroup(&support, "test-soft", "hog");
     let req = ResourceLimits {
         memory_bytes: Some(32 << 20),
         ..Default::default()
@@ -399,8 +396,7 @@ fn software_enforcement_without_cgroups() {
     assert_eq!(v.resource, LimitedResource::Memory);
     println!("{v}");
     drop(hog);
-    cg.remove().expect("nothing to remove");
-    run.remove().expect("nothing to remove");
+    remove(run, cg);
 }
 
 /// The cgroup v2 code paths (placement, `cpu.stat` counter, `cgroup.kill`, teardown) on
@@ -422,8 +418,7 @@ fn cgroup_v2_placement_counter_kill_and_teardown() {
             return;
         }
     };
-    let run = CgroupRun::create(&support, "test-v2", &unique_run_id()).expect("run");
-    let cg = run.module("busy").expect("module cgroup");
+    let (run, cg) = module_cgroup(&support, "test-v2", "busy");
     // Without a cpu controller the cap falls to software, with a reason.
     let applied = cg.apply_limits(&ResourceLimits {
         cpu_percent: Some(20.0),
@@ -445,13 +440,7 @@ fn cgroup_v2_placement_counter_kill_and_teardown() {
     sampler
         .add(ModuleTarget::new("cg", p.pid()).with_cgroup_cpu(cg.cpu_counter()))
         .expect("add cg");
-    sampler.sample(Instant::now());
-    std::thread::sleep(Duration::from_secs(2));
-    sampler.sample(Instant::now());
-    let by_proc = sampler
-        .get("proc")
-        .and_then(|s| s.cpu_percent)
-        .expect("cpu");
+    let (by_proc, _) = measure(&mut sampler, "proc", Duration::from_secs(2));
     let s = sampler.get("cg").expect("cg sample");
     assert_eq!(s.cpu_source, CpuSource::Cgroup);
     let by_cg = s.cpu_percent.expect("cpu");
@@ -465,8 +454,7 @@ fn cgroup_v2_placement_counter_kill_and_teardown() {
     cg.kill_all().expect("cgroup.kill");
     let status = p.0.wait().expect("wait");
     assert_eq!(status.signal(), Some(libc::SIGKILL));
-    cg.remove().expect("remove module cgroup");
-    run.remove().expect("remove run");
+    remove(run, cg);
 }
 
 /// The RM's view of a run another process created: `CgroupRun::open` finds it,
@@ -477,8 +465,7 @@ fn an_opened_run_reads_caps_back_and_removes_nothing() {
     let Some(support) = support_with(&[Controller::Cpu, Controller::Memory]) else {
         return;
     };
-    let run = CgroupRun::create(&support, "test-open", &unique_run_id()).expect("run");
-    let cg = run.module("capped").expect("module cgroup");
+    let (run, cg) = module_cgroup(&support, "test-open", "capped");
     let applied = cg.apply_limits(&ResourceLimits {
         cpu_percent: Some(20.0),
         memory_bytes: Some(64 << 20),
@@ -510,8 +497,7 @@ fn an_opened_run_reads_caps_back_and_removes_nothing() {
     let caps = uncapped.kernel_caps();
     assert_eq!((caps.cpu_percent, caps.memory_bytes), (None, None));
     uncapped.remove().expect("remove");
-    cg.remove().expect("remove");
-    run.remove().expect("remove run");
+    remove(run, cg);
 }
 
 /// A supervisor killed by SIGKILL removes none of its cgroups; the next run removes them

@@ -483,18 +483,31 @@ fn write_map(
     for r in rows {
         pgm.extend(r.bytes().map(|c| if c == b'#' { 0u8 } else { 254 }));
     }
-    let io = |e| SimError::Invalid {
-        field: "test io".into(),
-        message: format!("{e}"),
-    };
-    std::fs::write(dir.join("l.pgm"), pgm).map_err(io)?;
+    write(&dir.join("l.pgm"), pgm)?;
     let yaml = format!(
         "image: l.pgm\nresolution: {resolution}\norigin: [{}, {}, 0.0]\nnegate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\n",
         origin[0], origin[1]
     );
     let path = dir.join("l.yaml");
-    std::fs::write(&path, yaml).map_err(io)?;
+    write(&path, yaml)?;
     Ok(path)
+}
+
+/// Writes a test file; an I/O error as the simulator's, for `?`.
+fn write(path: &Path, contents: impl AsRef<[u8]>) -> Result<()> {
+    std::fs::write(path, contents).map_err(|e| SimError::Invalid {
+        field: "test io".into(),
+        message: format!("{e}"),
+    })
+}
+
+/// The error loading the map `yaml` once `text` is written to it (empty if it loads).
+fn map_load_err(yaml: &Path, text: &str) -> Result<String> {
+    write(yaml, text)?;
+    Ok(OccupancyGrid::load(yaml)
+        .err()
+        .map(|e| e.to_string())
+        .unwrap_or_default())
 }
 
 fn tempdir() -> tempfile::TempDir {
@@ -647,40 +660,20 @@ fn malformed_map_files_name_line_and_field() -> Result<()> {
     let dir = tempdir();
     let yaml = write_map(dir.path(), &["#.", ".#"], 0.5, [0.0, 0.0])?;
     let text = std::fs::read_to_string(&yaml).unwrap_or_default();
-    let io = |e| SimError::Invalid {
-        field: "test io".into(),
-        message: format!("{e}"),
-    };
-    std::fs::write(&yaml, text.replace("resolution: 0.5", "resolution: fine")).map_err(io)?;
-    let e = OccupancyGrid::load(&yaml)
-        .err()
-        .map(|e| e.to_string())
-        .unwrap_or_default();
+    let e = map_load_err(&yaml, &text.replace("resolution: 0.5", "resolution: fine"))?;
     assert!(
         e.contains("l.yaml:2:") && e.contains("field `resolution`"),
         "{e}"
     );
-    std::fs::write(&yaml, text.replace("resolution: 0.5", "resolution: -1")).map_err(io)?;
-    let e = OccupancyGrid::load(&yaml)
-        .err()
-        .map(|e| e.to_string())
-        .unwrap_or_default();
+    let e = map_load_err(&yaml, &text.replace("resolution: 0.5", "resolution: -1"))?;
     assert!(e.contains("l.yaml:2:1: field `resolution`"), "{e}");
-    std::fs::write(&yaml, format!("{text}colour: red\n")).map_err(io)?;
-    let e = OccupancyGrid::load(&yaml)
-        .err()
-        .map(|e| e.to_string())
-        .unwrap_or_default();
+    let e = map_load_err(&yaml, &format!("{text}colour: red\n"))?;
     assert!(
         e.contains("l.yaml:7:") && e.contains("field `colour`"),
         "{e}"
     );
-    std::fs::write(&yaml, &text).map_err(io)?;
-    std::fs::write(dir.path().join("l.pgm"), b"P5\n2 2\n255\n\x00").map_err(io)?;
-    let e = OccupancyGrid::load(&yaml)
-        .err()
-        .map(|e| e.to_string())
-        .unwrap_or_default();
+    write(&dir.path().join("l.pgm"), b"P5\n2 2\n255\n\x00")?;
+    let e = map_load_err(&yaml, &text)?;
     assert!(e.contains("l.pgm:3:1: field `raster`"), "{e}");
     Ok(())
 }
@@ -692,11 +685,7 @@ fn world_file_can_reference_a_map() -> Result<()> {
     let src =
         "[robot]\nstart = { x = 1.5, y = 1.5 }\nradius = 0.3\n\n[[maps]]\nyaml = \"l.yaml\"\n";
     let path = dir.path().join("w.toml");
-    let io = |e| SimError::Invalid {
-        field: "test io".into(),
-        message: format!("{e}"),
-    };
-    std::fs::write(&path, src).map_err(io)?;
+    write(&path, src)?;
     let w = World::load(&path)?;
     assert!(!w.map_boxes.is_empty());
     let scan = Simulator::new(quiet(w))?.scan_lidar();

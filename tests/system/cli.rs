@@ -58,19 +58,15 @@ fn a_closed_pipe_ends_topic_list_and_echo_quietly() {
     let mut sys = TestSystem::new("clipipe");
     sys.spawn_testmod("counter", "counter", "period_s = 0.005");
     // The counter's channel exists once it runs.
-    let deadline = std::time::Instant::now() + Duration::from_secs(30);
-    loop {
-        let out = hng(&sys.prefix, &["topic", "list"]);
-        if String::from_utf8_lossy(&out.stdout).contains("test/count") {
-            break;
-        }
-        assert!(
-            std::time::Instant::now() < deadline,
-            "no test/count channel"
-        );
-        // Waiting for another process to open its channel: poll at 20 ms intervals.
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    crate::common::poll_until(
+        Duration::from_secs(30),
+        Duration::from_millis(20),
+        || {
+            let out = hng(&sys.prefix, &["topic", "list"]);
+            String::from_utf8_lossy(&out.stdout).contains("test/count")
+        },
+        || "no test/count channel".to_owned(),
+    );
     // `hng topic list | head -c 0`: the reader is gone before the first line.
     let (status, err) = with_closed_pipe(&sys.prefix, &["topic", "list"], 0);
     assert_eq!(status.code(), Some(0), "topic list: {err}");

@@ -62,35 +62,58 @@ pub(crate) fn room_walls(width: f64, height: f64) -> String {
 /// Generous: a whole robot in accelerated simulation on two loaded cores.
 pub(crate) const TIMEOUT: Duration = Duration::from_secs(150);
 
+/// Waits on `waiter` (its channels) until `poll`, which reads what arrived, gives a value;
+/// panics with `why()` when `timeout` passes first.
+pub(crate) fn wait_until<T>(
+    waiter: &mut Waiter,
+    timeout: Duration,
+    mut poll: impl FnMut() -> Option<T>,
+    why: impl FnOnce() -> String,
+) -> T {
+    waiter
+        .wait_for(timeout, || Ok(poll()))
+        .expect("wait")
+        .unwrap_or_else(|| panic!("{}", why()))
+}
+
+/// Polls `done` every `every` until it holds, for what no channel announces (a process's
+/// end, a file's content); panics with `why()` when `timeout` passes first.
+pub(crate) fn poll_until(
+    timeout: Duration,
+    every: Duration,
+    mut done: impl FnMut() -> bool,
+    why: impl FnOnce() -> String,
+) {
+    let deadline = Instant::now() + timeout;
+    while !done() {
+        assert!(Instant::now() < deadline, "{}", why());
+        std::thread::sleep(every);
+    }
+}
+
 /// Waits (blocking, with a deadline) for the first report of module `name` that satisfies
 /// `pred`.
 pub fn wait_for_report(
     node: &hng_runtime::Node,
     name: &str,
     timeout: Duration,
-    mut pred: impl FnMut(&hng_runtime::msg::ModuleReport) -> bool,
-) -> hng_runtime::msg::ModuleReport {
-    use hng_runtime::module::REPORT_CHANNEL;
-    use hng_runtime::wait::{WaitMode, Waiter};
+    mut pred: impl FnMut(&ModuleReport) -> bool,
+) -> ModuleReport {
     let sub = node
-        .subscriber::<hng_runtime::msg::ModuleReport>(REPORT_CHANNEL)
+        .subscriber::<ModuleReport>(REPORT_CHANNEL)
         .expect("report subscriber");
     let mut waiter = Waiter::new(WaitMode::default()).expect("waiter");
     waiter.attach(&sub).expect("attach");
-    let deadline = Instant::now() + timeout;
-    loop {
-        while let Some(r) = sub.receive().expect("receive report") {
-            if r.name() == name && pred(&r) {
-                return *r;
-            }
-        }
-        let left = deadline.saturating_duration_since(Instant::now());
-        assert!(
-            !left.is_zero(),
-            "no matching report from {name} within {timeout:?}"
-        );
-        waiter.wait(Some(left)).expect("wait");
-    }
+    wait_until(
+        &mut waiter,
+        timeout,
+        || {
+            std::iter::from_fn(|| sub.receive().expect("receive report"))
+                .find(|r| r.name() == name && pred(r))
+                .map(|r| *r)
+        },
+        || format!("no matching report from {name} within {timeout:?}"),
+    )
 }
 
 /// A test's isolated system: its prefix, and the processes it started.
@@ -107,6 +130,11 @@ impl TestSystem {
         }
     }
 
+    /// A node of the test's own on this system's prefix.
+    pub fn node(&self, name: &str) -> Node {
+        Node::new(NodeOptions::new(name).prefix(&self.prefix)).expect("node")
+    }
+
     /// Starts the fixture module `role` with `HNG_*` settings for this system.
     pub fn spawn_testmod(&mut self, role: &str, name: &str, config: &str) -> u32 {
         self.spawn_testmod_with(role, name, config, &[])
@@ -120,22 +148,17 @@ impl TestSystem {
         config: &str,
         env: &[(&str, &str)],
     ) -> u32 {
-        let child = Command::new(env!("CARGO_BIN_EXE_hng-testmod"))
-            .arg(role)
-            .envs(env.iter().copied())
-            .env("HNG_PREFIX", &self.prefix)
-            .env("HNG_MODULE_NAME", name)
-            .env("HNG_MODULE_CONFIG", config)
-            .env(
-                "HNG_LOG",
-                std::env::var("HNG_TEST_LOG").unwrap_or("warn".into()),
-            )
-            .stdin(Stdio::null())
-            .spawn()
-            .expect("spawn hng-testmod");
-        let pid = child.id();
-        self.children.push(child);
-        pid
+        self.spawn(
+            Command::new(env!("CARGO_BIN_EXE_hng-testmod"))
+                .arg(role)
+                .envs(env.iter().copied())
+                .env("HNG_MODULE_NAME", name)
+                .env("HNG_MODULE_CONFIG", config)
+                .env(
+                    "HNG_LOG",
+                    std::env::var("HNG_TEST_LOG").unwrap_or("warn".into()),
+                ),
+        )
     }
 
     /// Starts `cmd` with this system's prefix; it is stopped with the system.
@@ -148,6 +171,15 @@ impl TestSystem {
         let pid = child.id();
         self.children.push(child);
         pid
+    }
+
+    /// Stops every child ([`TestSystem::stop_all`]); each must exit successfully.
+    pub fn stop_cleanly(&mut self) {
+        let statuses = self.stop_all();
+        assert!(
+            statuses.iter().all(|s| s.success()),
+            "not every child stopped cleanly: {statuses:?}"
+        );
     }
 
     /// Sends SIGTERM to every child and waits for each; returns their exit statuses.
@@ -233,6 +265,11 @@ pub(crate) fn terminate(child: &mut Child, timeout: Duration) -> Option<std::pro
 pub(crate) struct Reaped(pub(crate) Child);
 
 impl Reaped {
+    /// Whether the child still runs (it has not exited).
+    pub(crate) fn running(&mut self) -> bool {
+        self.0.try_wait().expect("try_wait").is_none()
+    }
+
     /// Waits for the child to end: its exit status, stdout and stderr (each empty unless
     /// piped).
     pub(crate) fn finish(&mut self) -> (std::process::ExitStatus, String, String) {
@@ -566,6 +603,19 @@ pub(crate) fn goal(kind: OrderKind, pts: &[(f64, f64)]) -> Order {
     }
     o.count = pts.len() as u32;
     o
+}
+
+/// The JSON documents, one a line, that a command wrote on stdout; it must have succeeded.
+pub(crate) fn json_lines(out: &std::process::Output) -> Vec<serde_json::Value> {
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .map(|l| serde_json::from_str(l).expect("one JSON document per line"))
+        .collect()
 }
 
 /// The lines a child writes on `stdout`, read by a thread of their own and handed out in order

@@ -10,7 +10,7 @@ use hng_runtime::control::{ControlInfo, inbox_channel, service_channel};
 use hng_runtime::msg::{Twist, module_id};
 use hng_runtime::system::{CONTRACTS, ContractTable, EventKind, ModuleEvent, SUPERVISOR_EVENTS};
 use hng_runtime::wait::{WaitMode, Waiter};
-use hng_runtime::{Node, NodeOptions, Subscriber};
+use hng_runtime::{Node, Subscriber};
 
 use crate::common::TestSystem;
 
@@ -91,10 +91,6 @@ fn id(name: &str) -> u32 {
     module_id(name)
 }
 
-fn test_node(sys: &TestSystem, name: &str) -> Node {
-    Node::new(NodeOptions::new(name).prefix(&sys.prefix)).expect("node")
-}
-
 fn probe(sys: &mut TestSystem, name: &str, config: &str) {
     sys.spawn_testmod("contract-probe", name, &format!("{config}\n{TIMING}\n"));
 }
@@ -106,7 +102,7 @@ fn probe(sys: &mut TestSystem, name: &str, config: &str) {
 fn contracts_navigation_tree_switches_localization() {
     let _heavy = crate::common::heavy();
     let mut sys = TestSystem::new("ct_nav");
-    let node = test_node(&sys, "test");
+    let node = sys.node("test");
     let mut tables = Tables::new(&node);
     probe(
         &mut sys,
@@ -238,8 +234,7 @@ commands = ["Robot control"]"#,
         provider_of(t, "servo", "Localization") == Some(id("slam"))
     });
     eprintln!("back to SLAM in {took:?}");
-    let statuses = sys.stop_all();
-    assert!(statuses.iter().all(|s| s.success()), "{statuses:?}");
+    sys.stop_cleanly();
 }
 
 /// Paper 4.2: the optimistic but bad provider A is chosen first; the client's negative
@@ -247,7 +242,7 @@ commands = ["Robot control"]"#,
 #[test]
 fn contracts_feedback_replaces_optimistic_provider() {
     let mut sys = TestSystem::new("ct_feedback");
-    let node = test_node(&sys, "test");
+    let node = sys.node("test");
     let mut tables = Tables::new(&node);
     probe(
         &mut sys,
@@ -295,8 +290,7 @@ period_s = 0.01"#,
     let v_a = tables.latest["a"].value;
     let v_b = tables.latest["b"].value;
     assert!(v_b > v_a, "V_B {v_b} > V_A {v_a}");
-    let statuses = sys.stop_all();
-    assert!(statuses.iter().all(|s| s.success()), "{statuses:?}");
+    sys.stop_cleanly();
 }
 
 fn kill(pid: u32) {
@@ -308,7 +302,7 @@ fn kill(pid: u32) {
 }
 
 fn localization_system(sys: &mut TestSystem, timing: &str) -> (Node, Tables, u32, u32) {
-    let node = test_node(sys, "test");
+    let node = sys.node("test");
     let mut tables = Tables::new(&node);
     let extra = format!("\n{timing}");
     let p1 = sys.spawn_testmod(
@@ -400,7 +394,7 @@ fn contracts_sigkill_with_died_event_switches_at_once() {
 #[test]
 fn contracts_bad_control_input_is_dropped_and_counted() {
     let mut sys = TestSystem::new("ct_bad_input");
-    let node = test_node(&sys, "attacker");
+    let node = sys.node("attacker");
     let mut tables = Tables::new(&node);
     let pid = sys.spawn_testmod(
         "contract-probe",
@@ -478,8 +472,7 @@ fn contracts_bad_control_input_is_dropped_and_counted() {
         nix::sys::signal::kill(nix::unistd::Pid::from_raw(pid as i32), None).is_ok(),
         "victim alive"
     );
-    let statuses = sys.stop_all();
-    assert!(statuses.iter().all(|s| s.success()), "{statuses:?}");
+    sys.stop_cleanly();
 }
 
 /// Paper 5.6: the driver obeys its contracted client and ignores, and counts, commands from a
@@ -487,7 +480,7 @@ fn contracts_bad_control_input_is_dropped_and_counted() {
 #[test]
 fn contracts_driver_ignores_commands_without_contract() {
     let mut sys = TestSystem::new("ct_driver");
-    let node = test_node(&sys, "stranger");
+    let node = sys.node("stranger");
     let mut tables = Tables::new(&node);
     probe(
         &mut sys,
@@ -528,8 +521,7 @@ period_s = 0.01"#,
     let r = tables.latest["robot"];
     assert_eq!(r.commands_no_contract, 3, "exactly the stranger's commands");
     assert_eq!(r.priority(), [1, 1]);
-    let statuses = sys.stop_all();
-    assert!(statuses.iter().all(|s| s.success()), "{statuses:?}");
+    sys.stop_cleanly();
 }
 
 /// A `ProviderInput` keeps the channel it leaves: following that provider again reuses the
@@ -542,8 +534,8 @@ fn contracts_provider_input_reuses_left_channels() {
     use hng_runtime::msg::{Odometry, Pose2D};
 
     let sys = TestSystem::new("ct_pinput");
-    let mut ctx = Context::new(test_node(&sys, "client"), WaitMode::default()).expect("context");
-    let nodes = [test_node(&sys, "prov_a"), test_node(&sys, "prov_b")];
+    let mut ctx = Context::new(sys.node("client"), WaitMode::default()).expect("context");
+    let nodes = [sys.node("prov_a"), sys.node("prov_b")];
     let info: Vec<ProviderInfo> = nodes
         .iter()
         .map(|n| ProviderInfo {

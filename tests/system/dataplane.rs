@@ -2,7 +2,7 @@
 
 use std::time::Duration;
 
-use hng_runtime::channel::{Node, NodeOptions};
+use hng_runtime::channel::Node;
 use hng_runtime::msg::{BytesInfo, Goal, Twist};
 use hng_runtime::shm;
 use hng_runtime::wait::{WaitMode, Waiter, Wake};
@@ -77,15 +77,11 @@ fn two_processes_ping_pong_64_bytes_and_1_mib_with_content_verified() {
     let mut sys = TestSystem::new("pp");
     sys.spawn_testmod("echo", "echo", "");
     {
-        let node = Node::new(NodeOptions::new("pinger").prefix(&sys.prefix)).expect("node");
+        let node = sys.node("pinger");
         ping_pong(&node, 64, 200);
         ping_pong(&node, 1 << 20, 20);
     }
-    let statuses = sys.stop_all();
-    assert!(
-        statuses.iter().all(|s| s.success()),
-        "echo exited badly: {statuses:?}"
-    );
+    sys.stop_cleanly();
 
     // After a clean stop only the system's own files remain (the prefix's management file,
     // hng's wake segments and CPU register); the system's final clean-up removes them.
@@ -104,7 +100,7 @@ fn two_processes_ping_pong_64_bytes_and_1_mib_with_content_verified() {
 #[test]
 fn subscriber_with_another_type_gets_an_error_naming_channel_and_both_types() {
     let sys = TestSystem::new("ty");
-    let node = Node::new(NodeOptions::new("typed").prefix(&sys.prefix)).expect("node");
+    let node = sys.node("typed");
     let _p = node.publisher::<Twist>("robot/cmd_vel").expect("publisher");
     let err = node
         .subscriber::<Goal>("robot/cmd_vel")
@@ -118,7 +114,7 @@ fn subscriber_with_another_type_gets_an_error_naming_channel_and_both_types() {
 #[test]
 fn state_channels_give_late_joiners_the_latest_sample() {
     let sys = TestSystem::new("late");
-    let node = Node::new(NodeOptions::new("early").prefix(&sys.prefix)).expect("node");
+    let node = sys.node("early");
     let p = node.publisher::<Goal>("mission/goal").expect("publisher");
     for id in 1..=3 {
         p.publish(Goal {
@@ -127,7 +123,7 @@ fn state_channels_give_late_joiners_the_latest_sample() {
         })
         .expect("publish");
     }
-    let late = Node::new(NodeOptions::new("late").prefix(&sys.prefix)).expect("node");
+    let late = sys.node("late");
     let s = late.subscriber::<Goal>("mission/goal").expect("subscriber");
     assert!(
         s.latest().expect("receive").is_none(),
@@ -146,7 +142,7 @@ fn state_channels_give_late_joiners_the_latest_sample() {
 #[test]
 fn overflow_drops_are_counted_and_the_publisher_never_blocks() {
     let sys = TestSystem::new("ovf");
-    let node = Node::new(NodeOptions::new("fast").prefix(&sys.prefix)).expect("node");
+    let node = sys.node("fast");
     let p = node.publisher::<Twist>("robot/cmd_vel").expect("publisher");
     let s = node
         .subscriber::<Twist>("robot/cmd_vel")
@@ -176,7 +172,7 @@ fn overflow_drops_are_counted_and_the_publisher_never_blocks() {
 #[test]
 fn a_sample_the_waiter_saw_is_received_once_in_order() {
     let sys = TestSystem::new("ahead");
-    let node = Node::new(NodeOptions::new("ahead").prefix(&sys.prefix)).expect("node");
+    let node = sys.node("ahead");
     let p = node.publisher::<Twist>("robot/cmd_vel").expect("publisher");
     let s = node
         .subscriber::<Twist>("robot/cmd_vel")
@@ -212,7 +208,7 @@ fn a_sample_the_waiter_saw_is_received_once_in_order() {
 #[test]
 fn a_slice_publisher_grows_to_any_size_and_every_subscriber_gets_every_sample_in_order() {
     let sys = TestSystem::new("grow");
-    let node = Node::new(NodeOptions::new("grower").prefix(&sys.prefix)).expect("node");
+    let node = sys.node("grower");
     // The subscriber exists before the publisher and does not look at its port until the
     // segment has grown (as a module descheduled on a loaded machine): what was sent before
     // the growth must still arrive. (With a publisher replaced by a larger one, as hng grew
@@ -260,7 +256,7 @@ fn a_slice_publisher_grows_to_any_size_and_every_subscriber_gets_every_sample_in
 #[test]
 fn the_spare_sample_a_publisher_loans_ahead_costs_no_loan_and_fits_any_length() {
     let sys = TestSystem::new("spare");
-    let node = Node::new(NodeOptions::new("spare").prefix(&sys.prefix)).expect("node");
+    let node = sys.node("spare");
     let p = node.publisher::<Twist>("robot/cmd_vel").expect("publisher");
     let s = node
         .subscriber::<Twist>("robot/cmd_vel")
@@ -327,7 +323,7 @@ fn the_spare_sample_a_publisher_loans_ahead_costs_no_loan_and_fits_any_length() 
 #[test]
 fn receive_timeout_gives_the_next_message_or_none_when_the_time_is_up_in_both_modes() {
     let sys = TestSystem::new("rto");
-    let node = Node::new(NodeOptions::new("rto").prefix(&sys.prefix)).expect("node");
+    let node = sys.node("rto");
     let p = node.publisher::<Twist>("robot/cmd_vel").expect("publisher");
     let s = node
         .subscriber::<Twist>("robot/cmd_vel")

@@ -157,23 +157,14 @@ fn eval_slam_all_evaluates_every_log_in_a_folder() {
         std::fs::copy(carmen(name), dir.path().join(name)).expect("copy log");
     }
     std::fs::write(dir.path().join("notes.txt"), "not a log").expect("write");
-    let out = hng(&[
+    let rows = crate::common::json_lines(&hng(&[
         "eval",
         "slam",
         "--all",
         &dir.path().to_string_lossy(),
         "--json",
         "--no-loop-closure",
-    ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let rows: Vec<serde_json::Value> = String::from_utf8_lossy(&out.stdout)
-        .lines()
-        .map(|l| serde_json::from_str(l).expect("one JSON object per line"))
-        .collect();
+    ]));
     assert_eq!(rows.len(), 2, "{rows:?}");
     assert_eq!(rows[0]["beams"], 180);
     assert_eq!(rows[1]["beams"], 361);

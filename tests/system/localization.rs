@@ -14,7 +14,7 @@ use crate::mission::{MissionRun, hng};
 fn fused_serves_both_clients(m: &MissionRun, run: &mut Reaped) -> bool {
     let deadline = Instant::now() + Duration::from_secs(120);
     while Instant::now() < deadline {
-        if run.0.try_wait().expect("try_wait").is_some() {
+        if !run.running() {
             return false;
         }
         let out = hng()
@@ -51,12 +51,7 @@ fn check_goals(s: &serde_json::Value, text: &str) {
 fn the_fused_localization_serves_and_every_goal_ends_within_0_3_m_of_the_truth() {
     let _heavy = crate::common::heavy();
     let m = MissionRun::new("loc_fused");
-    let mut run = Reaped(
-        m.command(&["--speed", "10", "--no-gui"])
-            .stdout(Stdio::piped())
-            .spawn()
-            .expect("hng run"),
-    );
+    let mut run = m.start(&["--speed", "10", "--no-gui"], Stdio::inherit());
     let serving = fused_serves_both_clients(&m, &mut run);
     let (status, text, _) = run.finish();
     assert!(
@@ -73,12 +68,7 @@ fn the_fused_localization_serves_and_every_goal_ends_within_0_3_m_of_the_truth()
 fn when_the_fused_localization_dies_its_clients_switch_away_and_back_after_its_restart() {
     let _heavy = crate::common::heavy();
     let m = MissionRun::new("loc_killed");
-    let mut run = Reaped(
-        m.command(&["--speed", "5", "--no-gui"])
-            .stdout(Stdio::piped())
-            .spawn()
-            .expect("hng run"),
-    );
+    let mut run = m.start(&["--speed", "5", "--no-gui"], Stdio::inherit());
     assert!(fused_serves_both_clients(&m, &mut run), "never served");
     let killed = hng()
         .args(["--prefix", &m.prefix, "kill", "localization"])
@@ -135,8 +125,8 @@ fn a_robot_carried_elsewhere_and_told_where_it_is_localizes_there_at_once_and_re
     let mut waiter = Waiter::new(WaitMode::SLEEP).expect("waiter");
     waiter.attach(&truth).expect("attach");
     waiter.attach(&fused).expect("attach");
-    let mut run = Reaped(
-        m.command(&[
+    let mut run = m.start(
+        &[
             "--speed",
             "10",
             "--no-gui",
@@ -146,16 +136,14 @@ fn a_robot_carried_elsewhere_and_told_where_it_is_localizes_there_at_once_and_re
             "6.5,12",
             "--duration",
             "90",
-        ])
-        .stdout(Stdio::piped())
-        .spawn()
-        .expect("hng run"),
+        ],
+        Stdio::inherit(),
     );
     let there = Pose2D::new(6.5, 7.0, std::f64::consts::FRAC_PI_2);
     let stamp = |p: &PoseWithCovariance| p.header.stamp_ns as f64 * 1e-9;
     let deadline = Instant::now() + Duration::from_secs(120);
     let (mut truths, mut poses, mut sent) = (Vec::new(), Vec::new(), false);
-    while run.0.try_wait().expect("try_wait").is_none() {
+    while run.running() {
         assert!(Instant::now() < deadline, "the mission did not end in time");
         while let Some(t) = truth.receive().expect("truth") {
             if !sent && stamp(&t) > 1.0 {

@@ -12,7 +12,6 @@ use hng_runtime::wait::{WaitMode, Waiter};
 use hng_runtime::{Node, NodeOptions};
 use hng_simulator::module::SimStatus;
 
-use crate::common::Reaped;
 use crate::mission::{MissionRun as Run, hng};
 
 fn goals(s: &serde_json::Value) -> &Vec<serde_json::Value> {
@@ -115,13 +114,7 @@ fn pid_of(prefix: &str, module: &str) -> Option<i32> {
 fn a_corrupted_simulator_checkpoint_never_makes_simulated_time_go_back() {
     let _heavy = crate::common::heavy();
     let r = Run::new("lockstep_ckpt");
-    let mut run = Reaped(
-        r.command(&["--speed", "5", "--no-rm"])
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .spawn()
-            .expect("hng run"),
-    );
+    let mut run = r.start(&["--speed", "5", "--no-rm"], Stdio::piped());
     let node = Node::new(NodeOptions::new("ckpt-watch").prefix(&r.prefix)).expect("node");
     let clock = node.subscriber::<msg::Clock>(CLOCK_CHANNEL).expect("clock");
     let status = node.subscriber::<SimStatus>("sim/status").expect("status");
@@ -135,9 +128,7 @@ fn a_corrupted_simulator_checkpoint_never_makes_simulated_time_go_back() {
     let mut killed_at: Option<u64> = None;
     let mut after_kill_max = 0u64;
     let start = Instant::now();
-    while run.0.try_wait().expect("try_wait").is_none()
-        && start.elapsed() < Duration::from_secs(120)
-    {
+    while run.running() && start.elapsed() < Duration::from_secs(120) {
         waiter.wait(Some(Duration::from_millis(50))).expect("wait");
         while let Some(c) = clock.receive().expect("receive") {
             if c.sim_time_ns < max_ns && went_back.is_none() {
@@ -204,13 +195,7 @@ fn a_corrupted_simulator_checkpoint_never_makes_simulated_time_go_back() {
 fn an_added_goal_outside_the_map_fails_the_run_and_is_listed() {
     let _heavy = crate::common::heavy();
     let r = Run::new("lockstep_added");
-    let mut run = Reaped(
-        r.command(&["--speed", "5", "--no-rm"])
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("hng run"),
-    );
+    let mut run = r.start(&["--speed", "5", "--no-rm"], Stdio::null());
     // Wait for the Manager, then add goals: one beyond any map (refused at once, with the
     // reason), one outside this map (accepted, then refused by Planning).
     let start = Instant::now();
@@ -219,10 +204,7 @@ fn an_added_goal_outside_the_map_fails_the_run_and_is_listed() {
             start.elapsed() < Duration::from_secs(60),
             "the Manager never answered"
         );
-        assert!(
-            run.0.try_wait().expect("try_wait").is_none(),
-            "hng run ended early"
-        );
+        assert!(run.running(), "hng run ended early");
         let far = hng()
             .args(["--prefix", &r.prefix, "mission", "add", "1e300,1e300"])
             .output()

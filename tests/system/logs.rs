@@ -3,7 +3,7 @@
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use hng_runtime::shm;
 
@@ -53,20 +53,22 @@ fn run_echoer(tag: &str, extra: &[&str]) -> (String, PathBuf, Output) {
         .expect("hng run");
     // The module's two lines reach its file through the supervisor's pipe thread.
     let file = run_dir.join("logs").join("echoer.log");
-    let deadline = Instant::now() + Duration::from_secs(30);
-    loop {
-        let text = std::fs::read_to_string(&file).unwrap_or_default();
-        if text.contains("to-stdout") && text.contains("to-stderr") {
-            break;
-        }
-        assert!(
-            Instant::now() < deadline,
-            "the module's lines never reached {}: {text:?}",
-            file.display()
-        );
-        // Polling a file for a condition, with a deadline.
-        std::thread::sleep(Duration::from_millis(10));
-    }
+    let read = || std::fs::read_to_string(&file).unwrap_or_default();
+    crate::common::poll_until(
+        Duration::from_secs(30),
+        Duration::from_millis(10),
+        || {
+            let text = read();
+            text.contains("to-stdout") && text.contains("to-stderr")
+        },
+        || {
+            format!(
+                "the module's lines never reached {}: {:?}",
+                file.display(),
+                read()
+            )
+        },
+    );
     let stop = hng(&prefix, &run_dir, &["stop"]);
     assert!(
         stop.status.success(),

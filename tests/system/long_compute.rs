@@ -12,6 +12,7 @@ use hng_runtime::system::{EventKind, ModuleEvent, SUPERVISOR_EVENTS};
 use hng_runtime::wait::{WaitMode, Waiter};
 use hng_runtime::{Node, NodeOptions, shm};
 
+use crate::common::wait_until;
 use crate::signals::{Run, test_dir};
 
 const SIDE: u32 = 6000;
@@ -55,23 +56,24 @@ fn planning_keeps_its_heartbeat_through_a_long_computation() {
     let mut run = Run::start_on(&prefix, &["--no-rm", file.to_str().expect("path")]);
 
     // Its first report (configured: its inputs are open), then the inputs.
+    // One deadline for both waits.
     let deadline = Instant::now() + TIMEOUT;
     let mut first = None;
-    loop {
-        while let Some(e) = events.receive().expect("event") {
-            if e.module() == "planning" && e.kind() == Some(EventKind::Started) {
-                first = Some(*e);
+    let first = wait_until(
+        &mut waiter,
+        TIMEOUT,
+        || {
+            while let Some(e) = events.receive().expect("event") {
+                if e.module() == "planning" && e.kind() == Some(EventKind::Started) {
+                    first = Some(*e);
+                }
             }
-        }
-        let reported = std::iter::from_fn(|| reports.receive().expect("report"))
-            .any(|r| r.name() == "planning");
-        if reported && first.is_some() {
-            break;
-        }
-        assert!(Instant::now() < deadline, "planning did not start");
-        waiter.wait(Some(deadline - Instant::now())).expect("wait");
-    }
-    let first = first.expect("started");
+            let reported = std::iter::from_fn(|| reports.receive().expect("report"))
+                .any(|r| r.name() == "planning");
+            first.filter(|_| reported)
+        },
+        || "planning did not start".to_owned(),
+    );
     drop(reports);
     // Free cells, 5 cm: 300 x 300 m.
     let cells = vec![0i8; (SIDE * SIDE) as usize];
@@ -104,29 +106,27 @@ fn planning_keeps_its_heartbeat_through_a_long_computation() {
     goal.publish(g).expect("goal");
 
     // Its answer: a path (Active), with no death on the way.
-    let answer = loop {
-        node.update_connections();
-        while let Some(e) = events.receive().expect("event") {
-            assert!(
-                !(e.module() == "planning" && e.kind() == Some(EventKind::Died)),
-                "planning died while computing (pid {}); log:\n{}",
-                e.pid,
-                run.log()
-            );
-        }
-        if let Some(s) = status.receive().expect("status")
-            && s.goal_id == 1
-            && s.goal_state() != GoalState::Idle
-        {
-            break *s;
-        }
-        assert!(
-            Instant::now() < deadline,
-            "no plan within {TIMEOUT:?}; log:\n{}",
-            run.log()
-        );
-        waiter.wait(Some(deadline - Instant::now())).expect("wait");
-    };
+    let answer = wait_until(
+        &mut waiter,
+        deadline.saturating_duration_since(Instant::now()),
+        || {
+            node.update_connections();
+            while let Some(e) = events.receive().expect("event") {
+                assert!(
+                    !(e.module() == "planning" && e.kind() == Some(EventKind::Died)),
+                    "planning died while computing (pid {}); log:\n{}",
+                    e.pid,
+                    run.log()
+                );
+            }
+            status
+                .receive()
+                .expect("status")
+                .filter(|s| s.goal_id == 1 && s.goal_state() != GoalState::Idle)
+                .map(|s| *s)
+        },
+        || format!("no plan within {TIMEOUT:?}; log:\n{}", run.log()),
+    );
     let took = sent.elapsed();
     eprintln!(
         "planning on {SIDE} x {SIDE}: answered {:?} after {took:?}",

@@ -12,6 +12,8 @@ use hng_runtime::wait::{WaitMode, Waiter};
 use hng_runtime::{Node, NodeOptions};
 use hng_simulator::module::SimStatus;
 
+use crate::common::Reaped;
+
 /// Simulation speed of the tests: high enough to be quick, low enough that the closed loop
 /// keeps up on two loaded cores.
 const SPEED: &str = "10";
@@ -55,6 +57,18 @@ impl MissionRun {
             .arg(self.summary_path())
             .args(args);
         c
+    }
+
+    /// Starts `hng run` ([`MissionRun::command`]) with its stdout piped, for
+    /// [`Reaped::finish`], and its stderr to `stderr`.
+    pub(crate) fn start(&self, args: &[&str], stderr: Stdio) -> Reaped {
+        Reaped(
+            self.command(args)
+                .stdout(Stdio::piped())
+                .stderr(stderr)
+                .spawn()
+                .expect("hng run"),
+        )
     }
 
     /// The summary JSON the run wrote; `output` (the run's output) goes into the panic
@@ -237,12 +251,7 @@ fn a_goal_in_a_map_server_world_is_reached() {
 fn the_mission_succeeds_while_slam_planning_and_servo_are_killed() {
     let _heavy = crate::common::heavy();
     let m = MissionRun::new("mission_faults");
-    let mut run = crate::common::Reaped(
-        m.command(&["--speed", "5"])
-            .stdout(Stdio::piped())
-            .spawn()
-            .expect("hng run"),
-    );
+    let mut run = m.start(&["--speed", "5"], Stdio::inherit());
     // SIGKILL SLAM, Planning and Servo in turn, each 6 s of simulated time (the simulator's
     // clock) after the previous victim was started again, as long as the mission runs. A
     // restart costs wall time (the supervisor's clean-up of the dead process's shared-memory
@@ -265,7 +274,7 @@ fn the_mission_succeeds_while_slam_planning_and_servo_are_killed() {
     let mut next_kill_s = Some(6.0);
     // The victim killed last, until the supervisor starts it again.
     let mut down: Option<&str> = None;
-    while run.0.try_wait().expect("try_wait").is_none() {
+    while run.running() {
         waiter.wait(Some(Duration::from_millis(200))).expect("wait");
         while let Some(st) = status.receive().expect("receive") {
             sim_s = st.sim_time_ns as f64 * 1e-9;
@@ -300,15 +309,8 @@ fn the_mission_succeeds_while_slam_planning_and_servo_are_killed() {
     drop(events);
     drop(status);
     drop(node);
-    let crate::common::Reaped(child) = &mut run;
-    let mut text = String::new();
-    if let Some(mut out) = child.stdout.take() {
-        std::io::Read::read_to_string(&mut out, &mut text).expect("stdout");
-    }
-    let exit = child.wait().expect("wait");
-    let s: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(m.summary_path()).expect("summary"))
-            .expect("json");
+    let (exit, text, _) = run.finish();
+    let s = m.summary(&text);
     for (v, n) in victims.iter().zip(kills) {
         assert!(n >= 1, "{v} was never killed ({kills:?}): {s}\n{text}");
     }

@@ -4,7 +4,6 @@ use std::process::{Command, Output};
 use std::time::Duration;
 
 use hng_modules::manager::MissionPlan;
-use hng_runtime::{Node, NodeOptions};
 
 use crate::common::{TestSystem, wait_for_report};
 
@@ -44,7 +43,7 @@ fn states(p: &MissionPlan) -> Vec<(u32, &str)> {
 #[test]
 fn mission_cli_shows_and_changes_the_running_mission() {
     let mut sys = TestSystem::new("mission-cli");
-    let node = Node::new(NodeOptions::new("mission-cli-test").prefix(&sys.prefix)).expect("node");
+    let node = sys.node("mission-cli-test");
     sys.spawn(
         Command::new(env!("CARGO_BIN_EXE_hng"))
             .args(["module", "manager"])
@@ -100,8 +99,7 @@ fn mission_cli_shows_and_changes_the_running_mission() {
     let p = show(&sys.prefix);
     assert!(p.done && p.current_goal_id == 0, "{p:?}");
 
-    let statuses = sys.stop_all();
-    assert!(statuses.iter().all(|s| s.success()), "{statuses:?}");
+    sys.stop_cleanly();
 }
 
 #[test]

@@ -6,7 +6,9 @@
 
 use std::path::Path;
 
+use crate::common::poll_until;
 use crate::mission::{MissionRun as Run, hng};
+use crate::signals::is_alive;
 
 /// A corridor 12 m long and 2 m wide (y 0..2) along x, closed at both ends; `extra` is
 /// appended (events, ...). Start at `start`.
@@ -136,12 +138,7 @@ fn a_sample_of_generated_worlds_is_navigated_and_every_failure_has_a_reason() {
         "{text}\n{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    let lines: Vec<serde_json::Value> = text
-        .lines()
-        .map(|l| serde_json::from_str(l).expect("a JSON line"))
-        .collect();
-    let (summary, problems) = lines.split_last().expect("lines");
-    assert_eq!(summary["summary"], true, "{summary}");
+    let (problems, summary) = eval_lines(&text);
     assert_eq!(problems.len(), 5, "{text}");
     for p in problems {
         for k in [
@@ -204,12 +201,7 @@ fn an_eval_reuses_one_system_and_each_problem_has_figures_of_its_own() {
         .expect("hng eval nav");
     let text = String::from_utf8_lossy(&out.stdout);
     let all = format!("{text}\n{}", String::from_utf8_lossy(&out.stderr));
-    let lines: Vec<serde_json::Value> = text
-        .lines()
-        .map(|l| serde_json::from_str(l).expect("a JSON line"))
-        .collect();
-    let (summary, p) = lines.split_last().expect("lines");
-    assert_eq!(summary["summary"], true, "{all}");
+    let (p, summary) = eval_lines(&text);
     assert_eq!(p.len(), 4, "{all}");
     // One system: one run directory.
     let runs: Vec<_> = std::fs::read_dir(r.dir.join("eval/runs"))
@@ -227,7 +219,7 @@ fn an_eval_reuses_one_system_and_each_problem_has_figures_of_its_own() {
     );
     let f = |i: usize, k: &str| p[i][k].as_f64().unwrap_or(f64::NAN);
     let reason = |i: usize| p[i]["reason"].as_str().unwrap_or("").to_owned();
-    for q in p {
+    for q in &p {
         assert_eq!(q["collisions"], 0, "{all}");
     }
     assert_eq!(p[0]["success"], true, "{all}");
@@ -251,21 +243,26 @@ fn an_eval_reuses_one_system_and_each_problem_has_figures_of_its_own() {
     assert_eq!(summary["successes"], 2, "{all}");
 }
 
+/// The JSON lines of `hng eval nav --json`: one per problem, then the summary (checked to be
+/// one).
+fn eval_lines(text: &str) -> (Vec<serde_json::Value>, serde_json::Value) {
+    let mut lines: Vec<serde_json::Value> = text
+        .lines()
+        .map(|l| serde_json::from_str(l).expect("a JSON line"))
+        .collect();
+    let summary = lines.pop().expect("lines");
+    assert_eq!(summary["summary"], true, "{text}");
+    (lines, summary)
+}
+
 /// The `hng run` child of process `parent` and its `--prefix`, from /proc.
 fn eval_run_child(parent: u32) -> Option<(u32, String)> {
     for e in std::fs::read_dir("/proc").ok()?.flatten() {
         let Some(pid) = e.file_name().to_str().and_then(|s| s.parse::<u32>().ok()) else {
             continue;
         };
-        let Ok(stat) = std::fs::read_to_string(format!("/proc/{pid}/stat")) else {
-            continue;
-        };
-        // Fields after the command's closing parenthesis: state, ppid, ...
-        let ppid = stat
-            .rsplit_once(')')
-            .and_then(|(_, rest)| rest.split_whitespace().nth(1))
-            .and_then(|p| p.parse::<u32>().ok());
-        if ppid != Some(parent) {
+        let stat = std::fs::read(format!("/proc/{pid}/stat")).unwrap_or_default();
+        if hng_rm::sampler::parse_stat(&stat).map(|s| s.ppid) != Some(parent) {
             continue;
         }
         let cmdline = std::fs::read(format!("/proc/{pid}/cmdline")).unwrap_or_default();
@@ -295,17 +292,6 @@ fn run_has_started(runs: &Path) -> bool {
         .any(|d| {
             std::fs::read_to_string(d.path().join("stdout.txt")).is_ok_and(|t| t.contains("logs:"))
         })
-}
-
-fn alive(pid: u32) -> bool {
-    // A zombie has exited: only its parent's wait is missing.
-    std::fs::read_to_string(format!("/proc/{pid}/stat"))
-        .ok()
-        .and_then(|s| {
-            s.rsplit_once(')')
-                .and_then(|(_, r)| r.split_whitespace().next().map(|st| st != "Z"))
-        })
-        .unwrap_or(false)
 }
 
 /// `hng eval nav` stopped by SIGTERM stops its current problem's `hng run` in order and exits
@@ -356,15 +342,17 @@ fn an_eval_stopped_by_sigterm_or_killed_leaves_no_run_and_no_files() {
         }
         // The run stops in order (a clean stop takes seconds on a loaded machine); after a
         // SIGKILL of the eval nobody but the run itself removes its files.
-        let deadline = Instant::now() + Duration::from_secs(60);
-        while alive(run_pid) || !hng_runtime::shm::prefix_files(&prefix).is_empty() {
-            assert!(
-                Instant::now() < deadline,
-                "after {sig}: run {run_pid} alive {}, files left {:?}",
-                alive(run_pid),
-                hng_runtime::shm::prefix_files(&prefix)
-            );
-            std::thread::sleep(Duration::from_millis(200));
-        }
+        poll_until(
+            Duration::from_secs(60),
+            Duration::from_millis(200),
+            || !is_alive(run_pid as i32) && hng_runtime::shm::prefix_files(&prefix).is_empty(),
+            || {
+                format!(
+                    "after {sig}: run {run_pid} alive {}, files left {:?}",
+                    is_alive(run_pid as i32),
+                    hng_runtime::shm::prefix_files(&prefix)
+                )
+            },
+        );
     }
 }

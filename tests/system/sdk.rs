@@ -7,7 +7,6 @@ use std::time::Duration;
 use hng_runtime::checkpoint::CheckpointStore;
 use hng_runtime::msg::Goal;
 use hng_runtime::wait::{WaitMode, Waiter};
-use hng_runtime::{Node, NodeOptions};
 
 use crate::common::TestSystem;
 
@@ -30,7 +29,7 @@ fn sigterm_stops_cleanly_and_the_restarted_module_restores_its_checkpoint() {
         ("HNG_CHECKPOINT_DIR", dir_s.as_str()),
         ("HNG_CHECKPOINT_PERIOD_MS", "50"),
     ];
-    let node = Node::new(NodeOptions::new("observer").prefix(&sys.prefix)).expect("node");
+    let node = sys.node("observer");
     let sub = node.subscriber::<Goal>("test/count").expect("subscriber");
     let mut waiter = Waiter::new(WaitMode::default()).expect("waiter");
     waiter.attach(&sub).expect("attach");

@@ -16,7 +16,7 @@ use hng_runtime::{Node, NodeOptions, Subscriber};
 use nix::sys::signal::Signal;
 use nix::unistd::Pid;
 
-use crate::common::heavy;
+use crate::common::{heavy, poll_until, wait_until};
 
 const HNG: &str = env!("CARGO_BIN_EXE_hng");
 const TESTMOD: &str = env!("CARGO_BIN_EXE_hng-testmod");
@@ -182,20 +182,19 @@ impl Run {
     /// stopped in the reverse of their start order. Returns the log.
     pub fn assert_left_nothing(&self) -> String {
         let log = self.log();
-        let deadline = Instant::now() + Duration::from_secs(20);
-        loop {
-            let left = processes_of(&self.prefix);
-            if left.is_empty() {
-                break;
-            }
-            assert!(
-                Instant::now() < deadline,
-                "processes left behind: {left:?}\nlog tail:\n{}",
-                tail(&log)
-            );
-            // Orphans being reaped by init: poll at 10 ms intervals.
-            std::thread::sleep(Duration::from_millis(10));
-        }
+        // Orphans being reaped by init.
+        poll_until(
+            Duration::from_secs(20),
+            Duration::from_millis(10),
+            || processes_of(&self.prefix).is_empty(),
+            || {
+                format!(
+                    "processes left behind: {:?}\nlog tail:\n{}",
+                    processes_of(&self.prefix),
+                    tail(&log)
+                )
+            },
+        );
         let files = shm::prefix_files(&self.prefix);
         assert!(files.is_empty(), "files left behind: {files:?}");
         log
@@ -292,12 +291,10 @@ pub fn processes_of(prefix: &str) -> Vec<i32> {
 
 /// Alive and not a zombie.
 pub fn is_alive(pid: i32) -> bool {
-    match std::fs::read_to_string(format!("/proc/{pid}/stat")) {
-        Ok(stat) => stat
-            .rsplit_once(") ")
-            .is_some_and(|(_, rest)| !rest.starts_with('Z')),
-        Err(_) => false,
-    }
+    std::fs::read(format!("/proc/{pid}/stat"))
+        .ok()
+        .and_then(|stat| hng_rm::sampler::parse_stat(&stat))
+        .is_some_and(|stat| stat.state != b'Z')
 }
 
 /// A `/proc/PID/status` field (e.g. `SigBlk`), as hex.
@@ -436,21 +433,21 @@ impl Events {
         kind: EventKind,
         log: &dyn Fn() -> String,
     ) -> ModuleEvent {
-        let deadline = Instant::now() + TIMEOUT;
-        loop {
-            while let Some(e) = self.sub.receive().expect("receive") {
-                if e.module() == module && e.kind() == Some(kind) {
-                    return *e;
-                }
-            }
-            let left = deadline.saturating_duration_since(Instant::now());
-            assert!(
-                !left.is_zero(),
-                "no {kind:?} event for {module}; log tail:\n{}",
-                tail(&log())
-            );
-            self.waiter.wait(Some(left)).expect("wait");
-        }
+        wait_until(
+            &mut self.waiter,
+            TIMEOUT,
+            || {
+                std::iter::from_fn(|| self.sub.receive().expect("receive"))
+                    .find(|e| e.module() == module && e.kind() == Some(kind))
+                    .map(|e| *e)
+            },
+            || {
+                format!(
+                    "no {kind:?} event for {module}; log tail:\n{}",
+                    tail(&log())
+                )
+            },
+        )
     }
 }
 
@@ -559,17 +556,17 @@ fn a_sigkilled_supervisor_leaves_no_module_and_the_next_start_cleans_up() {
     let status = run.wait();
     assert_eq!(status.code(), None, "hng run died of SIGKILL");
     // PR_SET_PDEATHSIG: the modules go with their supervisor.
-    let deadline = Instant::now() + Duration::from_secs(20);
-    while is_alive(a.pid as i32) || is_alive(b.pid as i32) {
-        assert!(
-            Instant::now() < deadline,
-            "modules {} and {} outlived their SIGKILLed supervisor",
-            a.pid,
-            b.pid
-        );
-        // Waiting for the kernel's parent-death signal: poll at 10 ms intervals.
-        std::thread::sleep(Duration::from_millis(10));
-    }
+    poll_until(
+        Duration::from_secs(20),
+        Duration::from_millis(10),
+        || !is_alive(a.pid as i32) && !is_alive(b.pid as i32),
+        || {
+            format!(
+                "modules {} and {} outlived their SIGKILLed supervisor",
+                a.pid, b.pid
+            )
+        },
+    );
     let stale = shm::prefix_files(&prefix);
     assert!(
         stale
@@ -659,16 +656,18 @@ fn a_sigkilled_supervisor_takes_its_operator_page_with_it() {
     );
     run.signal(Signal::SIGKILL);
     assert_eq!(run.wait().code(), None, "hng run died of SIGKILL");
-    let deadline = Instant::now() + Duration::from_secs(20);
-    while is_alive(page) || is_alive(sleeper.pid as i32) {
-        assert!(
-            Instant::now() < deadline,
-            "the page ({page}) or the module ({}) outlived the SIGKILLed supervisor",
-            sleeper.pid
-        );
-        // Waiting for the kernel's parent-death signal: poll at 10 ms intervals.
-        std::thread::sleep(Duration::from_millis(10));
-    }
+    // The kernel's parent-death signal.
+    poll_until(
+        Duration::from_secs(20),
+        Duration::from_millis(10),
+        || !is_alive(page) && !is_alive(sleeper.pid as i32),
+        || {
+            format!(
+                "the page ({page}) or the module ({}) outlived the SIGKILLed supervisor",
+                sleeper.pid
+            )
+        },
+    );
     assert!(
         std::net::TcpStream::connect(addr).is_err(),
         "nothing listens on {addr} any more"

@@ -8,10 +8,10 @@ use std::time::{Duration, Instant};
 use hng_runtime::clock::CLOCK_CHANNEL;
 use hng_runtime::msg::{self, GridInfo, LaserScan, Message, PoseWithCovariance, Twist};
 use hng_runtime::wait::{WaitMode, Waiter};
-use hng_runtime::{Node, NodeOptions, SliceSubscriber, Subscriber};
+use hng_runtime::{Node, SliceSubscriber, Subscriber};
 use hng_simulator::{SimStatus, World};
 
-use crate::common::TestSystem;
+use crate::common::{TestSystem, wait_until};
 
 const SEC: u64 = 1_000_000_000;
 
@@ -25,7 +25,7 @@ struct SimSystem {
 impl SimSystem {
     fn new(tag: &str) -> SimSystem {
         let sys = TestSystem::new(tag);
-        let node = Node::new(NodeOptions::new("observer").prefix(&sys.prefix)).expect("node");
+        let node = sys.node("observer");
         SimSystem {
             sims: Vec::new(),
             observer: Some(node),
@@ -91,14 +91,12 @@ struct Watch<T: Message> {
 impl<T: Message> Watch<T> {
     /// The next message, waiting at most until `deadline`.
     fn next(&mut self, deadline: Instant, what: &str) -> T {
-        loop {
-            if let Some(s) = self.sub.receive().expect("receive") {
-                return *s;
-            }
-            let left = deadline.saturating_duration_since(Instant::now());
-            assert!(!left.is_zero(), "timed out waiting for {what}");
-            self.waiter.wait(Some(left)).expect("wait");
-        }
+        wait_until(
+            &mut self.waiter,
+            deadline.saturating_duration_since(Instant::now()),
+            || self.sub.receive().expect("receive").map(|s| *s),
+            || format!("timed out waiting for {what}"),
+        )
     }
 
     /// Messages until one satisfies `done` (included).
@@ -486,7 +484,7 @@ fn a_module_on_the_sim_clock_ticks_in_simulated_time() {
         last.header.stamp_ns
     );
     assert_clean_exit(&s.stop_sims());
-    assert!(s.sys.stop_all().iter().all(|st| st.success()));
+    s.sys.stop_cleanly();
 }
 
 #[test]

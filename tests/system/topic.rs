@@ -5,9 +5,8 @@ use std::time::Duration;
 
 use hng_runtime::msg::Goal;
 use hng_runtime::wait::{WaitMode, Waiter};
-use hng_runtime::{Node, NodeOptions};
 
-use crate::common::TestSystem;
+use crate::common::{TestSystem, json_lines};
 
 fn hng(prefix: &str, args: &[&str]) -> std::process::Output {
     Command::new(env!("CARGO_BIN_EXE_hng"))
@@ -20,7 +19,7 @@ fn hng(prefix: &str, args: &[&str]) -> std::process::Output {
 
 /// Starts the counter fixture and waits until its first message is out.
 fn running_counter(sys: &mut TestSystem) {
-    let node = Node::new(NodeOptions::new("topic-test").prefix(&sys.prefix)).expect("node");
+    let node = sys.node("topic-test");
     let sub = node.subscriber::<Goal>("test/count").expect("subscriber");
     let mut waiter = Waiter::new(WaitMode::default()).expect("waiter");
     waiter.attach(&sub).expect("attach");
@@ -36,39 +35,24 @@ fn topic_list_echo_and_hz_see_a_running_channel() {
     let mut sys = TestSystem::new("topic");
     running_counter(&mut sys);
 
-    let out = hng(&sys.prefix, &["topic", "list", "--json"]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let list = String::from_utf8_lossy(&out.stdout);
-    let count: serde_json::Value = list
-        .lines()
-        .map(|l| serde_json::from_str::<serde_json::Value>(l).expect("one JSON object per line"))
+    let list = json_lines(&hng(&sys.prefix, &["topic", "list", "--json"]));
+    let count = list
+        .iter()
         .find(|v| v["name"] == "test/count")
         .expect("test/count is listed");
     assert_eq!(count["type"], "hng/Goal/v1");
     assert!(
-        list.contains("hng/report"),
+        list.iter().any(|v| v["name"] == "hng/report"),
         "the report channel is listed too"
     );
 
-    let out = hng(
+    let echoed = json_lines(&hng(
         &sys.prefix,
         &["topic", "echo", "test/count", "--count", "3", "--json"],
-    );
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let ids: Vec<u64> = String::from_utf8_lossy(&out.stdout)
-        .lines()
-        .map(|l| {
-            let v: serde_json::Value = serde_json::from_str(l).expect("json");
-            v["id"].as_u64().expect("id")
-        })
+    ));
+    let ids: Vec<u64> = echoed
+        .iter()
+        .map(|v| v["id"].as_u64().expect("id"))
         .collect();
     assert!(ids.len() >= 3, "{ids:?}");
     assert!(
@@ -106,5 +90,5 @@ fn topic_list_echo_and_hz_see_a_running_channel() {
     );
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("no/such/channel"));
-    assert!(sys.stop_all().iter().all(|s| s.success()));
+    sys.stop_cleanly();
 }

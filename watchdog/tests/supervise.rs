@@ -10,8 +10,8 @@ use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use hng_watchdog::{
-    Event, EventKind, ExitCause, HeartbeatSpec, ModuleSpec, ModuleState, RestartPolicy, Signal,
-    Supervisor, SupervisorHooks, SupervisorOptions,
+    Event, EventKind, ExitCause, HeartbeatSpec, ModuleSpec, ModuleState, NoHooks, RestartPolicy,
+    Signal, Supervisor, SupervisorHooks, SupervisorOptions,
 };
 
 const T: Duration = Duration::from_secs(10);
@@ -26,6 +26,18 @@ fn sh(name: &str, script: &str) -> ModuleSpec {
     spec(name, "/bin/sh", &["-c", script])
 }
 
+/// `/bin/sleep 1000` as module `name`, expected to beat every 20 ms: hung after `timeout`
+/// of silence, or `start_timeout` without a first beat.
+fn sleeper_with_heartbeat(name: &str, timeout: Duration, start_timeout: Duration) -> ModuleSpec {
+    let mut m = spec(name, "/bin/sleep", &["1000"]);
+    m.heartbeat = Some(HeartbeatSpec {
+        period: Duration::from_millis(20),
+        timeout,
+    });
+    m.start_timeout = start_timeout;
+    m
+}
+
 /// Drives a supervisor and keeps every event it returned.
 struct Harness<H: SupervisorHooks> {
     sup: Supervisor<H>,
@@ -35,8 +47,17 @@ struct Harness<H: SupervisorHooks> {
     pids: Vec<u32>,
 }
 
+impl Harness<NoHooks> {
+    /// Starts `modules` under a supervisor with the default options.
+    fn start(modules: Vec<ModuleSpec>) -> Self {
+        Harness::start_with(Supervisor::new(modules, SupervisorOptions::default()).expect("new"))
+    }
+}
+
 impl<H: SupervisorHooks> Harness<H> {
-    fn new(sup: Supervisor<H>) -> Self {
+    /// Starts every module of `sup`.
+    fn start_with(mut sup: Supervisor<H>) -> Self {
+        sup.start_all();
         Self {
             sup,
             log: Vec::new(),
@@ -203,8 +224,7 @@ fn crash_causes_are_classified() {
         m.restart = RestartPolicy::OnFailure;
         m.give_up_failures = 0; // first failure deactivates: one exit each
     }
-    let mut h = Harness::new(Supervisor::new(mods, SupervisorOptions::default()).expect("new"));
-    h.sup.start_all();
+    let mut h = Harness::start(mods);
     let started = h.wait("injected started", is_started("injected"));
     assert!(started_pid(&started) > 0);
     h.sup.kill("injected", Signal::SIGKILL).expect("kill");
@@ -245,16 +265,10 @@ fn crash_causes_are_classified() {
 
 #[test]
 fn hang_by_sigstop_is_detected_killed_and_restarted() {
-    let mut m = spec("stuck", "/bin/sleep", &["1000"]);
     // Generous timeout: the machine is shared, a starved test thread must not
     // look like a hang.
-    m.heartbeat = Some(HeartbeatSpec {
-        period: Duration::from_millis(20),
-        timeout: Duration::from_millis(400),
-    });
-    m.start_timeout = Duration::from_secs(5);
-    let mut h = Harness::new(Supervisor::new(vec![m], SupervisorOptions::default()).expect("new"));
-    h.sup.start_all();
+    let m = sleeper_with_heartbeat("stuck", Duration::from_millis(400), Duration::from_secs(5));
+    let mut h = Harness::start(vec![m]);
     let pid = started_pid(&h.wait("start", is_started("stuck")));
 
     // The test is the module's heartbeat source: it sends one per tick while
@@ -326,12 +340,9 @@ fn a_heartbeat_that_announces_a_longer_period_moves_the_hang_deadline() {
     // An idle module stretches its heartbeat and says so in each report; the supervisor then
     // waits the announced period plus the configured slack (timeout - period), not the
     // configured timeout alone.
-    let mut m = spec("idle", "/bin/sleep", &["1000"]);
+    let m = sleeper_with_heartbeat("idle", Duration::from_millis(200), Duration::from_secs(5));
     let (period, timeout) = (Duration::from_millis(20), Duration::from_millis(200));
-    m.heartbeat = Some(HeartbeatSpec { period, timeout });
-    m.start_timeout = Duration::from_secs(5);
-    let mut h = Harness::new(Supervisor::new(vec![m], SupervisorOptions::default()).expect("new"));
-    h.sup.start_all();
+    let mut h = Harness::start(vec![m]);
     h.wait("start", is_started("idle"));
     let promised = Duration::from_millis(800);
     h.sup
@@ -352,15 +363,13 @@ fn a_heartbeat_that_announces_a_longer_period_moves_the_hang_deadline() {
 
 #[test]
 fn silent_start_is_a_hang_too() {
-    let mut m = spec("mute", "/bin/sleep", &["1000"]);
-    m.heartbeat = Some(HeartbeatSpec {
-        period: Duration::from_millis(20),
-        timeout: Duration::from_millis(60),
-    });
-    m.start_timeout = Duration::from_millis(100);
+    let mut m = sleeper_with_heartbeat(
+        "mute",
+        Duration::from_millis(60),
+        Duration::from_millis(100),
+    );
     m.restart = RestartPolicy::Never;
-    let mut h = Harness::new(Supervisor::new(vec![m], SupervisorOptions::default()).expect("new"));
-    h.sup.start_all();
+    let mut h = Harness::start(vec![m]);
     let exit = h.wait("exit", is_exit("mute"));
     assert!(
         matches!(exit_cause(&exit), ExitCause::Hang { silent_for } if silent_for >= Duration::from_millis(100)),
@@ -379,8 +388,7 @@ fn crash_loop_backs_off_doubling_then_deactivates() {
     m.backoff_max = Duration::from_millis(80);
     m.give_up_failures = 5;
     m.give_up_window = Duration::from_secs(60);
-    let mut h = Harness::new(Supervisor::new(vec![m], SupervisorOptions::default()).expect("new"));
-    h.sup.start_all();
+    let mut h = Harness::start(vec![m]);
     let deact = h.wait("deactivated", |e| {
         matches!(e.kind, EventKind::Deactivated { .. })
     });
@@ -442,8 +450,7 @@ fn spawn_failure_goes_through_the_policy() {
     let mut m = spec("ghost", "/nonexistent/hng-module", &[]);
     m.backoff_initial = Duration::from_millis(1);
     m.give_up_failures = 2;
-    let mut h = Harness::new(Supervisor::new(vec![m], SupervisorOptions::default()).expect("new"));
-    h.sup.start_all();
+    let mut h = Harness::start(vec![m]);
     h.wait("deactivated", |e| {
         matches!(e.kind, EventKind::Deactivated { .. })
     });
@@ -466,9 +473,7 @@ fn orderly_shutdown_reverse_order_escalates_and_leaves_nothing() {
     // Ignores SIGTERM (inherited by the exec'd sleep): needs SIGKILL.
     let mut c = sh("c", "trap '' TERM; exec sleep 1000");
     c.stop_timeout = Duration::from_millis(200);
-    let mut h =
-        Harness::new(Supervisor::new(vec![a, b, c], SupervisorOptions::default()).expect("new"));
-    h.sup.start_all();
+    let mut h = Harness::start(vec![a, b, c]);
     for name in ["a", "b", "c"] {
         h.wait("start", move |e| {
             e.module == name && matches!(e.kind, EventKind::Started { .. })
@@ -558,8 +563,7 @@ fn maintenance_restart_env_and_hooks() {
     let mut opts = SupervisorOptions::default();
     opts.env.insert("HNG_PREFIX".into(), "hng_test_".into());
     let sup = Supervisor::with_hooks(vec![m], opts, Recorder::default()).expect("new");
-    let mut h = Harness::new(sup);
-    h.sup.start_all();
+    let mut h = Harness::start_with(sup);
     let pid1 = started_pid(&h.wait("start", is_started("envy")));
     let read = || std::fs::read_to_string(&out).unwrap_or_default();
     wait_until("env file", || !read().is_empty());
@@ -610,17 +614,10 @@ fn maintenance_restart_env_and_hooks() {
 
 #[test]
 fn stop_one_module_and_status_json() {
-    let mut h = Harness::new(
-        Supervisor::new(
-            vec![
-                spec("x", "/bin/sleep", &["1000"]),
-                spec("y", "/bin/sleep", &["1000"]),
-            ],
-            SupervisorOptions::default(),
-        )
-        .expect("new"),
-    );
-    h.sup.start_all();
+    let mut h = Harness::start(vec![
+        spec("x", "/bin/sleep", &["1000"]),
+        spec("y", "/bin/sleep", &["1000"]),
+    ]);
     h.wait("x", is_started("x"));
     h.wait("y", is_started("y"));
     h.sup.stop("x").expect("stop");
@@ -662,8 +659,7 @@ fn measure_kill_to_detect_latency() {
     m.restart = RestartPolicy::Always;
     m.backoff_initial = Duration::ZERO;
     m.give_up_failures = u32::MAX;
-    let mut h = Harness::new(Supervisor::new(vec![m], SupervisorOptions::default()).expect("new"));
-    h.sup.start_all();
+    let mut h = Harness::start(vec![m]);
     let mut lat = Vec::new();
     for _ in 0..100 {
         h.wait("start", is_started("victim"));
