@@ -189,7 +189,17 @@ impl Monitor {
                         return Err(e);
                     }
                 };
-                st.run(&opts, &stop2)
+                let r = st.run(&opts, &stop2);
+                if let Err(e) = &r {
+                    // Nobody would see the mission end: say why and stop the system.
+                    st.say(&format!(
+                        "the mission monitor failed: {e:#}; stopping the system"
+                    ));
+                    let _ = st
+                        .command
+                        .publish(SupervisorCommand::new(CommandOp::Shutdown, ""));
+                }
+                r
             })
             .context("starting the mission monitor")?;
         match ready_rx.recv() {
@@ -349,9 +359,32 @@ impl State {
 
     fn run(&mut self, opts: &MonitorOptions, stop: &AtomicBool) -> Result<Outcome> {
         let mut failure: Option<String> = None;
+        // A channel that cannot be read (a publisher restarting under load) is tried again;
+        // one that stays unreadable as long as a silent simulator fails the mission.
+        let mut unreadable_since: Option<Instant> = None;
         while !stop.load(Ordering::Acquire) {
             self.waiter.wait(Some(batch_wait(self.batch_rate)))?;
-            self.read()?;
+            match self.read() {
+                Ok(()) => unreadable_since = None,
+                Err(e) => {
+                    let since = *unreadable_since.get_or_insert_with(|| {
+                        self.say(&format!(
+                            "monitor: a channel could not be read ({e:#}); trying again"
+                        ));
+                        Instant::now()
+                    });
+                    if since.elapsed() > opts.stall_timeout {
+                        failure = Some(format!(
+                            "the mission monitor could not read its channels for {:?}: {e:#}",
+                            opts.stall_timeout
+                        ));
+                        break;
+                    }
+                    // Back off: the unread data of the other channels would end every wait.
+                    std::thread::sleep(Duration::from_millis(10));
+                    continue;
+                }
+            }
             let verdict = if self.episodes.is_some() {
                 match self.step_episodes()? {
                     Some(f) => Some(f),
