@@ -600,13 +600,16 @@ fn track_beacon_moves_to_the_histogram_tracker_in_the_dark_and_back_in_the_light
     let mut r = Run::start("vis_attn", DUSK, "law = { max_speed = 0.05 }", "");
     assert!(r.until(30.0, |r| r.now_ns > 0), "the simulation started");
     // The terminal form of the page's timeline (#20): the switches as JSON lines.
-    let mut follow = Command::new(env!("CARGO_BIN_EXE_hng"))
-        .args(["--prefix", &r.prefix, "contracts", "--follow", "--json"])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .expect("hng contracts --follow");
-    let lines = crate::common::stdout_lines(follow.stdout.take().expect("stdout"));
+    // Killed and reaped on drop: a failed assertion leaves no `--follow` process behind.
+    let mut follow = crate::common::Reaped(
+        Command::new(env!("CARGO_BIN_EXE_hng"))
+            .args(["--prefix", &r.prefix, "contracts", "--follow", "--json"])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("hng contracts --follow"),
+    );
+    let lines = crate::common::stdout_lines(follow.0.stdout.take().expect("stdout"));
     r.designate(BEACON_ID);
     // Timed by the stamps of the reacher's tables, not by when the test read them (at `max`
     // the simulation runs on while the test waits for a core: once at load 30 it read the
@@ -668,8 +671,7 @@ fn track_beacon_moves_to_the_histogram_tracker_in_the_dark_and_back_in_the_light
             ));
         }
     }
-    let _ = follow.kill();
-    let _ = follow.wait();
+    drop(follow);
     println!("hng contracts --follow: {seen:?}");
     // The stream's first lines may come after the colour tracker took the contract (a process
     // started under load, while the simulation runs at `max`: once at load 27 it printed only
