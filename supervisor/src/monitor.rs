@@ -277,8 +277,8 @@ impl State {
 
     fn run(&mut self, opts: &MonitorOptions, stop: &AtomicBool) -> Result<Outcome> {
         let mut failure: Option<String> = None;
-        // A channel that cannot be read (a publisher restarting under load) is tried again;
-        // one that stays unreadable as long as a silent simulator fails the mission.
+        // A channel that cannot be read is read again at the next pass (what the others gave
+        // is used); one that stays unreadable as long as a silent simulator fails the mission.
         let mut unreadable_since: Option<Instant> = None;
         while !stop.load(Ordering::Acquire) {
             self.waiter.wait(Some(batch_wait(self.batch_rate)))?;
@@ -298,7 +298,7 @@ impl State {
                         ));
                         break;
                     }
-                    // Back off: the unread data of the other channels would end every wait.
+                    // Back off: the failed channel's unread data would end every wait.
                     std::thread::sleep(Duration::from_millis(10));
                     continue;
                 }
@@ -449,8 +449,11 @@ impl State {
         Self::say_at(m.header.stamp_ns as f64 * 1e-9, &line);
     }
 
+    /// Reads every channel. A channel that fails to read ends its own pass only: the others
+    /// are still read and everything taken is used; the first error is returned after.
     fn read(&mut self) -> Result<()> {
-        while let Some(s) = self.sim.receive()? {
+        let mut err = None;
+        for s in drain(|| self.sim.receive(), |s| *s, &mut err) {
             self.last_sim = Instant::now();
             self.sim_time_s = s.sim_time_ns as f64 * 1e-9;
             if s.path_length_m + 1e-9 < self.path_length_m {
@@ -475,25 +478,32 @@ impl State {
         // documents' stamps is here when they are read. Both are then taken in stamp order:
         // the mission's state at each true pose is that of its simulated time, not of when
         // the monitor read it.
+        let docs = drain(
+            || self.mission.receive(),
+            |m| {
+                let plan = serde_json::from_slice::<MissionPlan>(m.data());
+                (m.header().header.stamp_ns, plan)
+            },
+            &mut err,
+        );
         let mut plans = Vec::new();
-        while let Some(m) = self.mission.receive()? {
-            match serde_json::from_slice::<MissionPlan>(m.data()) {
-                Ok(p) => plans.push((m.header().header.stamp_ns, p)),
+        for (stamp, plan) in docs {
+            match plan {
+                Ok(p) => plans.push((stamp, p)),
                 Err(e) => self.say(&format!("unreadable mission document ignored: {e}")),
             }
         }
         // Planning's progress messages after the documents for the same reason (a goal it
         // gives up is reported by Planning before the Manager refuses it), printed in stamp
         // order with them, the cause first at one stamp.
-        let mut progress = Vec::new();
-        while let Some(m) = self.progress.receive()? {
-            progress.push(*m);
-        }
-        let mut progress = progress.into_iter().peekable();
-        let mut poses = Vec::new();
-        while let Some(p) = self.truth.receive()? {
-            poses.push((p.header.stamp_ns, p.pose.x, p.pose.y));
-        }
+        let mut progress = drain(|| self.progress.receive(), |m| *m, &mut err)
+            .into_iter()
+            .peekable();
+        let poses = drain(
+            || self.truth.receive(),
+            |p| (p.header.stamp_ns, p.pose.x, p.pose.y),
+            &mut err,
+        );
         let truths = u32::try_from(poses.len()).unwrap_or(u32::MAX);
         let mut poses = poses.into_iter().peekable();
         for (stamp, p) in plans {
@@ -517,7 +527,7 @@ impl State {
                  summary counts the losses (true_poses_lost)"
             ));
         }
-        while let Some(e) = self.events.receive()? {
+        for e in drain(|| self.events.receive(), |e| *e, &mut err) {
             let name = e.module().to_owned();
             match e.kind() {
                 Some(EventKind::Died) => {
@@ -536,7 +546,7 @@ impl State {
         }
         let mut changed = Vec::new();
         let mut tables = 0u32;
-        while let Some(t) = self.tables.receive()? {
+        for t in drain(|| self.tables.receive(), |t| *t, &mut err) {
             tables += 1;
             let client = t.module().to_owned();
             self.names.insert(t.module_id, client.clone());
@@ -580,7 +590,28 @@ impl State {
                 name(new)
             ));
         }
-        Ok(())
+        err.map_or(Ok(()), |e| Err(e.into()))
+    }
+}
+
+/// Every sample waiting on a channel (`next`: its subscriber's `receive`), each made an
+/// owned value by `take` at once (a subscriber may hold only a few samples). A read error
+/// ends this channel's pass and is kept in `err`, the first one only.
+fn drain<S, T>(
+    mut next: impl FnMut() -> std::result::Result<Option<S>, hng_runtime::Error>,
+    mut take: impl FnMut(S) -> T,
+    err: &mut Option<hng_runtime::Error>,
+) -> Vec<T> {
+    let mut out = Vec::new();
+    loop {
+        match next() {
+            Ok(Some(s)) => out.push(take(s)),
+            Ok(None) => return out,
+            Err(e) => {
+                err.get_or_insert(e);
+                return out;
+            }
+        }
     }
 }
 
