@@ -114,12 +114,8 @@ fn a_lying_localization_loses_its_contract_through_the_servos_feedback() {
         .iter()
         .filter(|(stamp, client, need, _)| client == "planning" && *need == 2 && *stamp > t_move)
         .map(|(stamp, _, _, provider)| {
-            let name = watch
-                .contracts
-                .values()
-                .find(|t| t.module_id == *provider)
-                .map_or("none", |t| t.module());
-            format!("{name} at {stamp:.2} s")
+            let name = watch.module_name(*provider);
+            format!("{} at {stamp:.2} s", name.as_deref().unwrap_or("none"))
         })
         .collect();
     eprintln!(
@@ -152,12 +148,7 @@ fn left_liar(w: &Watch, client: &str, need: u16) -> Option<(f64, Option<String>)
         if *provider == liar {
             on_liar = true;
         } else if on_liar {
-            let name = w
-                .contracts
-                .values()
-                .find(|t| t.module_id == *provider)
-                .map(|t| t.module().to_string());
-            return Some((*stamp, name));
+            return Some((*stamp, w.module_name(*provider)));
         }
     }
     None

@@ -569,10 +569,14 @@ impl Watch {
 
     /// The provider module's name of `need` of module `client` in the contract tables.
     pub(crate) fn provider_of(&self, client: &str, need: u16) -> Option<String> {
-        let peer = client_provider(self.contracts.get(client)?, need)?;
+        self.module_name(client_provider(self.contracts.get(client)?, need)?)
+    }
+
+    /// The name of the module with id `id`, by its contract table.
+    pub(crate) fn module_name(&self, id: u32) -> Option<String> {
         self.contracts
             .values()
-            .find(|m| m.module_id == peer)
+            .find(|m| m.module_id == id)
             .map(|m| m.module().to_string())
     }
 
